@@ -1,0 +1,141 @@
+"""idstlpy: active perception and control synthesis from PrSTL for switched linear systems.
+
+The public API follows the idSTLPy paper (da Silva, Yadav, Lin): variables and predicates,
+PrSTL formulas, switched belief systems, ``Problem.solve`` and ``SwitchedSystem.simulate``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from . import dynamical_system
+from .belief import GaussianBelief, belief_step, rollout, to_belief
+from .dynamical_system import (
+    LBS,
+    LCS,
+    POLBS,
+    DynamicalSystem,
+    POLBSWithLinNoise,
+    POLBSWithNonLinNoise,
+    SwitchedSystem,
+    mk_lbs,
+    mk_lcs,
+    mk_switched_sys,
+)
+from .errors import (
+    DimensionError,
+    IdstlpyError,
+    InvalidArgumentError,
+    InvalidTypeError,
+    NoiseFunctionError,
+    OutOfRangeError,
+    ProblemFileError,
+)
+from .expressions import (
+    ConvexConstraint,
+    DiscretePredicate,
+    DiscreteVariable,
+    LinearExpression,
+    LinearPredicate,
+    ProbabilisticLinearPredicate,
+    RealValuedVariable,
+    mk_variable,
+    prob,
+)
+from .formulas import (
+    FALSE,
+    TRUE,
+    STLAnd,
+    STLAtomicProposition,
+    STLFormula,
+    STLOr,
+    STLRelease,
+    STLTemporalFormula,
+    STLUntil,
+    always,
+    eventually,
+    logical_and,
+    logical_or,
+    release,
+    until,
+)
+from .monitor import MonitorReport, monitor, robustness, satisfies
+from .sets import (
+    BeliefCone,
+    ConvexRegion,
+    FullDimensionalBeliefCone,
+    FullDimensionalPolytope,
+    Polytope,
+)
+from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
+
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "__version__",
+    # variables and predicates
+    "mk_variable",
+    "prob",
+    "LinearExpression",
+    "RealValuedVariable",
+    "DiscreteVariable",
+    "ConvexConstraint",
+    "LinearPredicate",
+    "ProbabilisticLinearPredicate",
+    "DiscretePredicate",
+    "ConvexRegion",
+    # sets
+    "Polytope",
+    "FullDimensionalPolytope",
+    "BeliefCone",
+    "FullDimensionalBeliefCone",
+    # formulas
+    "STLFormula",
+    "STLAtomicProposition",
+    "STLAnd",
+    "STLOr",
+    "STLTemporalFormula",
+    "STLUntil",
+    "STLRelease",
+    "TRUE",
+    "FALSE",
+    "logical_and",
+    "logical_or",
+    "until",
+    "eventually",
+    "release",
+    "always",
+    # systems and beliefs
+    "dynamical_system",
+    "DynamicalSystem",
+    "LCS",
+    "LBS",
+    "POLBS",
+    "POLBSWithLinNoise",
+    "POLBSWithNonLinNoise",
+    "SwitchedSystem",
+    "mk_lcs",
+    "mk_lbs",
+    "mk_switched_sys",
+    "GaussianBelief",
+    "to_belief",
+    "belief_step",
+    "rollout",
+    # trajectories and monitoring
+    "ProbabilisticTSTrajectory",
+    "RealTrajectory",
+    "monitor",
+    "MonitorReport",
+    "robustness",
+    "satisfies",
+    # errors
+    "IdstlpyError",
+    "InvalidArgumentError",
+    "InvalidTypeError",
+    "DimensionError",
+    "OutOfRangeError",
+    "NoiseFunctionError",
+    "ProblemFileError",
+]

@@ -1,0 +1,102 @@
+"""Argument validation shared by the public constructors (never ``assert``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
+
+
+def as_matrix(value: Any, name: str, shape: tuple[int | None, int | None] | None = None) -> np.ndarray:
+    """Return ``value`` as a finite 2-D float array, checking its shape.
+
+    ``None`` entries in ``shape`` accept any size along that axis.
+    """
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidTypeError(f"{name} must be a numeric matrix, got {type(value).__name__}") from exc
+    if arr.ndim == 0:
+        arr = arr.reshape(1, 1)
+    if arr.ndim != 2:
+        raise DimensionError(f"{name} must be a 2-D matrix, got an array with shape {arr.shape}")
+    if shape is not None:
+        for axis, (want, got) in enumerate(zip(shape, arr.shape, strict=True)):
+            if want is not None and want != got:
+                raise DimensionError(
+                    f"{name} must have shape {_fmt_shape(shape)}, got {arr.shape} "
+                    f"(axis {axis} is {got}, expected {want})"
+                )
+    if not np.all(np.isfinite(arr)):
+        raise InvalidArgumentError(f"{name} contains NaN or inf")
+    return arr
+
+
+def as_vector(value: Any, name: str, size: int | None = None) -> np.ndarray:
+    """Return ``value`` as a finite 1-D float array of the given size."""
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InvalidTypeError(f"{name} must be a numeric vector, got {type(value).__name__}") from exc
+    if arr.ndim == 0:
+        arr = arr.reshape(1)
+    if arr.ndim == 2 and 1 in arr.shape:
+        arr = arr.reshape(-1)
+    if arr.ndim != 1:
+        raise DimensionError(f"{name} must be a vector, got an array with shape {arr.shape}")
+    if size is not None and arr.shape[0] != size:
+        raise DimensionError(f"{name} must have length {size}, got length {arr.shape[0]}")
+    if not np.all(np.isfinite(arr)):
+        raise InvalidArgumentError(f"{name} contains NaN or inf")
+    return arr
+
+
+def as_covariance(value: Any, name: str, size: int | None = None, tol: float = 1e-9) -> np.ndarray:
+    """Return ``value`` as a symmetric positive semi-definite matrix (within ``tol``)."""
+    cov = as_matrix(value, name, (size, size) if size is not None else None)
+    if cov.shape[0] != cov.shape[1]:
+        raise DimensionError(f"{name} must be square, got shape {cov.shape}")
+    scale = max(1.0, float(np.max(np.abs(cov))) if cov.size else 1.0)
+    if not np.allclose(cov, cov.T, atol=tol * scale, rtol=0.0):
+        raise InvalidArgumentError(f"{name} must be symmetric, got {cov.tolist()}")
+    cov = 0.5 * (cov + cov.T)
+    if cov.size and float(np.linalg.eigvalsh(cov)[0]) < -tol * scale:
+        raise InvalidArgumentError(
+            f"{name} must be positive semi-definite; its smallest eigenvalue is "
+            f"{float(np.linalg.eigvalsh(cov)[0]):.3g}"
+        )
+    return cov
+
+
+def as_int(value: Any, name: str, minimum: int | None = None) -> int:
+    """Return ``value`` as an ``int`` (integral floats accepted) not below ``minimum``."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidTypeError(f"{name} must be an integer, got {type(value).__name__}")
+    if not np.isfinite(value) or int(value) != value:
+        raise InvalidArgumentError(f"{name} must be a finite integer, got {value!r}")
+    out = int(value)
+    if minimum is not None and out < minimum:
+        raise InvalidArgumentError(f"{name} must be >= {minimum}, got {out}")
+    return out
+
+
+def as_float(value: Any, name: str, low: float | None = None, high: float | None = None,
+             low_open: bool = False) -> float:
+    """Return ``value`` as a finite float inside ``[low, high]`` (``(low, high]`` if ``low_open``)."""
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise InvalidTypeError(f"{name} must be a number, got {type(value).__name__}")
+    out = float(value)
+    if not np.isfinite(out):
+        raise InvalidArgumentError(f"{name} must be finite, got {value!r}")
+    if low is not None and (out < low or (low_open and out == low)):
+        bound = f"> {low}" if low_open else f">= {low}"
+        raise InvalidArgumentError(f"{name} must be {bound}, got {out}")
+    if high is not None and out > high:
+        raise InvalidArgumentError(f"{name} must be <= {high}, got {out}")
+    return out
+
+
+def _fmt_shape(shape: tuple[int | None, ...]) -> str:
+    return "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"

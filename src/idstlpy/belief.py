@@ -1,0 +1,156 @@
+"""Gaussian beliefs and the maximum-likelihood-observation (MLO) Kalman step.
+
+For mode ``q`` with ``R(x) = n(x) n(x)'`` (``algorithm.md`` section 2)::
+
+    mean' = A mean + B u                      (MLO: the innovation is zero)
+    P     = A cov A' + W W'
+    R     = R(mean')                          (noise evaluated at the predicted mean)
+    K     = P C' (C P C' + R)^-1
+    cov'  = (I - K C) P (I - K C)' + K R K'   (Joseph form: symmetric PSD by construction)
+
+This module is the single implementation of the belief dynamics: the planner, the monitor's
+re-check and the executor all call it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ._checks import as_covariance, as_vector
+from .errors import DimensionError, InvalidArgumentError, OutOfRangeError
+
+__all__ = [
+    "GaussianBelief",
+    "to_belief",
+    "predict",
+    "kalman_update",
+    "belief_step",
+    "rollout",
+]
+
+
+@dataclass(frozen=True)
+class GaussianBelief:
+    """A Gaussian belief ``N(mean, cov)``.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (n,)
+    cov : ndarray, shape (n, n)
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """State dimension."""
+        return self.mean.shape[0]
+
+    def sample(self, size: int | None = None, seed: int | np.random.Generator | None = None) -> np.ndarray:
+        """Draw states from the belief, shape (size, n) (or (n,) without ``size``)."""
+        rng = np.random.default_rng(seed)
+        return rng.multivariate_normal(self.mean, self.cov, size=size, method="eigh")
+
+
+def to_belief(mean: Any, cov: Any) -> GaussianBelief:
+    """Initial belief ``N(mean, cov)``.
+
+    Parameters
+    ----------
+    mean : array_like, shape (n,)
+    cov : array_like, shape (n, n)
+        Symmetric positive semi-definite.
+    """
+    mean = as_vector(mean, "mean")
+    cov = as_covariance(cov, "cov", mean.shape[0])
+    return GaussianBelief(mean, cov)
+
+
+def predict(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Prediction step: ``(A mean + B u, A cov A' + W W')``."""
+    A = mode.A
+    return A @ mean + mode.B @ u, A @ cov @ A.T + mode.process_cov
+
+
+def kalman_update(
+    mode: Any, mean_pred: np.ndarray, P: np.ndarray, y: np.ndarray | None = None, x_noise: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Measurement update in Joseph form.
+
+    Parameters
+    ----------
+    mode : LCS
+        The mode whose sensor ``C``, ``n(.)`` is used.
+    mean_pred, P : ndarray
+        Predicted mean (n,) and covariance (n, n).
+    y : ndarray, shape (p,), optional
+        Observation; ``None`` means the maximum-likelihood observation ``C mean_pred`` (zero
+        innovation), which leaves the mean unchanged.
+    x_noise : ndarray, shape (n,), optional
+        Where to evaluate the noise function (default: the predicted mean, as in planning).
+
+    Returns
+    -------
+    mean, cov : ndarray
+    """
+    if mode.p == 0:
+        return mean_pred, P
+    C = mode.C
+    R = mode.noise_cov(mean_pred if x_noise is None else x_noise)
+    S = C @ P @ C.T + R
+    PCt = P @ C.T
+    try:
+        K = np.linalg.solve(S.T, PCt.T).T
+    except np.linalg.LinAlgError:
+        K = PCt @ np.linalg.pinv(S)
+    IKC = np.eye(P.shape[0]) - K @ C
+    cov = IKC @ P @ IKC.T + K @ R @ K.T
+    cov = 0.5 * (cov + cov.T)
+    mean = mean_pred if y is None else mean_pred + K @ (y - C @ mean_pred)
+    return mean, cov
+
+
+def belief_step(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One MLO belief transition of ``mode`` under input ``u``; returns ``(mean', cov')``."""
+    mean_pred, P = predict(mode, mean, cov, u)
+    return kalman_update(mode, mean_pred, P)
+
+
+def rollout(system: Any, initial: GaussianBelief, actions: Sequence[int] | np.ndarray, controls: Any) -> Any:
+    """Roll the MLO belief dynamics along a mode and control sequence.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    initial : GaussianBelief
+    actions : array_like of int, shape (N,)
+        Mode ``q_k`` applied at step ``k``.
+    controls : array_like, shape (N, m)
+
+    Returns
+    -------
+    ProbabilisticTSTrajectory
+    """
+    from .trajectory import ProbabilisticTSTrajectory
+
+    actions = np.asarray(actions, dtype=int).reshape(-1)
+    N = actions.shape[0]
+    controls = np.asarray(controls, dtype=float).reshape(N, system.m) if N else np.zeros((0, system.m))
+    if initial.n != system.n:
+        raise DimensionError(f"initial belief has dimension {initial.n}, the system has n = {system.n}")
+    if N and (actions.min() < 0 or actions.max() >= system.num_modes):
+        raise OutOfRangeError(f"actions must be modes in 0..{system.num_modes - 1}, got {actions.tolist()}")
+    if not np.all(np.isfinite(controls)):
+        raise InvalidArgumentError("controls contain NaN or inf")
+    means = np.empty((N + 1, system.n))
+    covs = np.empty((N + 1, system.n, system.n))
+    means[0], covs[0] = initial.mean, initial.cov
+    modes = system.system_modes
+    for k in range(N):
+        means[k + 1], covs[k + 1] = belief_step(modes[actions[k]], means[k], covs[k], controls[k])
+    return ProbabilisticTSTrajectory(means, covs, actions, controls)

@@ -1,0 +1,497 @@
+"""Variables, linear expressions and the predicates built from them (paper Figs. 2 and 3).
+
+A :class:`RealValuedVariable` of dimension ``n`` is also a vector of ``n`` linear expressions
+``e_i' x + 0``; indexing gives scalar :class:`LinearExpression` objects, arithmetic with scalars
+and constant vectors keeps them linear, and comparisons build :class:`LinearPredicate` objects
+``h' x + c <= 0``. ``prob(pred) >= 1 - eps`` lifts a linear predicate to a chance constraint on a
+Gaussian belief (:class:`ProbabilisticLinearPredicate`). ``q == k`` on a
+:class:`DiscreteVariable` builds a :class:`DiscretePredicate` about the system mode.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from ._checks import as_float, as_int
+from .errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
+
+__all__ = [
+    "LinearExpression",
+    "RealValuedVariable",
+    "DiscreteVariable",
+    "ConvexConstraint",
+    "LinearPredicate",
+    "ProbabilisticLinearPredicate",
+    "DiscretePredicate",
+    "DiscreteFormula",
+    "mk_variable",
+    "prob",
+]
+
+_ids = itertools.count()
+
+
+def _fmt_num(value: float) -> str:
+    # repr is the shortest text that reads back to the same float: printing round-trips.
+    return repr(float(value))
+
+
+class LinearExpression:
+    """A vector of affine functions ``H x + c`` of one real-valued variable.
+
+    Parameters
+    ----------
+    coef : array_like, shape (k, n)
+        One row ``h_i'`` per component.
+    const : array_like, shape (k,)
+        Constant offsets ``c_i``.
+    variable : RealValuedVariable
+        The variable ``x`` (dimension ``n``) the expression is written over.
+
+    Notes
+    -----
+    A scalar expression has ``k == 1``; comparisons on it build one :class:`LinearPredicate`.
+    Comparing a vector expression builds the conjunction of its components (a
+    :class:`~idstlpy.sets.ConvexRegion`).
+    """
+
+    __array_ufunc__ = None  # numpy defers `array * expr` to our reflected operators
+
+    def __init__(self, coef: Any, const: Any, variable: RealValuedVariable) -> None:
+        coef = np.atleast_2d(np.asarray(coef, dtype=float))
+        const = np.atleast_1d(np.asarray(const, dtype=float))
+        if coef.shape != (const.shape[0], variable.size):
+            raise DimensionError(
+                f"coef must have shape ({const.shape[0]}, {variable.size}), got {coef.shape}"
+            )
+        self._coef = coef
+        self._const = const
+        self._variable = variable
+
+    # -- structure ------------------------------------------------------------------------------
+    @property
+    def coef(self) -> np.ndarray:
+        """Coefficient matrix ``H``, shape (k, n)."""
+        return self._coef
+
+    @property
+    def const(self) -> np.ndarray:
+        """Offsets ``c``, shape (k,)."""
+        return self._const
+
+    @property
+    def variable(self) -> RealValuedVariable:
+        """The variable the expression is written over."""
+        return self._variable
+
+    def __len__(self) -> int:
+        return self._coef.shape[0]
+
+    @property
+    def is_scalar(self) -> bool:
+        """True for a single affine function."""
+        return self._coef.shape[0] == 1
+
+    def __getitem__(self, index: int | slice) -> LinearExpression:
+        k = len(self)
+        if isinstance(index, slice):
+            rows = list(range(k))[index]
+            if not rows:
+                raise OutOfRangeError(f"slice {index} selects no component of a {k}-vector")
+            return LinearExpression(self._coef[rows], self._const[rows], self._variable)
+        if isinstance(index, bool) or not isinstance(index, int | np.integer):
+            raise InvalidTypeError(f"index must be an int or a slice, got {type(index).__name__}")
+        if not -k <= int(index) < k:
+            raise OutOfRangeError(f"index {index} is out of range for a vector of size {k}")
+        i = int(index) % k
+        return LinearExpression(self._coef[i : i + 1], self._const[i : i + 1], self._variable)
+
+    def __iter__(self):
+        return (self[i] for i in range(len(self)))
+
+    # -- arithmetic -----------------------------------------------------------------------------
+    def _constant(self, other: Any, op: str) -> np.ndarray:
+        try:
+            arr = np.asarray(other, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InvalidTypeError(
+                f"cannot {op} a LinearExpression and {type(other).__name__}"
+            ) from exc
+        if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] not in (1, len(self))):
+            raise DimensionError(
+                f"cannot {op} an expression of size {len(self)} and a constant of shape {arr.shape}"
+            )
+        if not np.all(np.isfinite(arr)):
+            raise InvalidArgumentError(f"cannot {op} with a non-finite constant {other!r}")
+        return np.broadcast_to(arr, (len(self),))
+
+    def _check_same(self, other: LinearExpression, op: str) -> None:
+        if other._variable is not self._variable:
+            raise InvalidArgumentError(
+                f"cannot {op} expressions over different variables "
+                f"({self._variable.name} and {other._variable.name})"
+            )
+        if len(other) != len(self) and 1 not in (len(other), len(self)):
+            raise DimensionError(f"cannot {op} expressions of sizes {len(self)} and {len(other)}")
+
+    def __add__(self, other: Any) -> LinearExpression:
+        if isinstance(other, LinearExpression):
+            self._check_same(other, "add")
+            k = max(len(self), len(other))
+            coef = np.broadcast_to(self._coef, (k, self._variable.size)) + other._coef
+            return LinearExpression(coef, self._const + other._const, self._variable)
+        if isinstance(other, ConvexConstraint | DiscreteVariable):
+            return NotImplemented
+        return LinearExpression(self._coef, self._const + self._constant(other, "add"), self._variable)
+
+    __radd__ = __add__
+
+    def __neg__(self) -> LinearExpression:
+        return LinearExpression(-self._coef, -self._const, self._variable)
+
+    def __pos__(self) -> LinearExpression:
+        return self
+
+    def __sub__(self, other: Any) -> LinearExpression:
+        if isinstance(other, LinearExpression):
+            return self + (-other)
+        return self + (-self._constant(other, "subtract"))
+
+    def __rsub__(self, other: Any) -> LinearExpression:
+        return (-self) + other
+
+    def __mul__(self, other: Any) -> LinearExpression:
+        if isinstance(other, LinearExpression):
+            raise InvalidTypeError("the product of two expressions is not linear")
+        factor = self._constant(other, "multiply")
+        return LinearExpression(self._coef * factor[:, None], self._const * factor, self._variable)
+
+    __rmul__ = __mul__
+
+    def __truediv__(self, other: Any) -> LinearExpression:
+        factor = self._constant(other, "divide")
+        if np.any(factor == 0):
+            raise InvalidArgumentError("division of an expression by zero")
+        return self * (1.0 / factor)
+
+    def __matmul__(self, other: Any) -> LinearExpression:
+        weights = self._constant(other, "take the inner product of")
+        return LinearExpression(weights @ self._coef, [weights @ self._const], self._variable)
+
+    __rmatmul__ = __matmul__
+
+    def dot(self, weights: Any) -> LinearExpression:
+        """Inner product ``w' (H x + c)`` as a scalar expression."""
+        return self @ weights
+
+    # -- comparisons build predicates -----------------------------------------------------------
+    def _compare(self, other: Any, less: bool) -> LinearPredicate | Any:
+        if isinstance(other, ConvexConstraint | DiscreteVariable | _Probability):
+            return NotImplemented
+        diff = (self - other) if less else (other - self)
+        if not isinstance(diff, LinearExpression):
+            diff = -diff if not less else diff
+        if diff.is_scalar:
+            return LinearPredicate(diff._coef[0], float(diff._const[0]), diff._variable)
+        from .sets import ConvexRegion
+
+        return ConvexRegion(
+            [LinearPredicate(h, float(c), diff._variable) for h, c in zip(diff._coef, diff._const, strict=True)]
+        )
+
+    def __le__(self, other: Any) -> Any:
+        return self._compare(other, less=True)
+
+    def __ge__(self, other: Any) -> Any:
+        return self._compare(other, less=False)
+
+    def __lt__(self, other: Any) -> Any:
+        raise InvalidTypeError("use <= (closed half-spaces); strict < is not a linear predicate here")
+
+    def __gt__(self, other: Any) -> Any:
+        raise InvalidTypeError("use >= (closed half-spaces); strict > is not a linear predicate here")
+
+    def __eq__(self, other: object) -> bool:  # type: ignore[override]
+        raise InvalidTypeError(
+            "equality on real-valued expressions is not a PrSTL predicate; "
+            "use two inequalities (<= and >=)"
+        )
+
+    __hash__ = object.__hash__
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("a LinearExpression has no truth value; compare it with <= or >=")
+
+    # -- printing -------------------------------------------------------------------------------
+    def _row_str(self, i: int) -> str:
+        return format_affine(self._coef[i], self._const[i], self._variable.name)
+
+    def __str__(self) -> str:
+        if self.is_scalar:
+            return self._row_str(0)
+        return "[" + ", ".join(self._row_str(i) for i in range(len(self))) + "]"
+
+    def __repr__(self) -> str:
+        return f"LinearExpression({self})"
+
+
+def format_affine(h: np.ndarray, c: float, name: str) -> str:
+    """Readable text for ``h' x + c``, e.g. ``-x[0] + 2.5*x[1] - 1.0``."""
+    terms: list[str] = []
+    for i, hi in enumerate(h):
+        if hi == 0:
+            continue
+        mag = abs(float(hi))
+        body = f"{name}[{i}]" if mag == 1 else f"{_fmt_num(mag)}*{name}[{i}]"
+        sign = "-" if hi < 0 else "+"
+        terms.append(("-" if sign == "-" else "") + body if not terms else f" {sign} {body}")
+    if c != 0 or not terms:
+        if not terms:
+            terms.append(_fmt_num(float(c)))
+        else:
+            terms.append(f" {'-' if c < 0 else '+'} {_fmt_num(abs(float(c)))}")
+    return "".join(terms)
+
+
+class RealValuedVariable(LinearExpression):
+    """A real-valued vector variable ``x in R^n``; also the vector of expressions ``x[i]``.
+
+    Create it with :func:`mk_variable` (``dtype=float``).
+    """
+
+    def __init__(self, size: int, name: str | None = None) -> None:
+        self._size = as_int(size, "size", minimum=1)
+        self._id = next(_ids)
+        self.name = name if name is not None else "x"
+        super().__init__(np.eye(self._size), np.zeros(self._size), self)
+
+    @property
+    def size(self) -> int:
+        """Dimension ``n`` of the variable."""
+        return self._size
+
+    def __repr__(self) -> str:
+        return f"RealValuedVariable(size={self._size}, name={self.name!r})"
+
+
+class DiscreteVariable:
+    """A variable taking one of ``size`` values ``0 .. size-1`` (the system mode ``q``).
+
+    Create it with :func:`mk_variable` (``dtype=int``); ``q == k`` builds a
+    :class:`DiscretePredicate`.
+    """
+
+    def __init__(self, size: int, name: str = "q") -> None:
+        self._size = as_int(size, "size", minimum=1)
+        self.name = name
+
+    @property
+    def size(self) -> int:
+        """Number of values the variable can take."""
+        return self._size
+
+    def __eq__(self, value: object) -> DiscretePredicate:  # type: ignore[override]
+        return DiscretePredicate(self, value)
+
+    def __ne__(self, value: object) -> DiscreteFormula:  # type: ignore[override]
+        pred = DiscretePredicate(self, value)
+        return DiscreteFormula(frozenset(range(self._size)) - pred.modes, self._size)
+
+    __hash__ = object.__hash__
+
+    def __repr__(self) -> str:
+        return f"DiscreteVariable(size={self._size}, name={self.name!r})"
+
+
+def mk_variable(size: int, dtype: type = float, name: str | None = None) -> Any:
+    """Declare a variable (paper Section IV-B).
+
+    Parameters
+    ----------
+    size : int
+        For ``dtype=float`` the dimension of the vector; for ``dtype=int`` the number of values
+        (modes ``0 .. size-1``).
+    dtype : {float, int}
+        Real-valued or discrete.
+    name : str, optional
+        Name used when printing; defaults to ``x``-style names for real variables and ``q`` for
+        discrete ones.
+
+    Returns
+    -------
+    RealValuedVariable or DiscreteVariable
+    """
+    if dtype is float or dtype is np.float64:
+        return RealValuedVariable(size, name=name if name is not None else "x")
+    if dtype is int or dtype is np.int64:
+        return DiscreteVariable(size, name=name if name is not None else "q")
+    raise InvalidTypeError(f"dtype must be float or int, got {dtype!r}")
+
+
+class ConvexConstraint:
+    """Base class of constraints over a real-valued variable (paper Fig. 3)."""
+
+    variable: RealValuedVariable
+
+
+class LinearPredicate(ConvexConstraint):
+    """The half-space ``h' x + c <= 0``.
+
+    Parameters
+    ----------
+    h : array_like, shape (n,)
+    c : float
+    variable : RealValuedVariable
+    """
+
+    def __init__(self, h: Any, c: float, variable: RealValuedVariable) -> None:
+        h = np.asarray(h, dtype=float).reshape(-1)
+        if h.shape[0] != variable.size:
+            raise DimensionError(f"h must have length {variable.size}, got {h.shape[0]}")
+        if not np.all(np.isfinite(h)) or not np.isfinite(c):
+            raise InvalidArgumentError("a linear predicate needs finite coefficients")
+        self.h = h
+        self.c = float(c)
+        self.variable = variable
+
+    @property
+    def region(self) -> Any:
+        """The half-space as a :class:`~idstlpy.sets.Polytope`."""
+        from .sets import Polytope
+
+        return Polytope(self.h[None, :], np.array([self.c]))
+
+    def __str__(self) -> str:
+        return f"{format_affine(self.h, self.c, self.variable.name)} <= 0"
+
+    def __repr__(self) -> str:
+        return f"LinearPredicate({self})"
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError(
+            "a predicate has no truth value; combine predicates with logical_and / logical_or"
+        )
+
+
+class ProbabilisticLinearPredicate(LinearPredicate):
+    """The chance constraint ``prob(h' x + c <= 0) >= 1 - eps`` on a Gaussian belief.
+
+    A belief ``N(m, S)`` satisfies it iff ``h' m + c + Phi^-1(1 - eps) sqrt(h' S h) <= 0``.
+    ``eps`` must lie in ``[0, 0.5]``; ``eps = 0`` demands zero variance along ``h``.
+    """
+
+    def __init__(self, h: Any, c: float, variable: RealValuedVariable, eps: float) -> None:
+        super().__init__(h, c, variable)
+        self.eps = as_float(eps, "eps", 0.0, 0.5)
+
+    @property
+    def predicate(self) -> LinearPredicate:
+        """The deterministic predicate inside ``prob(...)``."""
+        return LinearPredicate(self.h, self.c, self.variable)
+
+    def __str__(self) -> str:
+        return f"P[{format_affine(self.h, self.c, self.variable.name)} <= 0] >= {_fmt_num(1 - self.eps)}"
+
+    def __repr__(self) -> str:
+        return f"ProbabilisticLinearPredicate({self})"
+
+
+class _Probability:
+    """``prob(pred)``: waits for ``>= 1 - eps`` to become a chance constraint."""
+
+    def __init__(self, pred: Any) -> None:
+        from .sets import ConvexRegion
+
+        if isinstance(pred, ProbabilisticLinearPredicate):
+            raise InvalidTypeError("prob() takes a LinearPredicate, got a chance constraint already")
+        if isinstance(pred, ConvexRegion):
+            if pred.is_probabilistic:
+                raise InvalidTypeError("prob() takes linear predicates, got chance constraints")
+            self.preds = list(pred.predicates)
+        elif isinstance(pred, LinearPredicate):
+            self.preds = [pred]
+        else:
+            raise InvalidTypeError(
+                f"prob() takes a LinearPredicate such as x[0] <= 1, got {type(pred).__name__}"
+            )
+
+    def _make(self, level: Any) -> Any:
+        p = as_float(level, "probability level (1 - eps)", 0.5, 1.0)
+        eps = 1.0 - p
+        out = [ProbabilisticLinearPredicate(q.h, q.c, q.variable, min(max(eps, 0.0), 0.5)) for q in self.preds]
+        if len(out) == 1:
+            return out[0]
+        from .sets import ConvexRegion
+
+        return ConvexRegion(out)
+
+    def __ge__(self, level: Any) -> Any:
+        return self._make(level)
+
+    __gt__ = __ge__
+
+    def __le__(self, level: Any) -> Any:
+        raise InvalidTypeError("write prob(pred) >= 1 - eps; upper bounds on probability are not PrSTL")
+
+    __lt__ = __le__
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("prob(pred) must be compared: prob(pred) >= 1 - eps")
+
+
+def prob(pred: LinearPredicate) -> _Probability:
+    """Start a chance constraint: ``prob(pred) >= 1 - eps``.
+
+    Parameters
+    ----------
+    pred : LinearPredicate or ConvexRegion
+        ``h' x + c <= 0`` (or a conjunction of them, which gives one chance constraint per face).
+
+    Returns
+    -------
+    object
+        Compare it with ``>= 1 - eps`` (``eps`` in ``[0, 0.5]``) to obtain a
+        :class:`ProbabilisticLinearPredicate`.
+    """
+    return _Probability(pred)
+
+
+class DiscreteFormula:
+    """A Boolean formula over discrete predicates, kept as the set of modes that satisfy it."""
+
+    def __init__(self, modes: Iterable[int], num_values: int) -> None:
+        self.modes = frozenset(int(m) for m in modes)
+        self.num_values = int(num_values)
+
+    def __str__(self) -> str:
+        if not self.modes:
+            return "false"
+        if len(self.modes) == self.num_values:
+            return "true"
+        return " | ".join(f"q == {m}" for m in sorted(self.modes))
+
+    def __repr__(self) -> str:
+        return f"DiscreteFormula({self})"
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("a discrete predicate has no truth value; use logical_and / logical_or")
+
+
+class DiscretePredicate(DiscreteFormula):
+    """``q == value``: the mode used to arrive at a step is ``value``."""
+
+    def __init__(self, variable: DiscreteVariable, value: Any) -> None:
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise InvalidTypeError(f"mode value must be an int, got {type(value).__name__}")
+        if not 0 <= int(value) < variable.size:
+            raise OutOfRangeError(
+                f"mode value {value} is out of range for {variable.name}, which takes values "
+                f"0..{variable.size - 1}"
+            )
+        super().__init__([int(value)], variable.size)
+        self.variable = variable
+        self.value = int(value)

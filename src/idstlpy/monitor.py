@@ -1,0 +1,187 @@
+"""Exact PrSTL semantics on a trajectory (paper Section II-C) and a quantitative margin.
+
+The monitor is the ground truth of the project: every plan the solver returns passes it.
+
+Semantics on a finite trajectory of length ``L = N + 1`` (strong reading: an index ``>= L``
+satisfies nothing):
+
+- ``pi^Q`` holds at ``k`` iff ``k == 0`` or ``q_{k-1}`` is in ``Q`` (the mode used to arrive);
+- a chance constraint holds iff ``h' mean_k + c + Phi^-1(1-eps) sqrt(h' cov_k h) <= 0``;
+- ``f1 U[a,b] f2`` at ``k``: some ``k'`` in ``[k+a, k+b]`` has ``f2`` and ``f1`` holds on
+  ``[k+a, k')``;
+- ``f1 R[a,b] f2`` at ``k``: ``f2`` on all of ``[k+a, k+b]``, or some ``k'`` in the window has
+  ``f1`` with ``f2`` on ``[k+a, k']``.
+
+The margin (robustness) replaces truth values by numbers: for a chance constraint the slack
+``-(h' mean + c + Phi^-1(1-eps) sd)``, min over conjunctions, max over disjunctions, ``+inf`` /
+``-inf`` for mode atoms. It is ``>= 0`` exactly when the formula holds, and its magnitude is the
+distance of the tightest deciding constraint from its bound.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .errors import InvalidTypeError
+from .formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
+from .trajectory import ProbabilisticTSTrajectory
+
+__all__ = [
+    "atom_margins",
+    "formula_margins",
+    "robustness",
+    "satisfies",
+    "MonitorReport",
+    "monitor",
+]
+
+_NEG = -np.inf
+
+
+def atom_margins(
+    ap: STLAtomicProposition, means: np.ndarray, covs: np.ndarray, actions: np.ndarray
+) -> np.ndarray:
+    """Margin of one atomic proposition at every step, shape (L,).
+
+    ``means`` (L, n), ``covs`` (L, n, n), ``actions`` (L-1,).
+    """
+    L = means.shape[0]
+    if ap.is_false:
+        return np.full(L, _NEG)
+    out = np.full(L, np.inf)
+    if ap.predicates:
+        cone = ap.cone
+        var = np.einsum("fi,kij,fj->kf", cone.H, covs, cone.H)
+        sd = np.sqrt(np.maximum(var, 0.0))
+        with np.errstate(invalid="ignore"):
+            terms = cone.z[None, :] * sd
+        terms = np.where(np.isinf(cone.z)[None, :] & (sd <= 0), 0.0, terms)
+        slack = -(means @ cone.H.T + cone.c[None, :] + terms)
+        out = np.min(slack, axis=1)
+    if ap.modes is not None and L > 1:
+        allowed = np.isin(actions, np.fromiter(ap.modes, dtype=int, count=len(ap.modes)))
+        out[1:] = np.where(allowed, out[1:], _NEG)
+    return out
+
+
+def _shift(arr: np.ndarray, d: int) -> np.ndarray:
+    """``arr[k + d]`` for every ``k`` (``-inf`` past the end)."""
+    L = arr.shape[0]
+    out = np.full(L, _NEG)
+    if d < L:
+        out[: L - d] = arr[d:]
+    return out
+
+
+def _until(r1: np.ndarray, r2: np.ndarray, a: int, b: int) -> np.ndarray:
+    L = r1.shape[0]
+    best = np.full(L, _NEG)
+    prefix = np.full(L, np.inf)  # min of r1 over [k+a, k+d)
+    for d in range(a, min(b, L - 1) + 1):
+        best = np.maximum(best, np.minimum(_shift(r2, d), prefix))
+        prefix = np.minimum(prefix, _shift(r1, d))
+    return best
+
+
+def _release(r1: np.ndarray, r2: np.ndarray, a: int, b: int) -> np.ndarray:
+    L = r1.shape[0]
+    best = np.full(L, _NEG)
+    prefix = np.full(L, np.inf)  # min of r2 over [k+a, k+d]
+    for d in range(a, b + 1):
+        prefix = np.minimum(prefix, _shift(r2, d))
+        best = np.maximum(best, np.minimum(_shift(r1, d), prefix))
+        if d >= L:
+            break  # every later index is past the end: prefix is -inf from here on
+    return np.maximum(best, prefix)
+
+
+def formula_margins(
+    formula: STLFormula, atoms: Mapping[int, np.ndarray], length: int
+) -> np.ndarray:
+    """Margin of ``formula`` at every step of a trace, shape (length,).
+
+    Parameters
+    ----------
+    formula : STLFormula
+    atoms : mapping from ``id(ap)`` to the atom's margin array (length,)
+        Boolean traces work too: use ``+inf`` for true and ``-inf`` for false.
+    length : int
+        Trace length ``L = N + 1``.
+    """
+    memo: dict[int, np.ndarray] = {}
+
+    def rec(f: STLFormula) -> np.ndarray:
+        key = id(f)
+        if key in memo:
+            return memo[key]
+        if isinstance(f, STLAtomicProposition):
+            if f.is_false:
+                out = np.full(length, _NEG)
+            elif f.is_true and id(f) not in atoms:
+                out = np.full(length, np.inf)
+            else:
+                out = np.asarray(atoms[key], dtype=float)
+        elif isinstance(f, STLAnd):
+            out = np.minimum.reduce([rec(c) for c in f.children])
+        elif isinstance(f, STLOr):
+            out = np.maximum.reduce([rec(c) for c in f.children])
+        elif isinstance(f, STLUntil):
+            out = _until(rec(f.left), rec(f.right), f.a, f.b)
+        elif isinstance(f, STLRelease):
+            out = _release(rec(f.left), rec(f.right), f.a, f.b)
+        else:
+            raise InvalidTypeError(f"cannot monitor {type(f).__name__}")
+        memo[key] = out
+        return out
+
+    return rec(formula)
+
+
+def _trajectory_atoms(traj: ProbabilisticTSTrajectory, formula: STLFormula) -> dict[int, np.ndarray]:
+    means, covs, actions = traj.get_mean(), traj.get_cov(), traj.get_action()
+    return {id(ap): atom_margins(ap, means, covs, actions) for ap in formula.atomic_propositions()}
+
+
+def robustness(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: int = 0) -> float:
+    """Quantitative margin of ``formula`` at step ``k`` (``>= 0`` iff satisfied)."""
+    L = trajectory.num_of_steps + 1
+    return float(formula_margins(formula, _trajectory_atoms(trajectory, formula), L)[k])
+
+
+def satisfies(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: int = 0) -> bool:
+    """Whether the trajectory satisfies ``formula`` at step ``k`` (paper: ``beta |=_k phi``)."""
+    return robustness(trajectory, formula, k) >= 0.0
+
+
+@dataclass(frozen=True)
+class MonitorReport:
+    """Outcome of monitoring a trajectory.
+
+    Attributes
+    ----------
+    satisfied : bool
+    margin : float
+        Robustness at step 0.
+    atom_margins : dict[str, ndarray]
+        Per atomic proposition (by name, or ``ap<i>``), its margin at every step.
+    """
+
+    satisfied: bool
+    margin: float
+    atom_margins: dict[str, np.ndarray]
+
+
+def monitor(trajectory: ProbabilisticTSTrajectory, formula: STLFormula) -> MonitorReport:
+    """Decide satisfaction and report the margins behind the verdict."""
+    aps: Sequence[STLAtomicProposition] = formula.atomic_propositions()
+    atoms = _trajectory_atoms(trajectory, formula)
+    L = trajectory.num_of_steps + 1
+    margin = float(formula_margins(formula, atoms, L)[0])
+    named: dict[str, Any] = {}
+    for i, ap in enumerate(aps):
+        named[ap.name or f"ap{i}"] = atoms[id(ap)]
+    return MonitorReport(margin >= 0.0, margin, named)

@@ -1,0 +1,358 @@
+"""Polytopes and belief cones (paper Fig. 4), backed by linear programs (scipy's HiGHS).
+
+A :class:`Polytope` is ``{x : H x + c <= 0}``. A :class:`BeliefCone` is the set of Gaussian
+beliefs ``N(m, S)`` with ``h_i' m + c_i + Phi^-1(1 - eps_i) sqrt(h_i' S h_i) <= 0`` for every
+face ``i``: one chance constraint per face, not a joint one (95% per face of a box is not 95% for
+the box).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linprog
+from scipy.special import ndtri
+
+from ._checks import as_covariance, as_matrix, as_vector
+from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
+from .expressions import (
+    ConvexConstraint,
+    LinearPredicate,
+    ProbabilisticLinearPredicate,
+    RealValuedVariable,
+)
+
+__all__ = [
+    "Polytope",
+    "FullDimensionalPolytope",
+    "BeliefCone",
+    "FullDimensionalBeliefCone",
+    "ConvexRegion",
+    "quantile",
+]
+
+_INTERIOR_TOL = 1e-9
+
+
+def quantile(eps: Any) -> np.ndarray:
+    """``Phi^-1(1 - eps)``: the number of standard deviations a chance constraint reserves."""
+    return ndtri(1.0 - np.asarray(eps, dtype=float))
+
+
+def _lp(cost: np.ndarray, A_ub: np.ndarray, b_ub: np.ndarray, bounds: Any = (None, None)):
+    return linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+
+
+class Polytope:
+    """The polyhedron ``{x in R^n : H x + c <= 0}`` (possibly unbounded or empty).
+
+    Parameters
+    ----------
+    H : array_like, shape (k, n)
+        One row per half-space.
+    c : array_like, shape (k,)
+        Offsets.
+
+    Notes
+    -----
+    Geometry questions (emptiness, Chebyshev centre, bounding box, 2-D vertices) are answered
+    by linear programs with scipy's HiGHS, so they are exact up to solver tolerances.
+    """
+
+    def __init__(self, H: Any, c: Any) -> None:
+        H = np.asarray(H, dtype=float)
+        if H.ndim == 1:
+            H = H[None, :]
+        self.H = as_matrix(H, "H")
+        self.c = as_vector(c, "c", self.H.shape[0]) if self.H.shape[0] else np.zeros(0)
+
+    @classmethod
+    def from_inequalities(cls, A: Any, b: Any) -> Polytope:
+        """Build ``{x : A x <= b}``."""
+        A = as_matrix(A, "A")
+        return cls(A, -as_vector(b, "b", A.shape[0]))
+
+    @classmethod
+    def box(cls, low: Any, high: Any) -> Polytope:
+        """The axis-aligned box ``low <= x <= high``."""
+        low = as_vector(low, "low")
+        high = as_vector(high, "high", low.shape[0])
+        if np.any(low > high):
+            raise InvalidArgumentError(f"box needs low <= high, got low={low}, high={high}")
+        n = low.shape[0]
+        return Polytope(np.vstack([np.eye(n), -np.eye(n)]), np.concatenate([-high, low]))
+
+    @property
+    def dim(self) -> int:
+        """Ambient dimension ``n``."""
+        return self.H.shape[1]
+
+    @property
+    def A(self) -> np.ndarray:
+        """``A`` of the ``A x <= b`` form (same as ``H``)."""
+        return self.H
+
+    @property
+    def b(self) -> np.ndarray:
+        """``b`` of the ``A x <= b`` form (``-c``)."""
+        return -self.c
+
+    def contains(self, x: Any, tol: float = 1e-9) -> bool:
+        """Whether the point ``x`` (shape (n,)) satisfies every inequality (within ``tol``)."""
+        x = as_vector(x, "x", self.dim)
+        return bool(np.all(self.H @ x + self.c <= tol))
+
+    def __contains__(self, x: Any) -> bool:
+        return self.contains(x)
+
+    @cached_property
+    def _chebyshev(self) -> tuple[np.ndarray | None, float]:
+        n = self.dim
+        if self.H.shape[0] == 0:
+            return np.zeros(n), np.inf
+        norms = np.linalg.norm(self.H, axis=1)
+        # Variables (x, r): maximise r s.t. H x + r |h| <= -c, r <= 1e6 so unbounded sets stay finite.
+        A = np.hstack([self.H, norms[:, None]])
+        res = _lp(np.r_[np.zeros(n), -1.0], A, -self.c, bounds=[(None, None)] * n + [(None, 1e6)])
+        if res.status != 0:
+            return None, -np.inf
+        return res.x[:n], float(res.x[n])
+
+    def is_empty(self) -> bool:
+        """True when no point satisfies the inequalities."""
+        center, radius = self._chebyshev
+        if center is None:
+            return True
+        if radius >= -_INTERIOR_TOL:
+            return False
+        return True
+
+    def chebyshev_center(self) -> tuple[np.ndarray, float]:
+        """Centre and radius of the largest inscribed ball (radius capped at 1e6 if unbounded).
+
+        Raises
+        ------
+        InvalidArgumentError
+            If the polytope is empty.
+        """
+        center, radius = self._chebyshev
+        if center is None or radius < -_INTERIOR_TOL:
+            raise InvalidArgumentError("the polytope is empty: it has no Chebyshev centre")
+        return center.copy(), max(radius, 0.0)
+
+    @property
+    def is_full_dimensional(self) -> bool:
+        """True when the polytope has an interior (a ball of positive radius fits)."""
+        center, radius = self._chebyshev
+        return center is not None and radius > _INTERIOR_TOL
+
+    def support(self, direction: Any) -> float:
+        """``max_{x in P} d' x`` (``inf`` when unbounded, ``-inf`` when empty)."""
+        d = as_vector(direction, "direction", self.dim)
+        res = _lp(-d, self.H, -self.c)
+        if res.status == 2:
+            return -np.inf
+        if res.status == 3:
+            return np.inf
+        return float(-res.fun)
+
+    def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Tight axis-aligned bounds ``(low, high)``, each shape (n,); infinite where unbounded."""
+        n = self.dim
+        low, high = np.empty(n), np.empty(n)
+        for i in range(n):
+            e = np.zeros(n)
+            e[i] = 1.0
+            high[i] = self.support(e)
+            low[i] = -self.support(-e)
+        return low, high
+
+    def vertices_2d(self, num_directions: int = 0) -> np.ndarray:
+        """Vertices of a bounded 2-D polytope in counter-clockwise order, shape (v, 2).
+
+        Computed from the half-space intersection of the (irredundant) faces around the
+        Chebyshev centre (scipy / Qhull).
+        """
+        if self.dim != 2:
+            raise DimensionError(f"vertices_2d needs a 2-D polytope, got dimension {self.dim}")
+        from scipy.spatial import HalfspaceIntersection
+
+        center, radius = self.chebyshev_center()
+        low, high = self.bounding_box()
+        if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
+            raise InvalidArgumentError("vertices_2d needs a bounded polytope")
+        if radius <= _INTERIOR_TOL:
+            # Degenerate (a segment or a point): its extreme points in the box corners' directions.
+            pts = np.array([[low[0], low[1]], [high[0], high[1]]])
+            return np.unique(pts, axis=0)
+        hs = HalfspaceIntersection(np.hstack([self.H, self.c[:, None]]), center)
+        pts = hs.intersections
+        ang = np.arctan2(pts[:, 1] - center[1], pts[:, 0] - center[0])
+        pts = pts[np.argsort(ang)]
+        keep = np.r_[True, np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9]
+        return pts[keep]
+
+    def intersect(self, other: Polytope) -> Polytope:
+        """The intersection with another polytope of the same dimension."""
+        if other.dim != self.dim:
+            raise DimensionError(f"cannot intersect polytopes of dimensions {self.dim} and {other.dim}")
+        return make_polytope(np.vstack([self.H, other.H]), np.concatenate([self.c, other.c]))
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(dim={self.dim}, faces={self.H.shape[0]})"
+
+
+class FullDimensionalPolytope(Polytope):
+    """A polytope with a non-empty interior."""
+
+
+def make_polytope(H: Any, c: Any) -> Polytope:
+    """Build a :class:`FullDimensionalPolytope` when the set has interior, else a :class:`Polytope`."""
+    poly = Polytope(H, c)
+    if poly.is_full_dimensional:
+        full = FullDimensionalPolytope.__new__(FullDimensionalPolytope)
+        full.__dict__.update(poly.__dict__)
+        return full
+    return poly
+
+
+class BeliefCone:
+    """Gaussian beliefs satisfying a conjunction of chance constraints.
+
+    Parameters
+    ----------
+    H : array_like, shape (k, n)
+        Face normals ``h_i'``.
+    c : array_like, shape (k,)
+        Offsets ``c_i``.
+    eps : array_like, shape (k,)
+        Tolerances ``eps_i`` in ``[0, 0.5]``.
+    """
+
+    def __init__(self, H: Any, c: Any, eps: Any) -> None:
+        H = np.asarray(H, dtype=float)
+        if H.ndim == 1:
+            H = H[None, :]
+        self.H = as_matrix(H, "H") if H.size else H.reshape(H.shape[0] if H.ndim == 2 else 0, -1)
+        k = self.H.shape[0]
+        self.c = as_vector(c, "c", k) if k else np.zeros(0)
+        self.eps = as_vector(eps, "eps", k) if k else np.zeros(0)
+        if np.any(self.eps < 0) or np.any(self.eps > 0.5):
+            raise InvalidArgumentError(f"eps must lie in [0, 0.5], got {self.eps.tolist()}")
+        self.z = quantile(self.eps)
+
+    @property
+    def dim(self) -> int:
+        """Dimension ``n`` of the mean."""
+        return self.H.shape[1]
+
+    @property
+    def num_faces(self) -> int:
+        """Number of chance constraints."""
+        return self.H.shape[0]
+
+    def std_terms(self, cov: np.ndarray) -> np.ndarray:
+        """``Phi^-1(1-eps_i) sqrt(h_i' S h_i)`` per face, shape (k,); ``eps = 0`` with variance gives inf."""
+        var = np.einsum("ij,jk,ik->i", self.H, cov, self.H)
+        sd = np.sqrt(np.maximum(var, 0.0))
+        with np.errstate(invalid="ignore"):
+            terms = self.z * sd
+        # eps = 0 (z = inf) with zero variance reserves nothing; with variance it is impossible.
+        return np.where(np.isinf(self.z) & (sd <= 0), 0.0, terms)
+
+    def slack(self, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """Per face, how far the deterministic equivalent is from its bound (>= 0 means satisfied)."""
+        return -(self.H @ mean + self.c + self.std_terms(cov))
+
+    def margin(self, mean: Any, cov: Any) -> float:
+        """Smallest face slack (``inf`` for a cone with no faces); >= 0 iff the belief is inside."""
+        mean = as_vector(mean, "mean", self.dim)
+        cov = as_covariance(cov, "cov", self.dim)
+        if self.num_faces == 0:
+            return np.inf
+        return float(np.min(self.slack(mean, cov)))
+
+    def contains(self, mean: Any, cov: Any) -> bool:
+        """Whether ``N(mean, cov)`` satisfies every chance constraint."""
+        return self.margin(mean, cov) >= 0.0
+
+    def mean_polytope(self, cov: Any) -> Polytope:
+        """The means that satisfy the cone for a fixed covariance (a polytope)."""
+        cov = as_covariance(cov, "cov", self.dim)
+        return make_polytope(self.H, self.c + self.std_terms(cov))
+
+    @property
+    def deterministic_region(self) -> Polytope:
+        """The polytope of means for zero covariance (the cone's shape in state space)."""
+        return make_polytope(self.H, self.c)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(dim={self.dim}, faces={self.num_faces})"
+
+
+class FullDimensionalBeliefCone(BeliefCone):
+    """A belief cone whose zero-covariance region has interior."""
+
+
+def make_belief_cone(H: Any, c: Any, eps: Any) -> BeliefCone:
+    """A :class:`FullDimensionalBeliefCone` when the mean region has interior, else a :class:`BeliefCone`."""
+    cone = BeliefCone(H, c, eps)
+    if cone.num_faces == 0 or Polytope(cone.H, cone.c).is_full_dimensional:
+        full = FullDimensionalBeliefCone.__new__(FullDimensionalBeliefCone)
+        full.__dict__.update(cone.__dict__)
+        return full
+    return cone
+
+
+class ConvexRegion(ConvexConstraint):
+    """A conjunction of linear predicates (or of chance constraints) over one variable.
+
+    ``.region`` is a :class:`Polytope` for linear predicates and a :class:`BeliefCone` for
+    probabilistic ones.
+    """
+
+    def __init__(self, predicates: Iterable[LinearPredicate], name: str | None = None) -> None:
+        preds = list(predicates)
+        if not preds:
+            raise InvalidArgumentError("a convex region needs at least one predicate")
+        for p in preds:
+            if not isinstance(p, LinearPredicate):
+                raise InvalidTypeError(f"ConvexRegion takes linear predicates, got {type(p).__name__}")
+        kinds = {isinstance(p, ProbabilisticLinearPredicate) for p in preds}
+        if len(kinds) > 1:
+            raise InvalidTypeError(
+                "cannot mix linear predicates and chance constraints in one region; "
+                "wrap the linear ones with prob(...) >= 1 - eps"
+            )
+        variables = {id(p.variable) for p in preds}
+        if len(variables) > 1:
+            raise InvalidArgumentError("all predicates of a region must be over the same variable")
+        self.predicates: Sequence[LinearPredicate] = tuple(preds)
+        self.variable: RealValuedVariable = preds[0].variable
+        self.name = name
+
+    @property
+    def is_probabilistic(self) -> bool:
+        """True for a conjunction of chance constraints."""
+        return isinstance(self.predicates[0], ProbabilisticLinearPredicate)
+
+    @cached_property
+    def region(self) -> Any:
+        """The :class:`Polytope` (or :class:`BeliefCone`) the conjunction defines."""
+        H = np.array([p.h for p in self.predicates])
+        c = np.array([p.c for p in self.predicates])
+        if self.is_probabilistic:
+            return make_belief_cone(H, c, [p.eps for p in self.predicates])  # type: ignore[attr-defined]
+        return make_polytope(H, c)
+
+    def __str__(self) -> str:
+        return " & ".join(str(p) for p in self.predicates)
+
+    def __repr__(self) -> str:
+        return f"ConvexRegion({self})"
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("a region has no truth value; use logical_and / logical_or")
