@@ -67,6 +67,7 @@ from .sets import (
     FullDimensionalPolytope,
     Polytope,
 )
+from .synthesis import Problem, SolveResult, SolveStats
 from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
@@ -123,6 +124,10 @@ __all__ = [
     "to_belief",
     "belief_step",
     "rollout",
+    # synthesis
+    "Problem",
+    "SolveResult",
+    "SolveStats",
     # trajectories and monitoring
     "ProbabilisticTSTrajectory",
     "RealTrajectory",
