@@ -78,7 +78,12 @@ def predict(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tupl
 
 
 def kalman_update(
-    mode: Any, mean_pred: np.ndarray, P: np.ndarray, y: np.ndarray | None = None, x_noise: np.ndarray | None = None
+    mode: Any,
+    mean_pred: np.ndarray,
+    P: np.ndarray,
+    y: np.ndarray | None = None,
+    x_noise: np.ndarray | None = None,
+    R: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Measurement update in Joseph form.
 
@@ -93,6 +98,9 @@ def kalman_update(
         innovation), which leaves the mean unchanged.
     x_noise : ndarray, shape (n,), optional
         Where to evaluate the noise function (default: the predicted mean, as in planning).
+    R : ndarray, shape (p, p), optional
+        Observation noise covariance to use instead of the mode's (the planner passes zero to
+        get a lower bound on the covariance: the update is monotone in ``R``).
 
     Returns
     -------
@@ -101,7 +109,8 @@ def kalman_update(
     if mode.p == 0:
         return mean_pred, P
     C = mode.C
-    R = mode.noise_cov(mean_pred if x_noise is None else x_noise)
+    if R is None:
+        R = mode.noise_cov(mean_pred if x_noise is None else x_noise)
     S = C @ P @ C.T + R
     PCt = P @ C.T
     try:

@@ -1,0 +1,175 @@
+"""The proposition abstraction: letters, their regions, and sound LP pruning.
+
+Every pruning fact is proved on the *mean-only relaxation*: a belief can satisfy a chance
+constraint only if its mean satisfies the deterministic constraint (the covariance term is
+non-negative), so a step that no mean can make is impossible for every belief.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linprog
+
+from ..formulas import STLAtomicProposition, STLFormula
+from ..sets import Polytope
+
+__all__ = ["Abstraction", "PruningReport"]
+
+logger = logging.getLogger(__name__)
+
+_MAX_STEP_LPS = 400
+
+
+@dataclass
+class PruningReport:
+    """What LP pruning proved.
+
+    Attributes
+    ----------
+    empty_atoms : list of int
+        Propositions whose region is empty (they can never hold).
+    disjoint_pairs : list of (int, int)
+        Propositions that can never hold together.
+    impossible_steps : list of (int, int, int)
+        ``(i, j, q)``: no mean in region ``i`` reaches region ``j`` in one step of mode ``q``
+        (``q = -1``: of any mode).
+    initial_false : list of int
+        Propositions the initial belief does not satisfy.
+    """
+
+    empty_atoms: list[int]
+    disjoint_pairs: list[tuple[int, int]]
+    impossible_steps: list[tuple[int, int, int]]
+    initial_false: list[int]
+
+
+class Abstraction:
+    """Non-constant atomic propositions of a formula, with vectorised evaluation.
+
+    Parameters
+    ----------
+    formula : STLFormula
+    n : int
+        State dimension.
+    """
+
+    def __init__(self, formula: STLFormula, n: int) -> None:
+        # TRUE / FALSE are constants in the encoding, not letters.
+        self.atoms: list[STLAtomicProposition] = [
+            ap for ap in formula.atomic_propositions() if ap._constant is None
+        ]
+        self.index = {id(a): i for i, a in enumerate(self.atoms)}
+        self.n = n
+        H, c, z, owner = [], [], [], []
+        for i, ap in enumerate(self.atoms):
+            if ap.predicates:
+                cone = ap.cone
+                H.append(cone.H)
+                c.append(cone.c)
+                z.append(cone.z)
+                owner.extend([i] * cone.num_faces)
+        self.H = np.vstack(H) if H else np.zeros((0, n))
+        self.c = np.concatenate(c) if c else np.zeros(0)
+        self.z = np.concatenate(z) if z else np.zeros(0)
+        self.owner = np.asarray(owner, dtype=int)
+        self.num_atoms = len(self.atoms)
+        self.mode_sets = [ap.modes for ap in self.atoms]
+
+    def names(self) -> list[str]:
+        """Readable names of the propositions."""
+        return [ap.name or f"ap{i}" for i, ap in enumerate(self.atoms)]
+
+    def face_slack(self, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+        """Slack of every face (>= 0 satisfied), shape (F,)."""
+        if not self.H.shape[0]:
+            return np.zeros(0)
+        Hc = self.H @ cov
+        var = np.einsum("ij,ij->i", Hc, self.H)
+        sd = np.sqrt(np.maximum(var, 0.0))
+        with np.errstate(invalid="ignore"):
+            terms = self.z * sd
+        terms = np.where(np.isinf(self.z) & (sd <= 0), 0.0, terms)
+        return -(self.H @ mean + self.c + terms)
+
+    def truth(self, mean: np.ndarray, cov: np.ndarray, arrival_mode: int) -> np.ndarray:
+        """Which propositions hold for belief ``N(mean, cov)`` reached with ``arrival_mode``.
+
+        ``arrival_mode < 0`` means step 0 (mode atoms are vacuous).
+        """
+        out = np.ones(self.num_atoms, dtype=bool)
+        if self.H.shape[0]:
+            bad = self.face_slack(mean, cov) < 0
+            if bad.any():
+                out[np.unique(self.owner[bad])] = False
+        if arrival_mode >= 0:
+            for i, modes in enumerate(self.mode_sets):
+                if modes is not None and arrival_mode not in modes:
+                    out[i] = False
+        return out
+
+    def region(self, i: int) -> Polytope:
+        """Mean region of proposition ``i`` at zero covariance (whole space without faces)."""
+        ap = self.atoms[i]
+        if not ap.predicates:
+            return Polytope(np.zeros((0, self.n)), np.zeros(0))
+        return Polytope(ap.cone.H, ap.cone.c)
+
+    # -- pruning ------------------------------------------------------------------------------------
+    def prune(self, system, control_domain: Polytope, initial_mean: np.ndarray, initial_cov: np.ndarray) -> PruningReport:
+        """Prove letters empty, pairs disjoint and steps impossible (mean relaxation, HiGHS)."""
+        regions = [self.region(i) for i in range(self.num_atoms)]
+        empty = [i for i, r in enumerate(regions) if r.H.shape[0] and r.is_empty()]
+        disjoint: list[tuple[int, int]] = []
+        for i in range(self.num_atoms):
+            for j in range(i + 1, self.num_atoms):
+                if i in empty or j in empty or not regions[i].H.shape[0] or not regions[j].H.shape[0]:
+                    continue
+                if regions[i].intersect(regions[j]).is_empty():
+                    disjoint.append((i, j))
+        init = self.truth(initial_mean, initial_cov, -1)
+        initial_false = [i for i in range(self.num_atoms) if not init[i]]
+        steps = self._impossible_steps(system, control_domain, regions, set(empty))
+        report = PruningReport(empty, disjoint, steps, initial_false)
+        logger.info(
+            "LP pruning: %d empty letters, %d disjoint pairs, %d impossible steps, %d letters false at step 0",
+            len(empty), len(disjoint), len(steps), len(initial_false),
+        )
+        return report
+
+    def _impossible_steps(self, system, U: Polytope, regions: list[Polytope], empty: set[int]) -> list[tuple[int, int, int]]:
+        bounded = []
+        for i, r in enumerate(regions):
+            if i in empty or not r.H.shape[0]:
+                continue
+            low, high = r.bounding_box()
+            if np.all(np.isfinite(low)) and np.all(np.isfinite(high)):
+                bounded.append(i)
+        pairs = [(i, j) for i in bounded for j in bounded if i != j]
+        if len(pairs) * system.num_modes > _MAX_STEP_LPS:
+            logger.debug("skipping one-step pruning: %d pairs", len(pairs))
+            return []
+        out: list[tuple[int, int, int]] = []
+        n, m = system.n, system.m
+        for i, j in pairs:
+            bad_modes = []
+            for q, mode in enumerate(system.system_modes):
+                # Variables (x, u): x in R_i, u in U, A x + B u in R_j.
+                Ri, Rj = regions[i], regions[j]
+                A_ub = np.vstack([
+                    np.hstack([Ri.H, np.zeros((Ri.H.shape[0], m))]),
+                    np.hstack([np.zeros((U.H.shape[0], n)), U.H]),
+                    np.hstack([Rj.H @ mode.A, Rj.H @ mode.B]),
+                ])
+                b_ub = np.concatenate([-Ri.c, -U.c, -Rj.c])
+                res = linprog(np.zeros(n + m), A_ub=A_ub, b_ub=b_ub, bounds=(None, None), method="highs")
+                if res.status == 2:
+                    bad_modes.append(q)
+            if len(bad_modes) == system.num_modes:
+                out.append((i, j, -1))
+            else:
+                out.extend((i, j, q) for q in bad_modes)
+        return out
+

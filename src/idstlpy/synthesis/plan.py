@@ -1,0 +1,191 @@
+"""Discrete plans: which propositions must hold at which step, extracted from a label trace.
+
+A SAT model (or a realised trace) says which propositions are claimed at every step. Because
+PrSTL has no negation, the formula only needs a *witness*: a set of (proposition, step) pairs
+whose truth implies the formula. :func:`extract_witness` picks one by walking the formula top
+down (one true disjunct, one until-witness step), so the continuous teacher receives only the
+constraints that matter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
+
+__all__ = ["DiscretePlan", "evaluate_bool", "extract_witness"]
+
+
+@dataclass
+class DiscretePlan:
+    """A candidate from the proposer.
+
+    Attributes
+    ----------
+    required : ndarray of bool, shape (n_atoms, L)
+        ``required[i, k]``: proposition ``i`` must hold at step ``k``.
+    modes : ndarray of int, shape (L,)
+        ``modes[k]`` (``k >= 1``): mode used to arrive at ``k``, as proposed (``modes[0] = -1``).
+    length : int
+        ``L``: number of steps the plan spans (``L - 1`` transitions).
+    """
+
+    required: np.ndarray
+    modes: np.ndarray
+    length: int
+
+    @property
+    def num_transitions(self) -> int:
+        """``L - 1``."""
+        return self.length - 1
+
+    def requirements(self) -> list[tuple[int, int]]:
+        """``(step, atom)`` pairs, sorted by step."""
+        atoms, steps = np.nonzero(self.required)
+        order = np.lexsort((atoms, steps))
+        return [(int(steps[o]), int(atoms[o])) for o in order]
+
+
+def _shift(arr: np.ndarray, d: int, fill: bool = False) -> np.ndarray:
+    L = arr.shape[0]
+    out = np.full(L, fill, dtype=bool)
+    if d < L:
+        out[: L - d] = arr[d:]
+    return out
+
+
+def evaluate_bool(
+    formula: STLFormula, truth: np.ndarray, atom_index: dict[int, int]
+) -> dict[int, np.ndarray]:
+    """Truth of every sub-formula at every step of a label trace.
+
+    Parameters
+    ----------
+    truth : ndarray of bool, shape (n_atoms, L)
+    atom_index : dict
+        ``id(atom) -> row of truth``.
+
+    Returns
+    -------
+    dict
+        ``id(subformula) -> bool array (L,)``.
+    """
+    L = truth.shape[1]
+    memo: dict[int, np.ndarray] = {}
+
+    def rec(f: STLFormula) -> np.ndarray:
+        got = memo.get(id(f))
+        if got is not None:
+            return got
+        if isinstance(f, STLAtomicProposition):
+            if f.is_false:
+                out = np.zeros(L, dtype=bool)
+            elif id(f) in atom_index:
+                out = truth[atom_index[id(f)]].astype(bool)
+            else:
+                out = np.ones(L, dtype=bool)
+        elif isinstance(f, STLAnd):
+            out = np.logical_and.reduce([rec(c) for c in f.children])
+        elif isinstance(f, STLOr):
+            out = np.logical_or.reduce([rec(c) for c in f.children])
+        elif isinstance(f, STLUntil):
+            v1, v2 = rec(f.left), rec(f.right)
+            out = np.zeros(L, dtype=bool)
+            prefix = np.ones(L, dtype=bool)
+            for d in range(f.a, min(f.b, L - 1) + 1):
+                out |= _shift(v2, d) & prefix
+                prefix &= _shift(v1, d)
+        elif isinstance(f, STLRelease):
+            v1, v2 = rec(f.left), rec(f.right)
+            out = np.zeros(L, dtype=bool)
+            prefix = np.ones(L, dtype=bool)
+            for d in range(f.a, f.b + 1):
+                prefix &= _shift(v2, d)
+                out |= _shift(v1, d) & prefix
+                if d >= L:
+                    break
+            out |= prefix
+        else:
+            raise TypeError(f"cannot evaluate {type(f).__name__}")
+        memo[id(f)] = out
+        return out
+
+    rec(formula)
+    return memo
+
+
+def extract_witness(
+    formula: STLFormula,
+    truth: np.ndarray,
+    atom_index: dict[int, int],
+    prefer_late: bool = True,
+) -> tuple[np.ndarray, int] | None:
+    """A sufficient set of requirements for ``formula`` at step 0 on the label trace ``truth``.
+
+    Parameters
+    ----------
+    prefer_late : bool
+        Pick the latest until-witness step (leaves the teacher the most time to get there)
+        instead of the earliest.
+
+    Returns
+    -------
+    (required, length) or None
+        ``required`` has the shape of ``truth``; ``length`` is one past the last step the
+        witness touches. ``None`` when the trace does not satisfy the formula.
+    """
+    values = evaluate_bool(formula, truth, atom_index)
+    if not values[id(formula)][0]:
+        return None
+    L = truth.shape[1]
+    required = np.zeros_like(truth, dtype=bool)
+    last = 0
+    seen: set[tuple[int, int]] = set()
+    stack: list[tuple[STLFormula, int]] = [(formula, 0)]
+    while stack:
+        f, k = stack.pop()
+        if (id(f), k) in seen:
+            continue
+        seen.add((id(f), k))
+        last = max(last, k)
+        if isinstance(f, STLAtomicProposition):
+            if id(f) in atom_index:
+                required[atom_index[id(f)], k] = True
+        elif isinstance(f, STLAnd):
+            stack.extend((c, k) for c in f.children)
+        elif isinstance(f, STLOr):
+            child = next(c for c in f.children if values[id(c)][k])
+            stack.append((child, k))
+        elif isinstance(f, STLUntil):
+            v1, v2 = values[id(f.left)], values[id(f.right)]
+            start, chosen = k + f.a, None
+            for j in range(start, min(k + f.b, L - 1) + 1):
+                if v2[j]:
+                    chosen = j
+                    if not prefer_late:
+                        break
+                if not v1[j]:
+                    break
+            if chosen is None:  # the evaluation said true: unreachable
+                raise RuntimeError("until witness not found on a satisfying trace")
+            stack.append((f.right, chosen))
+            stack.extend((f.left, j) for j in range(start, chosen))
+        elif isinstance(f, STLRelease):
+            v1, v2 = values[id(f.left)], values[id(f.right)]
+            start, stop = k + f.a, k + f.b
+            witness = None
+            for j in range(start, min(stop, L - 1) + 1):
+                if not v2[j]:
+                    break
+                if v1[j]:
+                    witness = j
+                    break
+            end = witness if witness is not None else stop
+            if witness is not None:
+                stack.append((f.left, witness))
+            stack.extend((f.right, j) for j in range(start, end + 1))
+        else:
+            raise TypeError(f"cannot justify {type(f).__name__}")
+    return required, last + 1
