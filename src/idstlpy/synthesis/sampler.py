@@ -127,6 +127,7 @@ class BeliefSampler:
             self._boxes.append((low, high))
             self._centers.append(center)
         self.workspace = self._workspace_box()
+        self._floors: dict[int, float] = {}
 
     def _workspace_box(self) -> tuple[np.ndarray, np.ndarray]:
         mean0 = self.problem.initial_state.mean
@@ -197,27 +198,32 @@ class BeliefSampler:
         return sorted(modes)
 
     def _replan(self, tree: _Tree, leaf_truth: np.ndarray, leaf_k: int, leaf_mode: int, parent: int) -> DiscretePlan | None:
-        """A plan consistent with the realised prefix (path to ``parent`` plus the new step), or None."""
+        """A plan consistent with the realised prefix (path to ``parent`` plus the new step), or None.
+
+        The plan is the witness of the *optimistic* completion (every proposition claimed at every
+        later step) with the latest until-witnesses, so the branch keeps it as long as possible;
+        the SAT proposer then confirms the prefix is completable under everything learnt so far
+        (pruning facts and counterexamples).
+        """
         path = tree.path(parent)
         truth = np.vstack([tree.truth[path], leaf_truth[None, :]]).T  # (n_atoms, k+1)
+        H = self.enc.H
+        optimistic = np.ones((truth.shape[0], H + 1), dtype=bool)
+        optimistic[:, : leaf_k + 1] = truth
+        w = extract_witness(self.formula, optimistic, self.abs.index, prefer_late=True)
+        if w is None:
+            return None  # not even the best possible future satisfies the formula
         modes = np.concatenate([tree.action[path[1:]], [leaf_mode]])
         assume = [-int(v) for v in self.enc.p[:, : leaf_k + 1][~truth]]
         if self.system.num_modes > 1:
             assume += [int(self.enc.m[q, j + 1]) for j, q in enumerate(modes)]
         if not self.enc.solve(assumptions=assume):
             return None
-        claims, model_modes, length = self.enc.model_claims()
-        length = max(length, leaf_k + 1)
-        claims = claims[:, :length].copy()
-        claims[:, : leaf_k + 1] = truth
-        w = extract_witness(self.formula, claims, self.abs.index, prefer_late=True)
-        if w is None:
-            return None
         required, L = w
+        _, model_modes, _ = self.enc.model_claims()
         mm = model_modes[: max(L, leaf_k + 1)].copy()
         mm[1 : leaf_k + 1] = modes
-        mm = mm[:L]
-        return DiscretePlan(required[:, :L], mm, L)
+        return DiscretePlan(required[:, :L], mm[:L], L)
 
     def _satisfied(self, tree: _Tree, leaf: int) -> bool:
         path = tree.path(leaf)
@@ -255,13 +261,18 @@ class BeliefSampler:
                         goal_cache[pid] = i
                         break
             goal = goal_cache[pid]
-            s = self._sample(goal)
-            d = np.linalg.norm(tree.mean[act] - s, axis=1)
-            near = act[d <= opt.delta_near]
-            if near.size:
-                node = int(near[np.argmin(tree.unc[near] + 1e-9 * d[d <= opt.delta_near])])
-            else:
-                node = int(act[np.argmin(d)])
+            aim_goal = goal is not None and rng.random() < opt.goal_bias
+            s = self._sample_in_atom(goal) if aim_goal else None
+            if s is None:
+                aim_goal = False
+                s = rng.uniform(*self.workspace)
+            pool = act
+            if goal is not None and not aim_goal:
+                # Nodes already at the goal are only extended toward the goal: an exploration
+                # sample must not drag a lineage out of the region it is holding.
+                off = act[~tree.truth[act, goal]]
+                pool = off if off.size else act
+            node = self._select(tree, pool, s, goal)
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             cur = node
             for _ in range(steps):
@@ -294,6 +305,38 @@ class BeliefSampler:
             self._drain(tree, leaf, act)
         logger.info("sampler: time-out after %d iterations, %d nodes", iters, tree.size)
         return SamplerOutcome(None, None, tree.size, self.enc.sat_calls - sat0)
+
+    def _select(self, tree: _Tree, pool: np.ndarray, s: np.ndarray, goal: int | None) -> int:
+        """Least uncertain node within ``delta_near`` of ``s`` (else the nearest).
+
+        Uncertainty below what the goal region needs counts as equal; ties go to the node that
+        has held its current label longest (progress), then to the less uncertain.
+        """
+        d = np.linalg.norm(tree.mean[pool] - s, axis=1)
+        within = d <= self.opt.delta_near
+        if not np.any(within):
+            return int(pool[np.argmin(d)])
+        near = pool[within]
+        floor = self._floor(goal)
+        unc = tree.unc[near]
+        progress = np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
+        order = np.lexsort((unc, -progress, np.maximum(unc, floor)))
+        return int(near[order[0]])
+
+    def _floor(self, goal: int | None) -> float:
+        """Trace of covariance below which a belief is certain enough for the goal region."""
+        if goal is None or goal in self._floors:
+            return self._floors.get(goal, 0.0) if goal is not None else 0.0
+        ap = self.abs.atoms[goal]
+        floor = 0.0
+        if ap.predicates and self._centers[goal] is not None:
+            radius = self._regions[goal].chebyshev_center()[1]
+            z = float(np.max(np.where(np.isfinite(ap.cone.z), ap.cone.z, 0.0)))
+            if z > 0 and np.isfinite(radius):
+                sd = 0.25 * radius / z  # a quarter of the room the region leaves the mean
+                floor = self.system.n * sd**2
+        self._floors[goal] = floor
+        return floor
 
     def _drain(self, tree: _Tree, leaf: int, act: np.ndarray) -> None:
         """Keep the least uncertain node among same-label, same-progress neighbours of ``leaf``."""
