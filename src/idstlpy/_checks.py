@@ -9,7 +9,9 @@ import numpy as np
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 
 
-def as_matrix(value: Any, name: str, shape: tuple[int | None, int | None] | None = None) -> np.ndarray:
+def as_matrix(
+    value: Any, name: str, shape: tuple[int | None, int | None] | None = None
+) -> np.ndarray:
     """Return ``value`` as a finite 2-D float array, checking its shape.
 
     ``None`` entries in ``shape`` accept any size along that axis.
@@ -17,7 +19,9 @@ def as_matrix(value: Any, name: str, shape: tuple[int | None, int | None] | None
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise InvalidTypeError(f"{name} must be a numeric matrix, got {type(value).__name__}") from exc
+        raise InvalidTypeError(
+            f"{name} must be a numeric matrix, got {type(value).__name__}"
+        ) from exc
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
     if arr.ndim != 2:
@@ -39,7 +43,9 @@ def as_vector(value: Any, name: str, size: int | None = None) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise InvalidTypeError(f"{name} must be a numeric vector, got {type(value).__name__}") from exc
+        raise InvalidTypeError(
+            f"{name} must be a numeric vector, got {type(value).__name__}"
+        ) from exc
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim == 2 and 1 in arr.shape:
@@ -82,9 +88,14 @@ def as_int(value: Any, name: str, minimum: int | None = None) -> int:
     return out
 
 
-def as_float(value: Any, name: str, low: float | None = None, high: float | None = None,
-             low_open: bool = False) -> float:
-    """Return ``value`` as a finite float inside ``[low, high]`` (``(low, high]`` if ``low_open``)."""
+def as_float(
+    value: Any,
+    name: str,
+    low: float | None = None,
+    high: float | None = None,
+    low_open: bool = False,
+) -> float:
+    """Return ``value`` as a finite float in ``[low, high]`` (``(low, high]`` if ``low_open``)."""
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise InvalidTypeError(f"{name} must be a number, got {type(value).__name__}")
     out = float(value)

@@ -93,7 +93,9 @@ class LCS(DynamicalSystem):
         """Noise-free successor ``A x + B u``."""
         return self.A @ x + self.B @ u
 
-    def compute_finite_horizon_lqr(self, horizon: int, Q_final: Any, Q: Any, R: Any) -> list[np.ndarray]:
+    def compute_finite_horizon_lqr(
+        self, horizon: int, Q_final: Any, Q: Any, R: Any
+    ) -> list[np.ndarray]:
         """Finite-horizon discrete LQR gains used to track a plan (paper Section IV-E).
 
         Parameters
@@ -176,16 +178,28 @@ class POLBSWithNonLinNoise(POLBS):
         try:
             out = self.V(x)
         except Exception as exc:  # the user's function failed: say which one and where
-            raise NoiseFunctionError(f"noise function V raised {type(exc).__name__}: {exc} at x={x}") from exc
+            raise NoiseFunctionError(
+                f"noise function V raised {type(exc).__name__}: {exc} at x={x}"
+            ) from exc
         try:
             arr = np.asarray(out, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise NoiseFunctionError(f"noise function V must return a matrix, got {type(out).__name__}") from exc
-        if arr.ndim != 2 or arr.shape[0] != self.p or (self._cols is not None and arr.shape[1] != self._cols):
+            raise NoiseFunctionError(
+                f"noise function V must return a matrix, got {type(out).__name__}"
+            ) from exc
+        if (
+            arr.ndim != 2
+            or arr.shape[0] != self.p
+            or (self._cols is not None and arr.shape[1] != self._cols)
+        ):
             want = f"({self.p}, {self._cols if self._cols is not None else 'r'})"
-            raise NoiseFunctionError(f"noise function V must return a matrix of shape {want}, got shape {arr.shape}")
+            raise NoiseFunctionError(
+                f"noise function V must return a matrix of shape {want}, got shape {arr.shape}"
+            )
         if not np.all(np.isfinite(arr)):
-            raise NoiseFunctionError(f"noise function V returned non-finite values at x={np.asarray(x).tolist()}")
+            raise NoiseFunctionError(
+                f"noise function V returned non-finite values at x={np.asarray(x).tolist()}"
+            )
         self._cols = arr.shape[1]
         return arr
 
@@ -200,12 +214,19 @@ class SwitchedSystem(DynamicalSystem):
     """
 
     def __init__(self, system_modes: Sequence[LCS]) -> None:
-        modes = list(np.asarray(system_modes, dtype=object).reshape(-1)) if not isinstance(system_modes, LCS) else [system_modes]
+        modes = (
+            list(np.asarray(system_modes, dtype=object).reshape(-1))
+            if not isinstance(system_modes, LCS)
+            else [system_modes]
+        )
         if not modes:
             raise InvalidArgumentError("system_modes must contain at least one mode")
         for i, mode in enumerate(modes):
             if not isinstance(mode, LCS):
-                raise InvalidTypeError(f"system_modes[{i}] must be a system made by mk_lcs / mk_lbs, got {type(mode).__name__}")
+                raise InvalidTypeError(
+                    f"system_modes[{i}] must be a system made by mk_lcs / mk_lbs, "
+                    f"got {type(mode).__name__}"
+                )
         n, m = modes[0].n, modes[0].m
         for i, mode in enumerate(modes):
             if (mode.n, mode.m) != (n, m):
@@ -227,8 +248,14 @@ class SwitchedSystem(DynamicalSystem):
         """Mode ``q`` (raises :class:`~idstlpy.errors.OutOfRangeError` when out of range)."""
         from .errors import OutOfRangeError
 
-        if isinstance(q, bool) or not isinstance(q, int | np.integer) or not 0 <= int(q) < self.num_modes:
-            raise OutOfRangeError(f"mode {q!r} is out of range: the system has modes 0..{self.num_modes - 1}")
+        if (
+            isinstance(q, bool)
+            or not isinstance(q, int | np.integer)
+            or not 0 <= int(q) < self.num_modes
+        ):
+            raise OutOfRangeError(
+                f"mode {q!r} is out of range: the system has modes 0..{self.num_modes - 1}"
+            )
         return self.system_modes[int(q)]
 
     def simulate(
@@ -247,7 +274,13 @@ class SwitchedSystem(DynamicalSystem):
         from .execution.simulate import simulate
 
         return simulate(
-            self, reference_trajectory, num_of_steps, real_initial_state, real_system, seed=seed, **options
+            self,
+            reference_trajectory,
+            num_of_steps,
+            real_initial_state,
+            real_system,
+            seed=seed,
+            **options,
         )
 
     def __repr__(self) -> str:

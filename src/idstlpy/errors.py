@@ -23,7 +23,7 @@ class IdstlpyError(Exception):
 
 
 class InvalidArgumentError(IdstlpyError, ValueError):
-    """An argument has the right type but an invalid value (NaN, negative interval, eps > 0.5...)."""
+    """An argument has the right type but an invalid value (NaN, bad interval, eps > 0.5...)."""
 
 
 class DimensionError(InvalidArgumentError):

@@ -146,7 +146,9 @@ class LinearExpression:
             return LinearExpression(coef, self._const + other._const, self._variable)
         if isinstance(other, ConvexConstraint | DiscreteVariable):
             return NotImplemented
-        return LinearExpression(self._coef, self._const + self._constant(other, "add"), self._variable)
+        return LinearExpression(
+            self._coef, self._const + self._constant(other, "add"), self._variable
+        )
 
     __radd__ = __add__
 
@@ -200,7 +202,10 @@ class LinearExpression:
         from .sets import ConvexRegion
 
         return ConvexRegion(
-            [LinearPredicate(h, float(c), diff._variable) for h, c in zip(diff._coef, diff._const, strict=True)]
+            [
+                LinearPredicate(h, float(c), diff._variable)
+                for h, c in zip(diff._coef, diff._const, strict=True)
+            ]
         )
 
     def __le__(self, other: Any) -> Any:
@@ -210,10 +215,14 @@ class LinearExpression:
         return self._compare(other, less=False)
 
     def __lt__(self, other: Any) -> Any:
-        raise InvalidTypeError("use <= (closed half-spaces); strict < is not a linear predicate here")
+        raise InvalidTypeError(
+            "use <= (closed half-spaces); strict < is not a linear predicate here"
+        )
 
     def __gt__(self, other: Any) -> Any:
-        raise InvalidTypeError("use >= (closed half-spaces); strict > is not a linear predicate here")
+        raise InvalidTypeError(
+            "use >= (closed half-spaces); strict > is not a linear predicate here"
+        )
 
     def __eq__(self, other: object) -> bool:  # type: ignore[override]
         raise InvalidTypeError(
@@ -352,10 +361,10 @@ class LinearPredicate(ConvexConstraint):
         h = np.asarray(h, dtype=float).reshape(-1)
         if h.shape[0] != variable.size:
             raise DimensionError(f"h must have length {variable.size}, got {h.shape[0]}")
-        if not np.all(np.isfinite(h)) or not np.isfinite(c):
-            raise InvalidArgumentError("a linear predicate needs finite coefficients")
+        if not np.all(np.isfinite(h)):
+            raise InvalidArgumentError("a linear predicate needs finite coefficients h")
         self.h = h
-        self.c = float(c)
+        self.c = as_float(c, "c")
         self.variable = variable
 
     @property
@@ -394,7 +403,8 @@ class ProbabilisticLinearPredicate(LinearPredicate):
         return LinearPredicate(self.h, self.c, self.variable)
 
     def __str__(self) -> str:
-        return f"P[{format_affine(self.h, self.c, self.variable.name)} <= 0] >= {_fmt_num(1 - self.eps)}"
+        affine = format_affine(self.h, self.c, self.variable.name)
+        return f"P[{affine} <= 0] >= {_fmt_num(1 - self.eps)}"
 
     def __repr__(self) -> str:
         return f"ProbabilisticLinearPredicate({self})"
@@ -407,7 +417,9 @@ class _Probability:
         from .sets import ConvexRegion
 
         if isinstance(pred, ProbabilisticLinearPredicate):
-            raise InvalidTypeError("prob() takes a LinearPredicate, got a chance constraint already")
+            raise InvalidTypeError(
+                "prob() takes a LinearPredicate, got a chance constraint already"
+            )
         if isinstance(pred, ConvexRegion):
             if pred.is_probabilistic:
                 raise InvalidTypeError("prob() takes linear predicates, got chance constraints")
@@ -422,7 +434,10 @@ class _Probability:
     def _make(self, level: Any) -> Any:
         p = as_float(level, "probability level (1 - eps)", 0.5, 1.0)
         eps = 1.0 - p
-        out = [ProbabilisticLinearPredicate(q.h, q.c, q.variable, min(max(eps, 0.0), 0.5)) for q in self.preds]
+        out = [
+            ProbabilisticLinearPredicate(q.h, q.c, q.variable, min(max(eps, 0.0), 0.5))
+            for q in self.preds
+        ]
         if len(out) == 1:
             return out[0]
         from .sets import ConvexRegion
@@ -435,7 +450,9 @@ class _Probability:
     __gt__ = __ge__
 
     def __le__(self, level: Any) -> Any:
-        raise InvalidTypeError("write prob(pred) >= 1 - eps; upper bounds on probability are not PrSTL")
+        raise InvalidTypeError(
+            "write prob(pred) >= 1 - eps; upper bounds on probability are not PrSTL"
+        )
 
     __lt__ = __le__
 
@@ -478,7 +495,9 @@ class DiscreteFormula:
         return f"DiscreteFormula({self})"
 
     def __bool__(self) -> bool:
-        raise InvalidTypeError("a discrete predicate has no truth value; use logical_and / logical_or")
+        raise InvalidTypeError(
+            "a discrete predicate has no truth value; use logical_and / logical_or"
+        )
 
 
 class DiscretePredicate(DiscreteFormula):

@@ -128,11 +128,17 @@ class STLAtomicProposition(STLFormula):
                     f"got {type(p).__name__}"
                 )
         if len({id(p.variable) for p in preds}) > 1:
-            raise InvalidArgumentError("all chance constraints of a proposition must be over one variable")
+            raise InvalidArgumentError(
+                "all chance constraints of a proposition must be over one variable"
+            )
         if name is not None and (not isinstance(name, str) or not name.isidentifier()):
-            raise InvalidArgumentError(f"name must be an identifier such as 'free_space', got {name!r}")
+            raise InvalidArgumentError(
+                f"name must be an identifier such as 'free_space', got {name!r}"
+            )
         self.predicates: tuple[ProbabilisticLinearPredicate, ...] = preds
-        self.modes: frozenset[int] | None = None if modes is None else frozenset(int(m) for m in modes)
+        self.modes: frozenset[int] | None = (
+            None if modes is None else frozenset(int(m) for m in modes)
+        )
         self.name = name
         self._constant = _constant
 
@@ -226,13 +232,13 @@ class STLTemporalFormula(STLFormula):
 
 
 class STLUntil(STLTemporalFormula):
-    """``f1 U[a,b] f2``: some ``k'`` in ``[k+a, k+b]`` has ``f2`` and ``f1`` holds on ``[k+a, k')``."""
+    """``f1 U[a,b] f2``: some ``k'`` in ``[k+a, k+b]`` has ``f2``; ``f1`` holds on ``[k+a, k')``."""
 
     symbol = "U"
 
 
 class STLRelease(STLTemporalFormula):
-    """``f1 R[a,b] f2``: ``f2`` holds on ``[k+a, k+b]``, or up to and including a ``k'`` with ``f1``."""
+    """``f1 R[a,b] f2``: ``f2`` on ``[k+a, k+b]``, or up to and including a ``k'`` with ``f1``."""
 
     symbol = "R"
 
@@ -252,7 +258,9 @@ def as_formula(value: Any, what: str = "argument") -> STLFormula:
             f"{what}: a deterministic predicate ({value}) is not a PrSTL formula; "
             "state a confidence with prob(pred) >= 1 - eps"
         )
-    raise InvalidTypeError(f"{what} must be a PrSTL formula or predicate, got {type(value).__name__}")
+    raise InvalidTypeError(
+        f"{what} must be a PrSTL formula or predicate, got {type(value).__name__}"
+    )
 
 
 def logical_and(*args: Any, name: str | None = None) -> Any:

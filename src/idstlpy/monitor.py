@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InvalidTypeError
+from ._checks import as_int
+from .errors import DimensionError, InvalidTypeError
 from .formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from .trajectory import ProbabilisticTSTrajectory
 
@@ -55,6 +56,11 @@ def atom_margins(
     out = np.full(L, np.inf)
     if ap.predicates:
         cone = ap.cone
+        if cone.dim != means.shape[1]:
+            raise DimensionError(
+                f"proposition {ap.name or ap} is over a {cone.dim}-dimensional variable, "
+                f"the trajectory has state dimension {means.shape[1]}"
+            )
         var = np.einsum("fi,kij,fj->kf", cone.H, covs, cone.H)
         sd = np.sqrt(np.maximum(var, 0.0))
         with np.errstate(invalid="ignore"):
@@ -141,14 +147,22 @@ def formula_margins(
     return rec(formula)
 
 
-def _trajectory_atoms(traj: ProbabilisticTSTrajectory, formula: STLFormula) -> dict[int, np.ndarray]:
+def _trajectory_atoms(
+    traj: ProbabilisticTSTrajectory, formula: STLFormula
+) -> dict[int, np.ndarray]:
     means, covs, actions = traj.get_mean(), traj.get_cov(), traj.get_action()
     return {id(ap): atom_margins(ap, means, covs, actions) for ap in formula.atomic_propositions()}
 
 
 def robustness(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: int = 0) -> float:
-    """Quantitative margin of ``formula`` at step ``k`` (``>= 0`` iff satisfied)."""
+    """Quantitative margin of ``formula`` at step ``k`` (``>= 0`` iff satisfied).
+
+    ``k`` must be ``>= 0``; a step past the end of the trajectory satisfies nothing (``-inf``).
+    """
+    k = as_int(k, "k", minimum=0)
     L = trajectory.num_of_steps + 1
+    if k >= L:
+        return _NEG
     return float(formula_margins(formula, _trajectory_atoms(trajectory, formula), L)[k])
 
 

@@ -31,24 +31,43 @@ def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
     x = mk_variable(size=2, dtype=float)
     u = mk_variable(size=2, dtype=float, name="u")
     return Problem(
-        switched_system=mk_switched_sys([
-            dynamical_system.mk_lbs(
-                A=np.identity(x.size), B=0.25 * np.eye(x.size, u.size), W=np.zeros((2, 2)),
-                C=np.identity(2),
-                V=lambda state: ((1 / 10) * (5 - state[0]) ** 2 + 0.001) * np.identity(2)),
-        ]),
+        switched_system=mk_switched_sys(
+            [
+                dynamical_system.mk_lbs(
+                    A=np.identity(x.size),
+                    B=0.25 * np.eye(x.size, u.size),
+                    W=np.zeros((2, 2)),
+                    C=np.identity(2),
+                    V=lambda state: ((1 / 10) * (5 - state[0]) ** 2 + 0.001) * np.identity(2),
+                ),
+            ]
+        ),
         control_domain=logical_and(u[0] >= -1.0, u[0] <= 1.0, u[1] >= -1.0, u[1] <= 1.0).region,
         initial_state=to_belief(mean=np.array([0, 2.5]), cov=np.diag([0.1, 0.1])),
         stl_formula=until(
-            logical_and(q == 0, prob(x[0] >= -1) >= 1 - 0.01, prob(x[0] <= 5) >= 1 - 0.01,
-                        prob(x[1] >= -1) >= 1 - 0.01, prob(x[1] <= 4) >= 1 - 0.01,
-                        name="free_space"),
-            0, deadline,
-            always(0, hold,
-                   logical_and(q == 0, prob(x[0] >= -0.25) >= 1 - 0.05,
-                               prob(x[0] <= 0.25) >= 1 - 0.05,
-                               prob(x[1] >= -0.25) >= 1 - 0.05, prob(x[1] <= 0.25) >= 1 - 0.05,
-                               name="target"))),
+            logical_and(
+                q == 0,
+                prob(x[0] >= -1) >= 1 - 0.01,
+                prob(x[0] <= 5) >= 1 - 0.01,
+                prob(x[1] >= -1) >= 1 - 0.01,
+                prob(x[1] <= 4) >= 1 - 0.01,
+                name="free_space",
+            ),
+            0,
+            deadline,
+            always(
+                0,
+                hold,
+                logical_and(
+                    q == 0,
+                    prob(x[0] >= -0.25) >= 1 - 0.05,
+                    prob(x[0] <= 0.25) >= 1 - 0.05,
+                    prob(x[1] >= -0.25) >= 1 - 0.05,
+                    prob(x[1] <= 0.25) >= 1 - 0.05,
+                    name="target",
+                ),
+            ),
+        ),
     )
 
 

@@ -114,7 +114,7 @@ class Polytope:
         if self.H.shape[0] == 0:
             return np.zeros(n), np.inf
         norms = np.linalg.norm(self.H, axis=1)
-        # Variables (x, r): maximise r s.t. H x + r |h| <= -c, r <= 1e6 so unbounded sets stay finite.
+        # Variables (x, r): maximise r s.t. H x + r |h| <= -c; r <= 1e6 keeps unbounded sets finite.
         A = np.hstack([self.H, norms[:, None]])
         res = _lp(np.r_[np.zeros(n), -1.0], A, -self.c, bounds=[(None, None)] * n + [(None, 1e6)])
         if res.status != 0:
@@ -185,9 +185,20 @@ class Polytope:
         if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
             raise InvalidArgumentError("vertices_2d needs a bounded polytope")
         if radius <= _INTERIOR_TOL:
-            # Degenerate (a segment or a point): its extreme points in the box corners' directions.
-            pts = np.array([[low[0], low[1]], [high[0], high[1]]])
-            return np.unique(pts, axis=0)
+            # Degenerate (a segment or a point): its end points are the two farthest-apart
+            # maximisers of linear objectives in eight directions (the box corners are not
+            # vertices of a slanted segment).
+            pts = []
+            for d in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1)):
+                res = _lp(-np.asarray(d, dtype=float), self.H, -self.c)
+                if res.status == 0:
+                    pts.append(res.x)
+            pts_arr = np.array(pts)
+            dist = np.linalg.norm(pts_arr[:, None, :] - pts_arr[None, :, :], axis=2)
+            i, j = np.unravel_index(int(np.argmax(dist)), dist.shape)
+            if dist[i, j] <= 1e-9:
+                return pts_arr[i : i + 1]
+            return pts_arr[[i, j]]
         hs = HalfspaceIntersection(np.hstack([self.H, self.c[:, None]]), center)
         pts = hs.intersections
         ang = np.arctan2(pts[:, 1] - center[1], pts[:, 0] - center[0])
@@ -198,7 +209,9 @@ class Polytope:
     def intersect(self, other: Polytope) -> Polytope:
         """The intersection with another polytope of the same dimension."""
         if other.dim != self.dim:
-            raise DimensionError(f"cannot intersect polytopes of dimensions {self.dim} and {other.dim}")
+            raise DimensionError(
+                f"cannot intersect polytopes of dimensions {self.dim} and {other.dim}"
+            )
         return make_polytope(np.vstack([self.H, other.H]), np.concatenate([self.c, other.c]))
 
     def __repr__(self) -> str:
@@ -210,7 +223,7 @@ class FullDimensionalPolytope(Polytope):
 
 
 def make_polytope(H: Any, c: Any) -> Polytope:
-    """Build a :class:`FullDimensionalPolytope` when the set has interior, else a :class:`Polytope`."""
+    """A :class:`FullDimensionalPolytope` when the set has interior, else a :class:`Polytope`."""
     poly = Polytope(H, c)
     if poly.is_full_dimensional:
         full = FullDimensionalPolytope.__new__(FullDimensionalPolytope)
@@ -234,9 +247,11 @@ class BeliefCone:
 
     def __init__(self, H: Any, c: Any, eps: Any) -> None:
         H = np.asarray(H, dtype=float)
-        if H.ndim == 1:
-            H = H[None, :]
-        self.H = as_matrix(H, "H") if H.size else H.reshape(H.shape[0] if H.ndim == 2 else 0, -1)
+        if H.size == 0:
+            # No faces: an empty conjunction (every belief satisfies it).
+            self.H = np.zeros((0, H.shape[1] if H.ndim == 2 else 0))
+        else:
+            self.H = as_matrix(H[None, :] if H.ndim == 1 else H, "H")
         k = self.H.shape[0]
         self.c = as_vector(c, "c", k) if k else np.zeros(0)
         self.eps = as_vector(eps, "eps", k) if k else np.zeros(0)
@@ -255,7 +270,10 @@ class BeliefCone:
         return self.H.shape[0]
 
     def std_terms(self, cov: np.ndarray) -> np.ndarray:
-        """``Phi^-1(1-eps_i) sqrt(h_i' S h_i)`` per face, shape (k,); ``eps = 0`` with variance gives inf."""
+        """``Phi^-1(1-eps_i) sqrt(h_i' S h_i)`` per face, shape (k,).
+
+        ``eps = 0`` with positive variance gives inf.
+        """
         var = np.einsum("ij,jk,ik->i", self.H, cov, self.H)
         sd = np.sqrt(np.maximum(var, 0.0))
         with np.errstate(invalid="ignore"):
@@ -264,15 +282,17 @@ class BeliefCone:
         return np.where(np.isinf(self.z) & (sd <= 0), 0.0, terms)
 
     def slack(self, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-        """Per face, how far the deterministic equivalent is from its bound (>= 0 means satisfied)."""
+        """Per face, the distance of the deterministic equivalent from its bound (>= 0: holds)."""
         return -(self.H @ mean + self.c + self.std_terms(cov))
 
     def margin(self, mean: Any, cov: Any) -> float:
         """Smallest face slack (``inf`` for a cone with no faces); >= 0 iff the belief is inside."""
+        if self.num_faces == 0:
+            mean = as_vector(mean, "mean", self.dim or None)
+            as_covariance(cov, "cov", mean.shape[0])
+            return np.inf
         mean = as_vector(mean, "mean", self.dim)
         cov = as_covariance(cov, "cov", self.dim)
-        if self.num_faces == 0:
-            return np.inf
         return float(np.min(self.slack(mean, cov)))
 
     def contains(self, mean: Any, cov: Any) -> bool:
@@ -298,7 +318,10 @@ class FullDimensionalBeliefCone(BeliefCone):
 
 
 def make_belief_cone(H: Any, c: Any, eps: Any) -> BeliefCone:
-    """A :class:`FullDimensionalBeliefCone` when the mean region has interior, else a :class:`BeliefCone`."""
+    """A :class:`FullDimensionalBeliefCone` when the mean region has interior.
+
+    Otherwise a plain :class:`BeliefCone`.
+    """
     cone = BeliefCone(H, c, eps)
     if cone.num_faces == 0 or Polytope(cone.H, cone.c).is_full_dimensional:
         full = FullDimensionalBeliefCone.__new__(FullDimensionalBeliefCone)
@@ -320,7 +343,9 @@ class ConvexRegion(ConvexConstraint):
             raise InvalidArgumentError("a convex region needs at least one predicate")
         for p in preds:
             if not isinstance(p, LinearPredicate):
-                raise InvalidTypeError(f"ConvexRegion takes linear predicates, got {type(p).__name__}")
+                raise InvalidTypeError(
+                    f"ConvexRegion takes linear predicates, got {type(p).__name__}"
+                )
         kinds = {isinstance(p, ProbabilisticLinearPredicate) for p in preds}
         if len(kinds) > 1:
             raise InvalidTypeError(

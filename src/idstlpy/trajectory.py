@@ -47,8 +47,12 @@ class ProbabilisticTSTrajectory:
             raise DimensionError(f"actions must have shape ({L - 1},), got {self._actions.shape}")
         if self._controls.ndim != 2 or self._controls.shape[0] != L - 1:
             if not (L == 1 and self._controls.size == 0):
-                raise DimensionError(f"controls must have shape ({L - 1}, m), got {self._controls.shape}")
-            self._controls = self._controls.reshape(0, -1) if self._controls.ndim == 2 else np.zeros((0, 0))
+                raise DimensionError(
+                    f"controls must have shape ({L - 1}, m), got {self._controls.shape}"
+                )
+            self._controls = (
+                self._controls.reshape(0, -1) if self._controls.ndim == 2 else np.zeros((0, 0))
+            )
         if not (np.all(np.isfinite(self._means)) and np.all(np.isfinite(self._covs))):
             raise InvalidArgumentError("a trajectory must have finite means and covariances")
 
@@ -106,7 +110,8 @@ class RealTrajectory:
         self._controls = np.asarray(controls, dtype=float)
         if self._states.ndim != 2 or self._actions.shape[0] != self._states.shape[0] - 1:
             raise DimensionError(
-                f"states (N+1, n) and actions (N,) disagree: {self._states.shape} vs {self._actions.shape}"
+                f"states (N+1, n) and actions (N,) disagree: "
+                f"{self._states.shape} vs {self._actions.shape}"
             )
 
     @property

@@ -118,14 +118,21 @@ class Abstraction:
         return Polytope(ap.cone.H, ap.cone.c)
 
     # -- pruning ------------------------------------------------------------------------------------
-    def prune(self, system, control_domain: Polytope, initial_mean: np.ndarray, initial_cov: np.ndarray) -> PruningReport:
+    def prune(
+        self, system, control_domain: Polytope, initial_mean: np.ndarray, initial_cov: np.ndarray
+    ) -> PruningReport:
         """Prove letters empty, pairs disjoint and steps impossible (mean relaxation, HiGHS)."""
         regions = [self.region(i) for i in range(self.num_atoms)]
         empty = [i for i, r in enumerate(regions) if r.H.shape[0] and r.is_empty()]
         disjoint: list[tuple[int, int]] = []
         for i in range(self.num_atoms):
             for j in range(i + 1, self.num_atoms):
-                if i in empty or j in empty or not regions[i].H.shape[0] or not regions[j].H.shape[0]:
+                if (
+                    i in empty
+                    or j in empty
+                    or not regions[i].H.shape[0]
+                    or not regions[j].H.shape[0]
+                ):
                     continue
                 if regions[i].intersect(regions[j]).is_empty():
                     disjoint.append((i, j))
@@ -134,12 +141,18 @@ class Abstraction:
         steps = self._impossible_steps(system, control_domain, regions, set(empty))
         report = PruningReport(empty, disjoint, steps, initial_false)
         logger.info(
-            "LP pruning: %d empty letters, %d disjoint pairs, %d impossible steps, %d letters false at step 0",
-            len(empty), len(disjoint), len(steps), len(initial_false),
+            "LP pruning: %d empty letters, %d disjoint pairs, %d impossible steps, "
+            "%d letters false at step 0",
+            len(empty),
+            len(disjoint),
+            len(steps),
+            len(initial_false),
         )
         return report
 
-    def _impossible_steps(self, system, U: Polytope, regions: list[Polytope], empty: set[int]) -> list[tuple[int, int, int]]:
+    def _impossible_steps(
+        self, system, U: Polytope, regions: list[Polytope], empty: set[int]
+    ) -> list[tuple[int, int, int]]:
         bounded = []
         for i, r in enumerate(regions):
             if i in empty or not r.H.shape[0]:
@@ -158,13 +171,17 @@ class Abstraction:
             for q, mode in enumerate(system.system_modes):
                 # Variables (x, u): x in R_i, u in U, A x + B u in R_j.
                 Ri, Rj = regions[i], regions[j]
-                A_ub = np.vstack([
-                    np.hstack([Ri.H, np.zeros((Ri.H.shape[0], m))]),
-                    np.hstack([np.zeros((U.H.shape[0], n)), U.H]),
-                    np.hstack([Rj.H @ mode.A, Rj.H @ mode.B]),
-                ])
+                A_ub = np.vstack(
+                    [
+                        np.hstack([Ri.H, np.zeros((Ri.H.shape[0], m))]),
+                        np.hstack([np.zeros((U.H.shape[0], n)), U.H]),
+                        np.hstack([Rj.H @ mode.A, Rj.H @ mode.B]),
+                    ]
+                )
                 b_ub = np.concatenate([-Ri.c, -U.c, -Rj.c])
-                res = linprog(np.zeros(n + m), A_ub=A_ub, b_ub=b_ub, bounds=(None, None), method="highs")
+                res = linprog(
+                    np.zeros(n + m), A_ub=A_ub, b_ub=b_ub, bounds=(None, None), method="highs"
+                )
                 if res.status == 2:
                     bad_modes.append(q)
             if len(bad_modes) == system.num_modes:
@@ -172,4 +189,3 @@ class Abstraction:
             else:
                 out.extend((i, j, q) for q in bad_modes)
         return out
-

@@ -23,7 +23,7 @@ from ..monitor import robustness
 from .abstraction import Abstraction
 from .bmc import BMCEncoder
 from .plan import DiscretePlan, extract_witness
-from .problem import SolveResult, SolveStats, SolverOptions
+from .problem import SolveResult, SolverOptions, SolveStats
 from .sampler import BeliefSampler
 from .teacher import solve_plan_lp
 
@@ -40,7 +40,9 @@ class _Clock:
         self.t0 = time.perf_counter()
 
     def __exit__(self, *exc: object) -> None:
-        setattr(self.stats, self.field, getattr(self.stats, self.field) + time.perf_counter() - self.t0)
+        setattr(
+            self.stats, self.field, getattr(self.stats, self.field) + time.perf_counter() - self.t0
+        )
 
 
 def synthesize(problem, options: SolverOptions) -> SolveResult:
@@ -71,9 +73,23 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
             enc.set_phases([int(v) for v in enc.p.ravel()])
         with _Clock(stats, "time_bmc"):
             sat = enc.solve()
+            if sat:
+                for i in report.initial_false:
+                    enc.add_clause([-int(enc.p[i, 0])])
+                sat_init = enc.solve()
         if not sat:
-            return done("infeasible", "the formula is unsatisfiable over its propositions "
-                        "(logic, empty or disjoint regions, or the initial belief)")
+            return done(
+                "infeasible",
+                "the formula is unsatisfiable over its propositions "
+                "(its logic, or empty / disjoint regions)",
+            )
+        if not sat_init:
+            names = ", ".join(abstraction.names()[i] for i in report.initial_false)
+            return done(
+                "infeasible",
+                f"the initial belief does not satisfy what the formula "
+                f"requires at step 0 ({names})",
+            )
         with _Clock(stats, "time_bmc"):
             depth = _shortest_depth(enc, H)
         sampler: BeliefSampler | None = None
@@ -87,13 +103,18 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
                 sat = enc.solve(depth)
             if not sat:
                 if depth >= H:
-                    return done("infeasible", "every discrete plan up to the formula's horizon "
-                                "was refuted by the dynamics")
+                    return done(
+                        "infeasible",
+                        "every discrete plan up to the formula's horizon "
+                        "was refuted by the dynamics",
+                    )
                 depth = min(H, depth + max(1, depth // 4))
                 logger.info("BMC: deepening to %d steps", depth)
                 continue
             claims, modes, length = enc.model_claims()
-            witness = extract_witness(formula, claims[:, :length], abstraction.index, prefer_late=True)
+            witness = extract_witness(
+                formula, claims[:, :length], abstraction.index, prefer_late=True
+            )
             if witness is None:  # cannot happen for a model of the encoding; block and go on
                 logger.warning("BMC model does not satisfy the formula; blocking it")
                 enc.add_clause([-int(v) for v in enc.p[:, :length][claims[:, :length]]] or [-enc.T])
@@ -102,21 +123,32 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
             plan = DiscretePlan(required[:, :L], modes[:L].copy(), L)
             stats.candidates += 1
             with _Clock(stats, "time_lp"):
-                lp = solve_plan_lp(system, problem.control_domain, init.mean, init.cov, abstraction, plan)
+                lp = solve_plan_lp(
+                    system, problem.control_domain, init.mean, init.cov, abstraction, plan
+                )
             stats.lp_calls += 1
             if lp.means is not None and abstraction.num_atoms:
                 _guide_phases(enc, abstraction, lp, plan)
             if not lp.feasible:
                 _block(enc, plan, lp.conflict, system.num_modes)
                 stats.counterexamples += 1
-                logger.debug("candidate %d: LP conflict on %d requirements", stats.candidates, len(lp.conflict))
+                logger.debug(
+                    "candidate %d: LP conflict on %d requirements",
+                    stats.candidates,
+                    len(lp.conflict),
+                )
                 continue
             actions = plan.modes[1:L].astype(int)
             if lp.exact:
                 result = _verify(problem, actions, lp.controls)
                 if result is not None:
                     traj, margin = result
-                    return done("found", "the plan LP is feasible and the plan passes the monitor", traj, margin)
+                    return done(
+                        "found",
+                        "the plan LP is feasible and the plan passes the monitor",
+                        traj,
+                        margin,
+                    )
                 _block(enc, plan, plan.requirements(), system.num_modes)
                 stats.counterexamples += 1
                 continue
@@ -133,10 +165,19 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
                 result = _verify(problem, out.actions, out.controls)
                 if result is not None:
                     traj, margin = result
-                    return done("found", "the belief-space sampler met the plan and the monitor agrees", traj, margin)
+                    return done(
+                        "found",
+                        "the belief-space sampler met the plan and the monitor agrees",
+                        traj,
+                        margin,
+                    )
             _block(enc, plan, plan.requirements(), system.num_modes)
             stats.counterexamples += 1
-            logger.info("candidate %d: sampler time-out after %d nodes; blocked", stats.candidates, out.nodes)
+            logger.info(
+                "candidate %d: sampler time-out after %d nodes; blocked",
+                stats.candidates,
+                out.nodes,
+            )
     finally:
         stats.sat_calls = max(stats.sat_calls, enc.sat_calls)
         enc.close()
@@ -156,9 +197,9 @@ def _add_pruning(enc: BMCEncoder, report, stats: SolveStats) -> None:
             if q >= 0:
                 clause.append(-int(enc.m[q, k + 1]))
             enc.add_clause(clause)
-    for i in report.initial_false:
-        enc.add_clause([-int(enc.p[i, 0])])
-    stats.pruned_letters = len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
+    stats.pruned_letters = (
+        len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
+    )
     stats.pruned_steps = len(report.impossible_steps)
 
 

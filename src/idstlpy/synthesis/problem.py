@@ -131,8 +131,17 @@ class SolverOptions:
         max_candidates = kw.get("max_candidates")
         if max_candidates is not None:
             max_candidates = as_int(max_candidates, "max_candidates", minimum=1)
-        return cls(rrt_timeout, delta_near, delta_drain, goal_bias, lo, hi,
-                   None if seed is None else int(seed), time_limit, max_candidates)
+        return cls(
+            rrt_timeout,
+            delta_near,
+            delta_drain,
+            goal_bias,
+            lo,
+            hi,
+            None if seed is None else int(seed),
+            time_limit,
+            max_candidates,
+        )
 
 
 class Problem:
@@ -253,8 +262,15 @@ class Problem:
             A plan verified by the monitor, or ``None``; :attr:`last_result` says why.
         """
         return self.solve_result(
-            rrt_timeout, delta_near, delta_drain, goal_bias, min_num_of_steps, max_num_of_steps,
-            seed, time_limit=time_limit, max_candidates=max_candidates,
+            rrt_timeout,
+            delta_near,
+            delta_drain,
+            goal_bias,
+            min_num_of_steps,
+            max_num_of_steps,
+            seed,
+            time_limit=time_limit,
+            max_candidates=max_candidates,
         ).trajectory
 
     def solve_result(
@@ -272,9 +288,14 @@ class Problem:
     ) -> SolveResult:
         """Like :meth:`solve`, but return the full :class:`SolveResult` (status, reason, statistics)."""
         options = SolverOptions.make(
-            rrt_timeout=rrt_timeout, delta_near=delta_near, delta_drain=delta_drain,
-            goal_bias=goal_bias, min_num_of_steps=min_num_of_steps,
-            max_num_of_steps=max_num_of_steps, seed=seed, time_limit=time_limit,
+            rrt_timeout=rrt_timeout,
+            delta_near=delta_near,
+            delta_drain=delta_drain,
+            goal_bias=goal_bias,
+            min_num_of_steps=min_num_of_steps,
+            max_num_of_steps=max_num_of_steps,
+            seed=seed,
+            time_limit=time_limit,
             max_candidates=max_candidates,
         )
         from .cegis import synthesize

@@ -103,7 +103,14 @@ class _Tree:
 class BeliefSampler:
     """Grows belief trees for candidate plans of one problem (state shared across candidates)."""
 
-    def __init__(self, problem, abstraction: Abstraction, encoder: BMCEncoder, options, rng: np.random.Generator) -> None:
+    def __init__(
+        self,
+        problem,
+        abstraction: Abstraction,
+        encoder: BMCEncoder,
+        options,
+        rng: np.random.Generator,
+    ) -> None:
         self.problem = problem
         self.system = problem.switched_system
         self.abs = abstraction
@@ -123,7 +130,11 @@ class BeliefSampler:
                 low, high = r.bounding_box()
                 center = r.chebyshev_center()[0]
             else:
-                low, high, center = np.full(self.system.n, -np.inf), np.full(self.system.n, np.inf), None
+                low, high, center = (
+                    np.full(self.system.n, -np.inf),
+                    np.full(self.system.n, np.inf),
+                    None,
+                )
             self._boxes.append((low, high))
             self._centers.append(center)
         self.workspace = self._workspace_box()
@@ -197,7 +208,9 @@ class BeliefSampler:
                     modes &= ms
         return sorted(modes)
 
-    def _replan(self, tree: _Tree, leaf_truth: np.ndarray, leaf_k: int, leaf_mode: int, parent: int) -> DiscretePlan | None:
+    def _replan(
+        self, tree: _Tree, leaf_truth: np.ndarray, leaf_k: int, leaf_mode: int, parent: int
+    ) -> DiscretePlan | None:
         """A plan consistent with the realised prefix (path to ``parent`` plus the new step), or None.
 
         The plan is the witness of the *optimistic* completion (every proposition claimed at every
@@ -239,7 +252,9 @@ class BeliefSampler:
         init = self.problem.initial_state
         tree = _Tree(sys.n, sys.m, abs_.num_atoms)
         plans = [plan]
-        root = tree.add(init.mean, init.cov, 0, -1, -1, None, abs_.truth(init.mean, init.cov, -1), 0)
+        root = tree.add(
+            init.mean, init.cov, 0, -1, -1, None, abs_.truth(init.mean, init.cov, -1), 0
+        )
         tree.active[root] = True
         sat0 = self.enc.sat_calls
         H = self.enc.H
@@ -301,7 +316,12 @@ class BeliefSampler:
             if self._satisfied(tree, leaf):
                 path = tree.path(leaf)
                 logger.info("sampler: goal after %d iterations, %d nodes", iters, tree.size)
-                return SamplerOutcome(tree.action[path[1:]].copy(), tree.control[path[1:]].copy(), tree.size, self.enc.sat_calls - sat0)
+                return SamplerOutcome(
+                    tree.action[path[1:]].copy(),
+                    tree.control[path[1:]].copy(),
+                    tree.size,
+                    self.enc.sat_calls - sat0,
+                )
             self._drain(tree, leaf, act)
         logger.info("sampler: time-out after %d iterations, %d nodes", iters, tree.size)
         return SamplerOutcome(None, None, tree.size, self.enc.sat_calls - sat0)
@@ -319,7 +339,9 @@ class BeliefSampler:
         near = pool[within]
         floor = self._floor(goal)
         unc = tree.unc[near]
-        progress = np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
+        progress = (
+            np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
+        )
         order = np.lexsort((unc, -progress, np.maximum(unc, floor)))
         return int(near[order[0]])
 

@@ -129,7 +129,9 @@ def solve_plan_lp(
         rows.append((r0 + rb).ravel())
         cols.append((nx + k * m + cb).ravel())
         vals.append(-mode.B.ravel())
-    A_eq = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(K * n, nvar)).tocsr()
+    A_eq = coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(K * n, nvar)
+    ).tocsr()
 
     # Inequalities: control domain at every step, then one block of faces per requirement.
     UH, Uc = control_domain.H, control_domain.c
@@ -166,7 +168,9 @@ def solve_plan_lp(
         row += f
     if impossible:
         return LPOutcome(False, exact, None, None, impossible[:1], covs)
-    A_ub = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, nvar)).tocsr()
+    A_ub = coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, nvar)
+    ).tocsr()
     b_ub = np.concatenate(rhs)
     cost = np.concatenate([np.zeros(nx + nu), np.ones(ns)])
     bounds = [(None, None)] * (nx + nu) + [(0, None)] * ns
