@@ -117,6 +117,14 @@ class Abstraction:
             return Polytope(np.zeros((0, self.n)), np.zeros(0))
         return Polytope(ap.cone.H, ap.cone.c)
 
+    def radius(self, i: int) -> float:
+        """Chebyshev radius of proposition ``i``'s mean region (cached; ``inf`` without faces)."""
+        cache = self.__dict__.setdefault("_radii", {})
+        if i not in cache:
+            r = self.region(i)
+            cache[i] = np.inf if not r.H.shape[0] or r.is_empty() else r.chebyshev_center()[1]
+        return cache[i]
+
     # -- pruning ------------------------------------------------------------------------------------
     def prune(
         self, system, control_domain: Polytope, initial_mean: np.ndarray, initial_cov: np.ndarray
@@ -127,12 +135,7 @@ class Abstraction:
         disjoint: list[tuple[int, int]] = []
         for i in range(self.num_atoms):
             for j in range(i + 1, self.num_atoms):
-                if (
-                    i in empty
-                    or j in empty
-                    or not regions[i].H.shape[0]
-                    or not regions[j].H.shape[0]
-                ):
+                if i in empty or j in empty or not regions[i].H.shape[0] or not regions[j].H.shape[0]:
                     continue
                 if regions[i].intersect(regions[j]).is_empty():
                     disjoint.append((i, j))
@@ -179,9 +182,7 @@ class Abstraction:
                     ]
                 )
                 b_ub = np.concatenate([-Ri.c, -U.c, -Rj.c])
-                res = linprog(
-                    np.zeros(n + m), A_ub=A_ub, b_ub=b_ub, bounds=(None, None), method="highs"
-                )
+                res = linprog(np.zeros(n + m), A_ub=A_ub, b_ub=b_ub, bounds=(None, None), method="highs")
                 if res.status == 2:
                     bad_modes.append(q)
             if len(bad_modes) == system.num_modes:

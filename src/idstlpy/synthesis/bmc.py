@@ -50,9 +50,7 @@ class BMCEncoder:
     num_modes : int
     """
 
-    def __init__(
-        self, formula: STLFormula, atoms: Sequence[STLAtomicProposition], num_modes: int
-    ) -> None:
+    def __init__(self, formula: STLFormula, atoms: Sequence[STLAtomicProposition], num_modes: int) -> None:
         self.formula = formula
         self.atoms = list(atoms)
         self.atom_index = {id(a): i for i, a in enumerate(self.atoms)}
@@ -67,15 +65,13 @@ class BMCEncoder:
         self.alive = [self.T] + [self._new() for _ in range(H + 1)]  # alive[H+1] = "longer than H"
         for k in range(H + 1):
             self.clauses.append([-self.alive[k + 1], self.alive[k]])
-        self.p = np.array(
-            [[self._new() for _ in range(H + 1)] for _ in self.atoms], dtype=np.int64
-        ).reshape(len(self.atoms), H + 1)
+        self.p = np.array([[self._new() for _ in range(H + 1)] for _ in self.atoms], dtype=np.int64).reshape(
+            len(self.atoms), H + 1
+        )
         if num_modes == 1:
             self.m = np.full((1, H + 1), self.T, dtype=np.int64)
         else:
-            self.m = np.array(
-                [[self._new() for _ in range(H + 1)] for _ in range(num_modes)], dtype=np.int64
-            )
+            self.m = np.array([[self._new() for _ in range(H + 1)] for _ in range(num_modes)], dtype=np.int64)
             for k in range(1, H + 1):
                 col = [int(v) for v in self.m[:, k]]
                 self.clauses.append(col)
@@ -97,9 +93,7 @@ class BMCEncoder:
         self.solver = Solver(name=SAT_BACKEND, bootstrap_with=self.clauses)
         self._num_sent = len(self.clauses)
         self.sat_calls = 0
-        logger.debug(
-            "BMC encoding: %d variables, %d clauses, horizon %d", self._nvars, len(self.clauses), H
-        )
+        logger.debug("BMC encoding: %d variables, %d clauses, horizon %d", self._nvars, len(self.clauses), H)
 
     # -- gates ------------------------------------------------------------------------------------
     def _new(self) -> int:
@@ -177,11 +171,7 @@ class BMCEncoder:
 
     def _until(self, left: STLFormula, right: STLFormula, lo: int, hi: int) -> int:
         reach = self._window(right, "|", lo, hi)
-        if (
-            isinstance(left, STLAtomicProposition)
-            and left.is_true
-            and id(left) not in self.atom_index
-        ):
+        if isinstance(left, STLAtomicProposition) and left.is_true and id(left) not in self.atom_index:
             return reach  # `true` holds on every existing step before the witness
         return self._and([reach, self._chain(left, right, lo)])
 
@@ -254,11 +244,7 @@ class BMCEncoder:
         val[pos[pos > 0]] = True
         val[self.T] = True
         truth = val[self.p] if self.p.size else np.zeros((0, self.H + 1), dtype=bool)
-        modes = (
-            np.argmax(val[self.m], axis=0)
-            if self.num_modes > 1
-            else np.zeros(self.H + 1, dtype=int)
-        )
+        modes = np.argmax(val[self.m], axis=0) if self.num_modes > 1 else np.zeros(self.H + 1, dtype=int)
         alive = val[np.asarray(self.alive[: self.H + 1])]
         length = int(np.sum(alive))
         return truth, modes, length

@@ -40,9 +40,7 @@ class _Clock:
         self.t0 = time.perf_counter()
 
     def __exit__(self, *exc: object) -> None:
-        setattr(
-            self.stats, self.field, getattr(self.stats, self.field) + time.perf_counter() - self.t0
-        )
+        setattr(self.stats, self.field, getattr(self.stats, self.field) + time.perf_counter() - self.t0)
 
 
 def synthesize(problem, options: SolverOptions) -> SolveResult:
@@ -80,15 +78,13 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
         if not sat:
             return done(
                 "infeasible",
-                "the formula is unsatisfiable over its propositions "
-                "(its logic, or empty / disjoint regions)",
+                "the formula is unsatisfiable over its propositions (its logic, or empty / disjoint regions)",
             )
         if not sat_init:
             names = ", ".join(abstraction.names()[i] for i in report.initial_false)
             return done(
                 "infeasible",
-                f"the initial belief does not satisfy what the formula "
-                f"requires at step 0 ({names})",
+                f"the initial belief does not satisfy what the formula requires at step 0 ({names})",
             )
         with _Clock(stats, "time_bmc"):
             depth = _shortest_depth(enc, H)
@@ -105,16 +101,13 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
                 if depth >= H:
                     return done(
                         "infeasible",
-                        "every discrete plan up to the formula's horizon "
-                        "was refuted by the dynamics",
+                        "every discrete plan up to the formula's horizon was refuted by the dynamics",
                     )
                 depth = min(H, depth + max(1, depth // 4))
                 logger.info("BMC: deepening to %d steps", depth)
                 continue
             claims, modes, length = enc.model_claims()
-            witness = extract_witness(
-                formula, claims[:, :length], abstraction.index, prefer_late=True
-            )
+            witness = extract_witness(formula, claims[:, :length], abstraction.index, prefer_late=True)
             if witness is None:  # cannot happen for a model of the encoding; block and go on
                 logger.warning("BMC model does not satisfy the formula; blocking it")
                 enc.add_clause([-int(v) for v in enc.p[:, :length][claims[:, :length]]] or [-enc.T])
@@ -123,8 +116,9 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
             plan = DiscretePlan(required[:, :L], modes[:L].copy(), L)
             stats.candidates += 1
             with _Clock(stats, "time_lp"):
+                margin = _execution_margin(system, init, abstraction, plan)
                 lp = solve_plan_lp(
-                    system, problem.control_domain, init.mean, init.cov, abstraction, plan
+                    system, problem.control_domain, init.mean, init.cov, abstraction, plan, margin
                 )
             stats.lp_calls += 1
             if lp.means is not None and abstraction.num_atoms:
@@ -197,9 +191,7 @@ def _add_pruning(enc: BMCEncoder, report, stats: SolveStats) -> None:
             if q >= 0:
                 clause.append(-int(enc.m[q, k + 1]))
             enc.add_clause(clause)
-    stats.pruned_letters = (
-        len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
-    )
+    stats.pruned_letters = len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
     stats.pruned_steps = len(report.impossible_steps)
 
 
@@ -235,6 +227,25 @@ def _guide_phases(enc: BMCEncoder, abstraction: Abstraction, lp, plan: DiscreteP
         phases.extend(int(v) if t else -int(v) for v, t in zip(enc.p[:, k], truth, strict=True))
     phases.extend(int(v) for v in enc.p[:, K + 1 :].ravel())
     enc.set_phases(phases)
+
+
+def _execution_margin(system, init, abstraction: Abstraction, plan: DiscretePlan) -> float:
+    """Room to leave inside required regions when the plan will meet noise (0 when it will not).
+
+    Half the Chebyshev radius of the smallest bounded required region (1 state unit when every
+    required region is unbounded).
+    """
+    noisy = np.any(init.cov != 0) or any(
+        np.any(mode.process_cov != 0) or mode.p > 0 for mode in system.system_modes
+    )
+    if not noisy:
+        return 0.0
+    radii = []
+    for i in np.nonzero(plan.required.any(axis=1))[0]:
+        radius = abstraction.radius(int(i))
+        if np.isfinite(radius) and radius < 1e5:
+            radii.append(radius)
+    return 0.5 * min(radii) if radii else 1.0
 
 
 def _verify(problem, actions: np.ndarray, controls: np.ndarray):

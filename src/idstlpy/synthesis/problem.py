@@ -119,9 +119,7 @@ class SolverOptions:
         lo = as_int(kw["min_num_of_steps"], "min_num_of_steps", minimum=1)
         hi = as_int(kw["max_num_of_steps"], "max_num_of_steps", minimum=1)
         if lo > hi:
-            raise InvalidArgumentError(
-                f"min_num_of_steps must be <= max_num_of_steps, got {lo} > {hi}"
-            )
+            raise InvalidArgumentError(f"min_num_of_steps must be <= max_num_of_steps, got {lo} > {hi}")
         seed = kw.get("seed")
         if seed is not None and not isinstance(seed, int | np.integer):
             raise InvalidTypeError(f"seed must be an int or None, got {type(seed).__name__}")

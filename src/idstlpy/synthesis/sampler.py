@@ -252,9 +252,7 @@ class BeliefSampler:
         init = self.problem.initial_state
         tree = _Tree(sys.n, sys.m, abs_.num_atoms)
         plans = [plan]
-        root = tree.add(
-            init.mean, init.cov, 0, -1, -1, None, abs_.truth(init.mean, init.cov, -1), 0
-        )
+        root = tree.add(init.mean, init.cov, 0, -1, -1, None, abs_.truth(init.mean, init.cov, -1), 0)
         tree.active[root] = True
         sat0 = self.enc.sat_calls
         H = self.enc.H
@@ -339,9 +337,7 @@ class BeliefSampler:
         near = pool[within]
         floor = self._floor(goal)
         unc = tree.unc[near]
-        progress = (
-            np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
-        )
+        progress = np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
         order = np.lexsort((unc, -progress, np.maximum(unc, floor)))
         return int(near[order[0]])
 

@@ -95,8 +95,14 @@ def solve_plan_lp(
     cov0: np.ndarray,
     abstraction: Abstraction,
     plan: DiscretePlan,
+    margin: float = 0.0,
 ) -> LPOutcome:
-    """Find controls that meet every requirement of ``plan`` (see the module docstring)."""
+    """Find controls that meet every requirement of ``plan`` (see the module docstring).
+
+    With ``margin > 0``, a feasible plan is re-solved to push every required face up to
+    ``margin`` (in state units) inside its bound, so the plan survives execution noise; the
+    first LP alone would return a vertex on the boundary.
+    """
     n, m = system.n, system.m
     K = plan.num_transitions
     actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
@@ -106,7 +112,7 @@ def solve_plan_lp(
         return LPOutcome(True, exact, np.zeros((0, m)), mean0[None, :].copy(), [], covs)
 
     nx, nu, ns = K * n, K * m, len(reqs)
-    nvar = nx + nu + ns
+    nvar = nx + nu + ns + 1  # the last column is the uniform margin t of the second phase
 
     # Dynamics: x_{k+1} - A x_k - B u_k = 0 (x_0 is the fixed initial mean).
     rows, cols, vals = [], [], []
@@ -163,6 +169,9 @@ def solve_plan_lp(
         rows.append(row + np.arange(f))
         cols.append(np.full(f, nx + nu + r))
         vals.append(-np.ones(f))
+        rows.append(row + np.arange(f))
+        cols.append(np.full(f, nvar - 1))
+        vals.append(np.linalg.norm(cone.H, axis=1))
         rhs.append(-(cone.c + terms) - _TIGHTEN)
         owner_rows.append(np.full(f, r))
         row += f
@@ -172,8 +181,8 @@ def solve_plan_lp(
         (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, nvar)
     ).tocsr()
     b_ub = np.concatenate(rhs)
-    cost = np.concatenate([np.zeros(nx + nu), np.ones(ns)])
-    bounds = [(None, None)] * (nx + nu) + [(0, None)] * ns
+    cost = np.concatenate([np.zeros(nx + nu), np.ones(ns), [0.0]])
+    bounds = [(None, None)] * (nx + nu) + [(0, None)] * ns + [(0, 0)]
     res = linprog(cost, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs")
     if res.status != 0:
         # The dynamics and control domain alone are infeasible (an empty control set): block the
@@ -184,6 +193,15 @@ def solve_plan_lp(
     means = np.vstack([mean0, x[:nx].reshape(K, n)])
     controls = x[nx : nx + nu].reshape(K, m)
     if res.fun <= _FEAS_TOL * max(1, ns):
+        if margin > 0 and ns:
+            cost2 = np.zeros(nvar)
+            cost2[-1] = -1.0
+            bounds2 = [(None, None)] * (nx + nu) + [(0, 0)] * ns + [(0, margin)]
+            res2 = linprog(cost2, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds2, method="highs")
+            if res2.status == 0:
+                x = res2.x
+                means = np.vstack([mean0, x[:nx].reshape(K, n)])
+                controls = x[nx : nx + nu].reshape(K, m)
         return LPOutcome(True, exact, controls, means, [], covs)
     duals = np.abs(res.ineqlin.marginals[K * nU :])
     owners = np.concatenate(owner_rows) if owner_rows else np.zeros(0, dtype=int)
