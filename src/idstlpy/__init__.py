@@ -31,6 +31,7 @@ from .errors import (
     OutOfRangeError,
     ProblemFileError,
 )
+from .execution import ValidationReport, finite_horizon_lqr, simulate, validate
 from .expressions import (
     ConvexConstraint,
     DiscretePredicate,
@@ -60,6 +61,7 @@ from .formulas import (
     until,
 )
 from .monitor import MonitorReport, monitor, robustness, satisfies
+from .problem_file import ProblemSpec, apply_overrides, load_problem
 from .sets import (
     BeliefCone,
     ConvexRegion,
@@ -67,6 +69,7 @@ from .sets import (
     FullDimensionalPolytope,
     Polytope,
 )
+from .syntax import FormulaSyntaxError, parse_formula
 from .synthesis import Problem, SolveResult, SolveStats
 from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
@@ -128,6 +131,17 @@ __all__ = [
     "Problem",
     "SolveResult",
     "SolveStats",
+    # execution
+    "finite_horizon_lqr",
+    "simulate",
+    "validate",
+    "ValidationReport",
+    # problem files and text syntax
+    "load_problem",
+    "apply_overrides",
+    "ProblemSpec",
+    "parse_formula",
+    "FormulaSyntaxError",
     # trajectories and monitoring
     "ProbabilisticTSTrajectory",
     "RealTrajectory",

@@ -1,0 +1,319 @@
+"""Execute a plan against a real system: Kalman filter plus receding-horizon LQR tracking.
+
+One execution step ``k`` (plan mode ``q = q_k``, plan mean ``m_k``, plan control ``v_k``)::
+
+    u_k      = proj_U( v_k - K (mean_k - m_k) )                  (LQR correction, K from mode q)
+    x_{k+1}  = A^real x_k + B^real u_k + W_q w_k,                 w_k ~ N(0, I)
+    y_{k+1}  = C_q x_{k+1} + n_q(x_{k+1}) v_{k+1},                v_{k+1} ~ N(0, I)
+    mean, cov <- Kalman(predict with mode q and u_k, update with y_{k+1}, noise at predicted mean)
+
+The real system moves the *true* state ``x`` with its own matrices; the observation is drawn
+from the *planning* model's sensor at the true state (the real system of the paper has no
+sensor); the filter only knows the planning model, so it evaluates the noise function at its
+own predicted mean. ``K`` is ``K_0`` of the mode's finite-horizon gains (receding horizon),
+``K_j`` when only ``h - j`` plan steps remain.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
+
+from .._checks import as_int, as_vector
+from ..belief import GaussianBelief, kalman_update, predict
+from ..dynamical_system import LCS, SwitchedSystem
+from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
+from ..sets import Polytope
+from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
+from .lqr import finite_horizon_lqr
+
+__all__ = ["simulate", "DEFAULT_LQR", "control_projector", "mode_gains"]
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_LQR: dict[str, Any] = {"horizon": 5, "Q_final": 1.0, "Q": 1.0, "R": 0.05}
+"""Weights used for a mode without gains: the paper's ``h = 5``, ``Q_final = Q = I``, ``R = 0.05 I``
+(scalars multiply the identity)."""
+
+ProcessNoise = Literal["model", "real", "none"]
+
+
+def _weight(value: Any, size: int) -> Any:
+    if np.isscalar(value):
+        return float(value) * np.eye(size)  # type: ignore[arg-type]
+    return value
+
+
+def mode_gains(
+    mode: LCS, override: Sequence[np.ndarray] | None = None, default_lqr: Mapping[str, Any] | None = None
+) -> list[np.ndarray]:
+    """Tracking gains of one mode: ``override``, else ``mode.lqr_gains``, else computed defaults.
+
+    Parameters
+    ----------
+    mode : LCS
+    override : sequence of ndarray (m, n), optional
+    default_lqr : mapping, optional
+        ``horizon``, ``Q_final``, ``Q``, ``R`` for :func:`finite_horizon_lqr` (scalars mean a
+        multiple of the identity); default :data:`DEFAULT_LQR`.
+
+    Returns
+    -------
+    list of ndarray, each shape (m, n)
+    """
+    gains = override if override is not None else getattr(mode, "lqr_gains", None)
+    if gains is None:
+        cfg = dict(DEFAULT_LQR)
+        if default_lqr is not None:
+            unknown = set(default_lqr) - set(DEFAULT_LQR)
+            if unknown:
+                raise InvalidArgumentError(
+                    f"default_lqr has unknown keys {sorted(unknown)}; expected {sorted(DEFAULT_LQR)}"
+                )
+            cfg.update(default_lqr)
+        gains = finite_horizon_lqr(
+            mode.A,
+            mode.B,
+            cfg["horizon"],
+            _weight(cfg["Q_final"], mode.n),
+            _weight(cfg["Q"], mode.n),
+            _weight(cfg["R"], mode.m),
+        )
+    out = [np.asarray(K, dtype=float) for K in gains]
+    if not out:
+        raise InvalidArgumentError("lqr gains must contain at least one gain")
+    for j, K in enumerate(out):
+        if K.shape != (mode.m, mode.n):
+            raise DimensionError(f"lqr gain {j} must have shape ({mode.m}, {mode.n}), got {K.shape}")
+    return out
+
+
+def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray], np.ndarray]:
+    """A function mapping an input to its Euclidean projection on ``domain`` (identity for None).
+
+    Boxes (every face touches one coordinate) are clipped exactly; other polytopes use a small
+    quadratic program (SLSQP) only when the input lies outside.
+
+    Parameters
+    ----------
+    domain : Polytope or None
+        Admissible inputs ``{u : H u + c <= 0}`` of dimension ``m``.
+    m : int
+        Input dimension.
+    """
+    if domain is None:
+        return lambda u: u
+    if not isinstance(domain, Polytope):
+        raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
+    if domain.dim != m:
+        raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
+    H, c = domain.H, domain.c
+    nz = np.abs(H) > 0
+    if H.shape[0] and np.all(nz.sum(axis=1) == 1):
+        low, high = np.full(m, -np.inf), np.full(m, np.inf)
+        for row, cst in zip(H, c, strict=True):
+            i = int(np.flatnonzero(row)[0])
+            bound = -cst / row[i]
+            if row[i] > 0:
+                high[i] = min(high[i], bound)
+            else:
+                low[i] = max(low[i], bound)
+        if np.any(low > high):
+            raise InvalidArgumentError("control_domain is empty: no admissible input")
+        return lambda u: np.clip(u, low, high)
+
+    from scipy.optimize import minimize
+
+    def project(u: np.ndarray) -> np.ndarray:
+        if np.all(H @ u + c <= 1e-12):
+            return u
+        start = domain.chebyshev_center()[0]
+        res = minimize(
+            lambda z: 0.5 * float((z - u) @ (z - u)),
+            start,
+            jac=lambda z: z - u,
+            constraints=[{"type": "ineq", "fun": lambda z: -(H @ z + c), "jac": lambda z: -H}],
+            method="SLSQP",
+        )
+        return np.asarray(res.x, dtype=float)
+
+    return project
+
+
+def _real_modes(real_system: Any, n: int, m: int, needed: np.ndarray) -> list[LCS]:
+    if isinstance(real_system, LCS):
+        real_system = SwitchedSystem([real_system])
+    if not isinstance(real_system, SwitchedSystem):
+        raise InvalidTypeError(
+            f"real_system must be made by mk_switched_sys (or mk_lcs), got {type(real_system).__name__}"
+        )
+    if (real_system.n, real_system.m) != (n, m):
+        raise DimensionError(
+            f"real_system has (n, m) = ({real_system.n}, {real_system.m}); the model has ({n}, {m})"
+        )
+    modes = list(real_system.system_modes)
+    if len(modes) == 1:
+        return modes
+    if needed.size and int(needed.max()) >= len(modes):
+        raise DimensionError(
+            f"the plan uses mode {int(needed.max())}, real_system has modes 0..{len(modes) - 1} "
+            "(give one real mode per planning mode, or a single mode used for all)"
+        )
+    return modes
+
+
+def simulate(
+    system: SwitchedSystem,
+    reference_trajectory: ProbabilisticTSTrajectory,
+    num_of_steps: int,
+    real_initial_state: Any,
+    real_system: SwitchedSystem,
+    seed: int | np.random.Generator | np.random.SeedSequence | None = None,
+    *,
+    control_domain: Polytope | None = None,
+    process_noise: ProcessNoise = "model",
+    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
+    default_lqr: Mapping[str, Any] | None = None,
+    initial_belief: GaussianBelief | None = None,
+) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
+    """Execute a plan on a real system with a Kalman filter and receding-horizon LQR tracking.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+        The planning model (its sensors and noise drive the observations and the filter).
+    reference_trajectory : ProbabilisticTSTrajectory
+        The plan (``Problem.solve``'s result) with ``N`` steps, state dimension ``n``.
+    num_of_steps : int
+        Steps to execute, ``0 <= num_of_steps <= N``.
+    real_initial_state : array_like, shape (n,)
+        True initial state.
+    real_system : SwitchedSystem
+        The system that moves the true state (one mode per planning mode, or a single mode).
+    seed : int, Generator or SeedSequence, optional
+        Randomness of the disturbances and measurement noises; the same seed gives the same run.
+    control_domain : Polytope, optional
+        Admissible inputs (shape ``m``); the corrected input is projected on it. ``None``
+        (the paper's listing) applies it unclipped.
+    process_noise : {"model", "real", "none"}
+        Disturbance added to the true state: the planning mode's ``W w`` (default), the real
+        mode's ``W w``, or none.
+    lqr_gains : mapping or sequence, optional
+        Per planning mode, a list of gains (m, n) overriding ``mode.lqr_gains``.
+    default_lqr : mapping, optional
+        Weights for modes without gains (see :data:`DEFAULT_LQR`).
+    initial_belief : GaussianBelief, optional
+        Filter prior; default the plan's first belief.
+
+    Returns
+    -------
+    xi_sim : ProbabilisticTSTrajectory
+        The executed belief (filter means (num_of_steps+1, n), covariances, modes, applied inputs).
+    xi_real : RealTrajectory
+        True states (num_of_steps+1, n), observations (num_of_steps+1, p) with row 0 (and rows
+        of unobserved modes) NaN, modes and applied inputs.
+
+    Raises
+    ------
+    InvalidArgumentError
+        When ``reference_trajectory`` is None (no plan) or an option is invalid.
+    DimensionError
+        When dimensions of the plan, the model and the real system disagree.
+    """
+    if reference_trajectory is None:
+        raise InvalidArgumentError(
+            "reference_trajectory is None: there is no plan to execute "
+            "(Problem.solve returned None; see problem.last_result.reason)"
+        )
+    if not isinstance(reference_trajectory, ProbabilisticTSTrajectory):
+        raise InvalidTypeError(
+            "reference_trajectory must be a ProbabilisticTSTrajectory, "
+            f"got {type(reference_trajectory).__name__}"
+        )
+    if not isinstance(system, SwitchedSystem):
+        raise InvalidTypeError(f"system must be a SwitchedSystem, got {type(system).__name__}")
+    ref = reference_trajectory
+    n, m = system.n, system.m
+    if ref.n != n:
+        raise DimensionError(f"reference_trajectory has state dimension {ref.n}, the system has n = {n}")
+    N_ref = ref.num_of_steps
+    N = as_int(num_of_steps, "num_of_steps", minimum=0)
+    if N > N_ref:
+        raise InvalidArgumentError(
+            f"num_of_steps must be <= reference_trajectory.num_of_steps ({N_ref}), got {N}"
+        )
+    actions = ref.get_action()[:N]
+    plan_u = ref.get_control()
+    if N and plan_u.shape[1] != m:
+        raise DimensionError(
+            f"reference_trajectory has inputs of size {plan_u.shape[1]}, the system has m = {m}"
+        )
+    if N and (actions.min() < 0 or actions.max() >= system.num_modes):
+        raise DimensionError(
+            f"the plan uses modes {sorted(set(actions.tolist()))}, the system has 0..{system.num_modes - 1}"
+        )
+    x = as_vector(real_initial_state, "real_initial_state", n)
+    real_modes = _real_modes(real_system, n, m, actions)
+    if process_noise not in ("model", "real", "none"):
+        raise InvalidArgumentError(f"process_noise must be 'model', 'real' or 'none', got {process_noise!r}")
+    project = control_projector(control_domain, m)
+    if isinstance(seed, np.random.Generator):
+        rng = seed
+    else:
+        rng = np.random.default_rng(seed)
+
+    if initial_belief is None:
+        mean, cov = ref.get_mean(0).copy(), ref.get_cov(0).copy()
+    else:
+        if not isinstance(initial_belief, GaussianBelief) or initial_belief.n != n:
+            raise DimensionError(f"initial_belief must be a GaussianBelief of dimension {n}")
+        mean, cov = initial_belief.mean.copy(), initial_belief.cov.copy()
+
+    def override(q: int) -> Sequence[np.ndarray] | None:
+        if lqr_gains is None:
+            return None
+        if isinstance(lqr_gains, Mapping):
+            return lqr_gains.get(q)
+        return lqr_gains[q] if q < len(lqr_gains) else None
+
+    gains = {q: mode_gains(system.mode(q), override(q), default_lqr) for q in sorted(set(actions.tolist()))}
+    p_max = max((mode.p for mode in system.system_modes), default=0)
+
+    means = np.empty((N + 1, n))
+    covs = np.empty((N + 1, n, n))
+    states = np.empty((N + 1, n))
+    observations = np.full((N + 1, p_max), np.nan)
+    controls = np.empty((N, m))
+    means[0], covs[0], states[0] = mean, cov, x
+    for k in range(N):
+        q = int(actions[k])
+        mode = system.mode(q)
+        real = real_modes[0] if len(real_modes) == 1 else real_modes[q]
+        Ks = gains[q]
+        remaining = N_ref - k
+        K = Ks[0] if remaining >= len(Ks) else Ks[len(Ks) - remaining]
+        u = project(plan_u[k] - K @ (mean - ref.get_mean(k)))
+        controls[k] = u
+        # True state (real dynamics + disturbance), then the sensor of the planning mode at it.
+        x = real.A @ x + real.B @ u
+        Wm = mode.W if process_noise == "model" else real.W if process_noise == "real" else None
+        if Wm is not None and Wm.shape[1]:
+            x = x + Wm @ rng.standard_normal(Wm.shape[1])
+        y = None
+        if mode.p:
+            nx = mode.noise(x)
+            y = mode.C @ x + (nx @ rng.standard_normal(nx.shape[1]) if nx.shape[1] else 0.0)
+            observations[k + 1, : mode.p] = y
+        # Filter: the model's prediction and an update with the received observation.
+        mean_pred, P = predict(mode, mean, cov, u)
+        mean, cov = kalman_update(mode, mean_pred, P, y=y, x_noise=mean_pred)
+        means[k + 1], covs[k + 1], states[k + 1] = mean, cov, x
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(x))):
+            raise InvalidArgumentError(f"the execution diverged at step {k + 1} (non-finite state)")
+    logger.debug("simulate: %d steps, final error %s", N, states[-1] - means[-1])
+    xi_sim = ProbabilisticTSTrajectory(means, covs, actions, controls)
+    xi_real = RealTrajectory(states, observations, actions, controls)
+    return xi_sim, xi_real

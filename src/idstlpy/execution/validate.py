@@ -1,0 +1,537 @@
+"""Monte Carlo validation: how often does the plan's promise hold when it is executed?
+
+Each run executes the plan with :func:`~idstlpy.execution.simulate.simulate` (Kalman filter,
+receding-horizon LQR, true state moved by the real system) under its own random stream, and
+records
+
+- *belief success*: the executed belief trajectory satisfies the formula (the monitor);
+- *state success*: the true states satisfy the formula's deterministic reading, i.e. the
+  formula evaluated with zero covariance at the true states (every chance predicate
+  ``P[h'x + c <= 0] >= 1 - eps`` becomes ``h'x + c <= 0``);
+- *violations*: for every atomic proposition, whether execution broke it at a step where the
+  plan satisfies it (the plan's promise), and for every predicate (face) of it, whether that
+  face was broken at such a step. A broken promise at a step the formula does not need is still
+  counted, so violation rates are an upper view of what went wrong, not failure causes.
+
+Runs are independent: run ``i`` uses child ``i`` of ``numpy.random.SeedSequence(seed).spawn``,
+and results are gathered by index, so the same seed gives the identical report whatever the
+executor and the number of workers.
+
+Parallelism and pickling
+------------------------
+Runs are shipped in batches to any :class:`concurrent.futures.Executor` (default: a
+``ProcessPoolExecutor`` with 2 workers). A process pool needs the planning model pickled, and
+the light-dark noise function is a lambda, which the standard pickle refuses. In order:
+
+1. the payload (model, formula, plan, real system, gains) is pickled as is when it can be;
+2. otherwise it is serialised with ``cloudpickle`` if that package is installed (it is with the
+   ``dask`` extra);
+3. otherwise ``problem_factory`` (a picklable zero-argument callable returning an equivalent
+   :class:`~idstlpy.Problem`, e.g. ``functools.partial(scenarios.light_dark, 240, 40)``) rebuilds
+   the problem in each worker; the tracking gains travel as plain arrays;
+4. otherwise the runs execute in-process (a debug log says so). The result is the same, only
+   slower. ``executor="serial"`` asks for the in-process path directly; a
+   ``ThreadPoolExecutor`` needs no pickling at all.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import pickle
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._checks import as_int
+from ..errors import InvalidArgumentError, InvalidTypeError
+from ..formulas import STLAtomicProposition, STLFormula
+from ..monitor import atom_margins, robustness
+from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
+from .simulate import mode_gains, simulate
+
+__all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory"]
+
+logger = logging.getLogger(__name__)
+
+
+def wilson_interval(successes: int, trials: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95% by default).
+
+    Parameters
+    ----------
+    successes, trials : int
+        ``0 <= successes <= trials``.
+    z : float
+        Standard-normal quantile of the two-sided level (1.96 for 95%).
+
+    Returns
+    -------
+    (low, high) : tuple of float
+        ``(0.0, 1.0)`` when ``trials == 0``.
+    """
+    successes = as_int(successes, "successes", minimum=0)
+    trials = as_int(trials, "trials", minimum=0)
+    if successes > trials:
+        raise InvalidArgumentError(f"successes must be <= trials, got {successes} > {trials}")
+    if trials == 0:
+        return 0.0, 1.0
+    if successes == 0:
+        return 0.0, float(z * z / (trials + z * z))
+    if successes == trials:
+        return float(trials / (trials + z * z)), 1.0
+    p = successes / trials
+    z2 = z * z
+    denom = 1.0 + z2 / trials
+    center = (p + z2 / (2 * trials)) / denom
+    half = z * math.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials)) / denom
+    return max(0.0, center - half), min(1.0, center + half)
+
+
+def state_trajectory(real: RealTrajectory) -> ProbabilisticTSTrajectory:
+    """The true states as a zero-covariance belief trajectory (the formula's deterministic reading).
+
+    Parameters
+    ----------
+    real : RealTrajectory
+        ``N`` steps of true states, shape (N+1, n).
+
+    Returns
+    -------
+    ProbabilisticTSTrajectory
+        Means = true states, covariances zero, same modes and inputs.
+    """
+    states = real.get_state()
+    n = states.shape[1]
+    return ProbabilisticTSTrajectory(
+        states, np.zeros((states.shape[0], n, n)), real.get_action(), real.get_control()
+    )
+
+
+@dataclass(frozen=True)
+class ValidationReport:
+    """Outcome of :func:`validate`.
+
+    Attributes
+    ----------
+    runs : int
+    seed_entropy : int
+        Entropy of the root ``SeedSequence`` (pass it as ``seed`` to reproduce the report).
+    num_of_steps : int
+        Steps executed per run.
+    plan_margin : float
+        Monitor robustness of the plan itself.
+    belief_successes, state_successes : int
+        Runs whose executed belief / true states satisfy the formula.
+    belief_success_rate, state_success_rate : float
+    belief_ci, state_ci : tuple of float
+        Wilson 95% confidence intervals of the two rates.
+    belief_margins, state_margins : tuple of float
+        Per run, the robustness of the executed belief / of the true states.
+    proposition_violations : dict
+        Per atomic proposition name: ``{"belief": rate, "state": rate, "belief_ci": [lo, hi],
+        "state_ci": [lo, hi]}``; the fraction of runs that broke it at a step where the plan
+        satisfies it.
+    predicate_violations : dict
+        The same per predicate, keyed ``"<proposition>: <predicate>"``.
+    elapsed : float
+        Wall-clock seconds (not part of equality).
+    executions : tuple of (ProbabilisticTSTrajectory, RealTrajectory)
+        The first ``keep_trajectories`` executions, for plotting (not part of equality).
+    """
+
+    runs: int
+    seed_entropy: int
+    num_of_steps: int
+    plan_margin: float
+    belief_successes: int
+    state_successes: int
+    belief_success_rate: float
+    state_success_rate: float
+    belief_ci: tuple[float, float]
+    state_ci: tuple[float, float]
+    belief_margins: tuple[float, ...]
+    state_margins: tuple[float, ...]
+    proposition_violations: dict[str, dict[str, Any]]
+    predicate_violations: dict[str, dict[str, Any]]
+    elapsed: float = field(default=0.0, compare=False)
+    executions: tuple[tuple[ProbabilisticTSTrajectory, RealTrajectory], ...] = field(
+        default=(), compare=False, repr=False
+    )
+
+    def meets(self, belief: float = 0.90, state: float = 0.95) -> bool:
+        """Whether both success rates reach the given bars."""
+        return self.belief_success_rate >= belief and self.state_success_rate >= state
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain-data copy for JSON (margins summarised; trajectories left out)."""
+
+        def stats(values: tuple[float, ...]) -> dict[str, float]:
+            arr = np.asarray(values, dtype=float)
+            finite = arr[np.isfinite(arr)]
+            if not finite.size:
+                return {"min": float("nan"), "median": float("nan"), "max": float("nan")}
+            return {
+                "min": float(finite.min()),
+                "median": float(np.median(finite)),
+                "max": float(finite.max()),
+            }
+
+        return {
+            "runs": self.runs,
+            "seed_entropy": self.seed_entropy,
+            "num_of_steps": self.num_of_steps,
+            "plan_margin": self.plan_margin,
+            "belief_successes": self.belief_successes,
+            "state_successes": self.state_successes,
+            "belief_success_rate": self.belief_success_rate,
+            "state_success_rate": self.state_success_rate,
+            "belief_ci": list(self.belief_ci),
+            "state_ci": list(self.state_ci),
+            "belief_margin": stats(self.belief_margins),
+            "state_margin": stats(self.state_margins),
+            "proposition_violations": {k: dict(v) for k, v in self.proposition_violations.items()},
+            "predicate_violations": {k: dict(v) for k, v in self.predicate_violations.items()},
+            "elapsed": self.elapsed,
+        }
+
+
+# --------------------------------------------------------------------------------------------
+# Workers (module level so that process pools can pickle them)
+
+
+@dataclass
+class _Payload:
+    system: Any  # SwitchedSystem, or None when rebuilt by the factory
+    formula: Any
+    factory: Callable[[], Any] | None
+    plan: ProbabilisticTSTrajectory
+    real_system: Any
+    real_initial_state: np.ndarray
+    num_of_steps: int
+    sim_options: dict[str, Any]
+    keep: int
+
+
+def _propositions(formula: STLFormula) -> list[STLAtomicProposition]:
+    return [ap for ap in formula.atomic_propositions() if not ap.is_false and not ap.is_true]
+
+
+def _face_slacks(ap: STLAtomicProposition, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
+    """Slack of every chance predicate of ``ap`` at every step, shape (L, k)."""
+    cone = ap.cone
+    if cone.num_faces == 0:
+        return np.zeros((means.shape[0], 0))
+    var = np.einsum("fi,kij,fj->kf", cone.H, covs, cone.H)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(invalid="ignore"):
+        terms = cone.z[None, :] * sd
+    terms = np.where(np.isinf(cone.z)[None, :] & (sd <= 0), 0.0, terms)
+    return -(means @ cone.H.T + cone.c[None, :] + terms)
+
+
+def _promises(formula: STLFormula, plan: ProbabilisticTSTrajectory, L: int) -> list[np.ndarray]:
+    """Per proposition, the steps (< L) at which the plan satisfies it, as boolean masks."""
+    out = []
+    for ap in _propositions(formula):
+        margins = atom_margins(ap, plan.get_mean(), plan.get_cov(), plan.get_action())
+        mask = np.zeros(L, dtype=bool)
+        upto = min(L, margins.shape[0])
+        mask[:upto] = margins[:upto] >= 0.0
+        out.append(mask)
+    return out
+
+
+def _violations(
+    formula: STLFormula, traj: ProbabilisticTSTrajectory, promises: list[np.ndarray]
+) -> tuple[list[bool], list[bool]]:
+    means, covs, actions = traj.get_mean(), traj.get_cov(), traj.get_action()
+    props, preds = [], []
+    for ap, mask in zip(_propositions(formula), promises, strict=True):
+        margins = atom_margins(ap, means, covs, actions)
+        props.append(bool(np.any(margins[mask] < 0.0)))
+        faces = _face_slacks(ap, means, covs)
+        preds.extend(bool(np.any(faces[mask, j] < 0.0)) for j in range(faces.shape[1]))
+    return props, preds
+
+
+def _execute(
+    payload: _Payload, seeds: Sequence[np.random.SeedSequence], first_index: int
+) -> list[dict[str, Any]]:
+    """Run the executions of one batch (``first_index`` is the index of ``seeds[0]``)."""
+    if payload.system is None:
+        problem = payload.factory()  # type: ignore[misc]
+        system, formula = problem.switched_system, problem.stl_formula
+    else:
+        system, formula = payload.system, payload.formula
+    L = payload.num_of_steps + 1
+    promises = _promises(formula, payload.plan, L)
+    results = []
+    for offset, ss in enumerate(seeds):
+        xi_sim, xi_real = simulate(
+            system,
+            payload.plan,
+            payload.num_of_steps,
+            payload.real_initial_state,
+            payload.real_system,
+            seed=np.random.default_rng(ss),
+            **payload.sim_options,
+        )
+        state_traj = state_trajectory(xi_real)
+        b_props, b_preds = _violations(formula, xi_sim, promises)
+        s_props, s_preds = _violations(formula, state_traj, promises)
+        res: dict[str, Any] = {
+            "belief_margin": robustness(xi_sim, formula),
+            "state_margin": robustness(state_traj, formula),
+            "belief_props": b_props,
+            "belief_preds": b_preds,
+            "state_props": s_props,
+            "state_preds": s_preds,
+        }
+        if first_index + offset < payload.keep:
+            res["trajectories"] = (xi_sim, xi_real)
+        results.append(res)
+    return results
+
+
+def _run_batch(
+    blob: bytes, seeds: Sequence[np.random.SeedSequence], first_index: int
+) -> list[dict[str, Any]]:
+    """Worker entry point: unpickle the payload, then :func:`_execute`."""
+    return _execute(pickle.loads(blob), seeds, first_index)
+
+
+def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> bytes | None:
+    """Bytes loadable by ``pickle.loads`` in a worker, or None when the problem cannot travel."""
+    try:
+        return pickle.dumps(payload)
+    except Exception as exc:  # noqa: BLE001 - any pickling failure sends us to the next option
+        logger.debug("validate: payload not picklable (%s)", exc)
+    try:
+        import cloudpickle  # type: ignore[import-not-found]
+
+        return cloudpickle.dumps(payload)
+    except Exception as exc:  # noqa: BLE001
+        logger.debug("validate: cloudpickle unavailable or failed (%s)", exc)
+    if problem_factory is not None:
+        slim = dataclasses.replace(payload, system=None, formula=None, factory=problem_factory)
+        try:
+            return pickle.dumps(slim)
+        except Exception as exc:  # noqa: BLE001
+            raise InvalidArgumentError(
+                f"problem_factory must be picklable (a module-level function or functools.partial): {exc}"
+            ) from exc
+    return None
+
+
+def validate(
+    problem: Any,
+    solution: ProbabilisticTSTrajectory,
+    real_system: Any,
+    real_initial_state: Any,
+    runs: int = 100,
+    seed: int | np.random.SeedSequence | None = None,
+    executor: Executor | str | None = None,
+    *,
+    num_of_steps: int | None = None,
+    clip_controls: bool = True,
+    process_noise: str = "model",
+    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
+    default_lqr: Mapping[str, Any] | None = None,
+    problem_factory: Callable[[], Any] | None = None,
+    max_workers: int = 2,
+    keep_trajectories: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> ValidationReport:
+    """Execute a plan many times and measure how often its promise held.
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem the plan solves (model, control domain, formula).
+    solution : ProbabilisticTSTrajectory
+        The plan.
+    real_system : SwitchedSystem
+        The system moving the true state (e.g. :func:`idstlpy.scenarios.light_dark_real_system`).
+    real_initial_state : array_like, shape (n,)
+        True initial state of every run.
+    runs : int
+        Number of independent executions (>= 1).
+    seed : int or SeedSequence, optional
+        Root of the run seeds; the same seed gives the identical report for any executor.
+    executor : concurrent.futures.Executor, "serial" or None
+        Where runs execute. ``None``: a ``ProcessPoolExecutor(max_workers)`` made (and shut down)
+        here; ``"serial"``: in-process. See the module notes on pickling.
+    num_of_steps : int, optional
+        Steps per run (default the whole plan).
+    clip_controls : bool
+        Project the corrected inputs on ``problem.control_domain`` (default True).
+    process_noise : {"model", "real", "none"}
+        See :func:`~idstlpy.execution.simulate.simulate`.
+    lqr_gains : mapping or sequence, optional
+        Per mode gains; default each mode's ``lqr_gains`` (from ``compute_finite_horizon_lqr``),
+        else the defaults of :func:`~idstlpy.execution.simulate.simulate`.
+    default_lqr : mapping, optional
+        Weights for modes without gains.
+    problem_factory : callable, optional
+        Picklable zero-argument callable returning an equivalent problem, used by process pools
+        when the problem itself cannot be pickled.
+    max_workers : int
+        Workers of the default process pool.
+    keep_trajectories : int
+        Keep the first this-many executions in :attr:`ValidationReport.executions`.
+    progress : callable, optional
+        ``progress(done, runs)`` called in the calling process as batches finish.
+
+    Returns
+    -------
+    ValidationReport
+    """
+    from ..synthesis.problem import Problem
+
+    t0 = time.perf_counter()
+    if not isinstance(problem, Problem):
+        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
+    if solution is None:
+        raise InvalidArgumentError(
+            "solution is None: there is no plan to validate (see problem.last_result.reason)"
+        )
+    if not isinstance(solution, ProbabilisticTSTrajectory):
+        raise InvalidTypeError(f"solution must be a ProbabilisticTSTrajectory, got {type(solution).__name__}")
+    runs = as_int(runs, "runs", minimum=1)
+    max_workers = as_int(max_workers, "max_workers", minimum=1)
+    keep = as_int(keep_trajectories, "keep_trajectories", minimum=0)
+    steps = solution.num_of_steps if num_of_steps is None else as_int(num_of_steps, "num_of_steps", minimum=0)
+    if isinstance(executor, str) and executor != "serial":
+        raise InvalidArgumentError(f"executor must be an Executor, 'serial' or None, got {executor!r}")
+    if executor is not None and not isinstance(executor, Executor | str):
+        raise InvalidTypeError(
+            f"executor must be a concurrent.futures.Executor, got {type(executor).__name__}"
+        )
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence | None):
+        raise InvalidTypeError(f"seed must be an int, a SeedSequence or None, got {type(seed).__name__}")
+    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    children = root.spawn(runs)
+
+    system = problem.switched_system
+    gains = []
+    for q, mode in enumerate(system.system_modes):
+        override = None
+        if lqr_gains is not None:
+            override = (
+                lqr_gains.get(q)
+                if isinstance(lqr_gains, Mapping)
+                else (lqr_gains[q] if q < len(lqr_gains) else None)
+            )
+        gains.append(mode_gains(mode, override, default_lqr))
+    sim_options: dict[str, Any] = {
+        "control_domain": problem.control_domain if clip_controls else None,
+        "process_noise": process_noise,
+        "lqr_gains": gains,
+    }
+    real_initial_state = np.asarray(real_initial_state, dtype=float)
+    # Validate every argument once, here, with one short run (errors name the argument).
+    simulate(system, solution, min(steps, 1), real_initial_state, real_system, seed=0, **sim_options)
+    payload = _Payload(
+        system, problem.stl_formula, None, solution, real_system, real_initial_state, steps, sim_options, keep
+    )
+
+    own_pool = None
+    pool: Executor | None = None
+    blob: bytes | None = None
+    if executor == "serial":
+        pool = None
+    elif isinstance(executor, ThreadPoolExecutor):
+        pool = executor
+    else:
+        blob = _serialise(payload, problem_factory)
+        if blob is None:
+            logger.debug("validate: problem not picklable and no problem_factory: running in-process")
+        elif executor is None:
+            own_pool = pool = ProcessPoolExecutor(max_workers=max_workers)
+        else:
+            pool = executor  # type: ignore[assignment]
+
+    chunk = max(1, math.ceil(runs / (4 * max_workers)))
+    batches = [(i, children[i : i + chunk]) for i in range(0, runs, chunk)]
+    results: list[dict[str, Any]] = []
+    try:
+        if pool is None:
+            for i, seeds in batches:
+                results.extend(_execute(payload, seeds, i))
+                if progress is not None:
+                    progress(len(results), runs)
+        else:
+            if isinstance(pool, ThreadPoolExecutor):
+                futures = [pool.submit(_execute, payload, seeds, i) for i, seeds in batches]
+            else:
+                futures = [pool.submit(_run_batch, blob, seeds, i) for i, seeds in batches]
+            done = 0
+            for fut in futures:
+                part = fut.result()
+                results.extend(part)
+                done += len(part)
+                if progress is not None:
+                    progress(done, runs)
+    finally:
+        if own_pool is not None:
+            own_pool.shutdown()
+    return _report(problem.stl_formula, solution, steps, root, results, time.perf_counter() - t0)
+
+
+def _report(
+    formula: STLFormula,
+    plan: ProbabilisticTSTrajectory,
+    steps: int,
+    root: np.random.SeedSequence,
+    results: list[dict[str, Any]],
+    elapsed: float,
+) -> ValidationReport:
+    runs = len(results)
+    belief_margins = tuple(float(r["belief_margin"]) for r in results)
+    state_margins = tuple(float(r["state_margin"]) for r in results)
+    b_ok = sum(m >= 0.0 for m in belief_margins)
+    s_ok = sum(m >= 0.0 for m in state_margins)
+
+    def rates(key_b: str, key_s: str, names: list[str]) -> dict[str, dict[str, Any]]:
+        out: dict[str, dict[str, Any]] = {}
+        for j, name in enumerate(names):
+            nb = sum(r[key_b][j] for r in results)
+            ns = sum(r[key_s][j] for r in results)
+            out[name] = {
+                "belief": nb / runs,
+                "state": ns / runs,
+                "belief_ci": list(wilson_interval(nb, runs)),
+                "state_ci": list(wilson_interval(ns, runs)),
+            }
+        return out
+
+    props = _propositions(formula)
+    prop_names = [ap.name or f"ap{i}" for i, ap in enumerate(props)]
+    pred_names = [
+        f"{pname}: {pred}" for ap, pname in zip(props, prop_names, strict=True) for pred in ap.predicates
+    ]
+    entropy = root.entropy
+    return ValidationReport(
+        runs=runs,
+        seed_entropy=int(entropy),
+        num_of_steps=steps,
+        plan_margin=robustness(plan, formula),
+        belief_successes=b_ok,
+        state_successes=s_ok,
+        belief_success_rate=b_ok / runs,
+        state_success_rate=s_ok / runs,
+        belief_ci=wilson_interval(b_ok, runs),
+        state_ci=wilson_interval(s_ok, runs),
+        belief_margins=belief_margins,
+        state_margins=state_margins,
+        proposition_violations=rates("belief_props", "state_props", prop_names),
+        predicate_violations=rates("belief_preds", "state_preds", pred_names),
+        elapsed=elapsed,
+        executions=tuple(r["trajectories"] for r in results if "trajectories" in r),
+    )

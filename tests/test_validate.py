@@ -1,0 +1,139 @@
+"""Monte Carlo validation: rates, confidence intervals, determinism across executors, the bar."""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+import idstlpy as stl
+from idstlpy.errors import InvalidArgumentError, InvalidTypeError
+from idstlpy.execution import ValidationReport, validate, wilson_interval
+from idstlpy.scenarios import LIGHT_DARK_REAL_INITIAL_STATE, light_dark, light_dark_real_system
+
+
+def detour_plan(problem):
+    """A hand-made light-dark plan: into the light, back to the target, hold (no solver needed)."""
+    right = np.tile([1.0, 0.0], (18, 1))  # to x ~ 4.5, where the sensor is good
+    back = np.tile([-1.0, -2.5 / 4.5], (18, 1))  # to the origin
+    hold = np.zeros((46, 2))
+    controls = np.vstack([right, back, hold])
+    plan = stl.rollout(
+        problem.switched_system, problem.initial_state, np.zeros(len(controls), dtype=int), controls
+    )
+    assert stl.satisfies(plan, problem.stl_formula)
+    return plan
+
+
+@pytest.fixture(scope="module")
+def light_dark_case():
+    problem = light_dark(deadline=60, hold=40)
+    return problem, detour_plan(problem)
+
+
+def test_wilson_interval_known_values():
+    lo, hi = wilson_interval(5, 10)
+    assert lo == pytest.approx(0.2366, abs=1e-4) and hi == pytest.approx(0.7634, abs=1e-4)
+    assert wilson_interval(0, 10) == (0.0, pytest.approx(0.2775, abs=1e-4))
+    assert wilson_interval(10, 10) == (pytest.approx(0.7225, abs=1e-4), 1.0)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+    with pytest.raises(InvalidArgumentError, match="successes must be <= trials"):
+        wilson_interval(3, 2)
+
+
+def test_same_seed_same_report_for_any_executor(light_dark_case):
+    problem, plan = light_dark_case
+    real = light_dark_real_system()
+    args = (problem, plan, real, LIGHT_DARK_REAL_INITIAL_STATE)
+    serial = validate(*args, runs=12, seed=5, executor="serial")
+    with ThreadPoolExecutor(2) as pool:
+        threaded = validate(*args, runs=12, seed=5, executor=pool)
+    processes = validate(*args, runs=12, seed=5)  # default: process pool (cloudpickle or factory)
+    assert serial == threaded == processes
+    other = validate(*args, runs=12, seed=6, executor="serial")
+    assert other.belief_margins != serial.belief_margins
+    assert isinstance(serial, ValidationReport) and serial.runs == 12
+    assert 0.0 <= serial.belief_success_rate <= 1.0
+    assert serial.belief_ci[0] <= serial.belief_success_rate <= serial.belief_ci[1]
+    json.dumps(serial.as_dict())  # plain data
+    assert set(serial.proposition_violations) == {"free_space", "target"}
+    assert len(serial.predicate_violations) == 8
+
+
+def test_factory_path_when_nothing_can_pickle_the_problem(light_dark_case, monkeypatch):
+    problem, plan = light_dark_case
+    monkeypatch.setitem(sys.modules, "cloudpickle", None)  # import cloudpickle -> ImportError
+    args = (problem, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE)
+    factory = validate(*args, runs=4, seed=1, problem_factory=functools.partial(light_dark, 60, 40))
+    fallback = validate(*args, runs=4, seed=1)  # no factory: runs in-process
+    assert factory == fallback == validate(*args, runs=4, seed=1, executor="serial")
+
+
+def test_noise_free_execution_succeeds_in_belief_and_state():
+    system = stl.mk_switched_sys(
+        [stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=np.zeros((2, 2)), C=np.eye(2))]
+    )
+    x = stl.mk_variable(2)
+    u = stl.mk_variable(2, name="u")
+    goal = stl.logical_and(stl.prob(x[0] >= 0.9) >= 0.95, stl.prob(x[0] <= 1.1) >= 0.95, name="goal")
+    problem = stl.Problem(
+        switched_system=system,
+        control_domain=stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region,
+        initial_state=stl.to_belief([0.0, 0.0], 0.01 * np.eye(2)),
+        stl_formula=stl.eventually(0, 10, goal),
+    )
+    plan = stl.rollout(system, problem.initial_state, np.zeros(4, dtype=int), np.tile([1.0, 0.0], (4, 1)))
+    assert stl.satisfies(plan, problem.stl_formula)
+    report = validate(
+        problem, plan, system, [0.0, 0.0], runs=5, seed=0, executor="serial", keep_trajectories=2
+    )
+    assert report.belief_success_rate == 1.0 and report.state_success_rate == 1.0
+    assert report.proposition_violations["goal"]["belief"] == 0.0
+    assert len(report.executions) == 2
+    # A true start off the belief's mean: the perfect sensor reveals the offset and the LQR removes it.
+    off = validate(problem, plan, system, [-0.5, 0.0], runs=3, seed=0, executor="serial", clip_controls=False)
+    assert off.state_success_rate == 1.0
+
+
+def test_invalid_arguments(light_dark_case):
+    problem, plan = light_dark_case
+    real = light_dark_real_system()
+    x0 = LIGHT_DARK_REAL_INITIAL_STATE
+    with pytest.raises(InvalidArgumentError, match="solution is None"):
+        validate(problem, None, real, x0)
+    with pytest.raises(InvalidTypeError, match="problem"):
+        validate("problem", plan, real, x0)
+    with pytest.raises(InvalidArgumentError, match="runs must be >= 1"):
+        validate(problem, plan, real, x0, runs=0)
+    with pytest.raises(InvalidArgumentError, match="executor"):
+        validate(problem, plan, real, x0, runs=2, executor="fast")
+    with pytest.raises(InvalidTypeError, match="seed"):
+        validate(problem, plan, real, x0, runs=2, seed=1.5)
+
+
+def test_listing_plan_meets_the_bar():
+    """The paper's listing: executed belief >= 90% and true state >= 95% over 100 runs."""
+    problem = light_dark()
+    result = problem.solve_result(
+        rrt_timeout=60,
+        delta_near=2,
+        delta_drain=0.5,
+        goal_bias=0.25,
+        min_num_of_steps=3,
+        max_num_of_steps=15,
+        seed=0,
+    )
+    assert result.found, f"solver found no plan: {result.reason}"
+    for mode in problem.switched_system.system_modes:
+        mode.compute_finite_horizon_lqr(
+            horizon=5, Q_final=np.identity(2), Q=np.identity(2), R=0.05 * np.identity(2)
+        )
+    report = validate(
+        problem, result.trajectory, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE, runs=100, seed=0
+    )
+    assert report.belief_success_rate >= 0.90, report.as_dict()
+    assert report.state_success_rate >= 0.95, report.as_dict()
