@@ -48,9 +48,7 @@ def test_light_dark_plan_takes_the_detour_and_verifies(light_dark_result):
 def test_light_dark_plan_is_the_exact_belief_rollout(light_dark_result):
     problem, result = light_dark_result
     plan = result.trajectory
-    again = stl.rollout(
-        problem.switched_system, problem.initial_state, plan.get_action(), plan.get_control()
-    )
+    again = stl.rollout(problem.switched_system, problem.initial_state, plan.get_action(), plan.get_control())
     np.testing.assert_allclose(again.get_mean(), plan.get_mean())
     np.testing.assert_allclose(again.get_cov(), plan.get_cov())
     dom = problem.control_domain
@@ -102,9 +100,7 @@ def test_logically_unsatisfiable_is_proved_fast():
     domain = stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region
     left = stl.logical_and(P(x[0] <= 0), name="left")
     right = stl.logical_and(P(x[0] >= 1), name="right")
-    formula = stl.eventually(
-        0, 300, stl.logical_and(stl.always(0, 5, left), stl.always(0, 5, right))
-    )
+    formula = stl.eventually(0, 300, stl.logical_and(stl.always(0, 5, left), stl.always(0, 5, right)))
     problem = stl.Problem(system, domain, stl.to_belief([0, 0], 0.01 * np.eye(2)), formula)
     t0 = time.perf_counter()
     assert problem.solve(rrt_timeout=60, seed=0) is None
@@ -157,12 +153,8 @@ def test_switched_modes_sense_before_acting():
     assert 0 in plan.get_action()  # it had to sense
     assert 1 in plan.get_action()  # and it needed the fast mode to get there in time
     # A formula over modes: the last step must be taken in the sensing mode.
-    formula2 = stl.eventually(
-        0, 12, stl.logical_and(q == 0, P(x[0] >= 4.8, 0.95), P(x[0] <= 5.2, 0.95))
-    )
-    plan2 = stl.Problem(system, domain, stl.to_belief([0.0], [[1.0]]), formula2).solve(
-        rrt_timeout=5, seed=0
-    )
+    formula2 = stl.eventually(0, 12, stl.logical_and(q == 0, P(x[0] >= 4.8, 0.95), P(x[0] <= 5.2, 0.95)))
+    plan2 = stl.Problem(system, domain, stl.to_belief([0.0], [[1.0]]), formula2).solve(rrt_timeout=5, seed=0)
     assert plan2 is not None and stl.satisfies(plan2, formula2)
 
 
@@ -193,9 +185,7 @@ def test_problem_parts_must_agree():
         stl.Problem(system, domain, belief, stl.eventually(0, 3, P(x[0] <= 1)))
     y = stl.mk_variable(2)
     with pytest.raises(stl.OutOfRangeError, match="mode 2"):
-        stl.Problem(
-            system, domain, belief, stl.eventually(0, 3, stl.logical_and(q == 2, P(y[0] <= 1)))
-        )
+        stl.Problem(system, domain, belief, stl.eventually(0, 3, stl.logical_and(q == 2, P(y[0] <= 1))))
     with pytest.raises(stl.DimensionError, match="control_domain"):
         stl.Problem(system, stl.Polytope.box([-1], [1]), belief, stl.eventually(0, 3, P(y[0] <= 1)))
 
@@ -250,9 +240,7 @@ def random_problems(draw):
         lo = np.array([draw(st.floats(-4, 3)) for _ in range(n)])
         hi = lo + np.array([draw(st.floats(0.2, 3)) for _ in range(n)])
         level = draw(st.sampled_from([0.5, 0.9, 0.99]))
-        preds = [P(x[i] >= lo[i], level) for i in range(n)] + [
-            P(x[i] <= hi[i], level) for i in range(n)
-        ]
+        preds = [P(x[i] >= lo[i], level) for i in range(n)] + [P(x[i] <= hi[i], level) for i in range(n)]
         return stl.logical_and(*preds, name=name)
 
     a, b = box("a"), box("b")
@@ -283,3 +271,42 @@ def test_fuzz_verified_plan_or_none(problem, seed):
         assert stl.satisfies(result.trajectory, problem.stl_formula)
     else:
         assert result.status in ("infeasible", "budget_exhausted")
+
+
+def _reach_avoid_in_a_box(T, goal_low=(7.0, 8.0)):
+    x, system, domain = _double_integrator()
+    avoid = stl.logical_or(P(x[0] <= 3), P(x[0] >= 5), P(x[1] <= 4), P(x[1] >= 6))
+    goal = stl.logical_and(
+        P(x[0] >= goal_low[0]),
+        P(x[0] <= goal_low[0] + 1),
+        P(x[1] >= goal_low[1]),
+        P(x[1] <= goal_low[1] + 1),
+        name="goal",
+    )
+    box = stl.logical_and(
+        P(x[0] >= 0),
+        P(x[0] <= 10),
+        P(x[1] >= 0),
+        P(x[1] <= 10),
+        P(x[2] >= -1),
+        P(x[2] <= 1),
+        P(x[3] >= -1),
+        P(x[3] <= 1),
+        name="box",
+    )
+    formula = stl.logical_and(stl.always(0, T, avoid), stl.eventually(0, T, goal), stl.always(0, T, box))
+    return stl.Problem(system, domain, stl.to_belief([1, 2, 0, 0], np.zeros((4, 4))), formula)
+
+
+def test_eager_milp_path_plans_and_proves(monkeypatch):
+    import idstlpy.synthesis.cegis as cegis
+
+    monkeypatch.setattr(cegis, "_LAZY_CANDIDATES", 0)
+    problem = _reach_avoid_in_a_box(25)
+    result = problem.solve_result(rrt_timeout=10, seed=0)
+    assert result.status == "found" and "MILP" in result.reason
+    assert stl.satisfies(result.trajectory, problem.stl_formula)
+    # Too far for 6 steps at |u| <= 0.5, |v| <= 1: a proof, not a time-out.
+    far = _reach_avoid_in_a_box(6)
+    result = far.solve_result(rrt_timeout=10, seed=0)
+    assert result.status == "infeasible"

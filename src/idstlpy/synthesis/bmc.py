@@ -91,7 +91,7 @@ class BMCEncoder:
         self.root = self.lit(formula, 0)
         self.clauses.append([self.root])
         self.solver = Solver(name=SAT_BACKEND, bootstrap_with=self.clauses)
-        self._num_sent = len(self.clauses)
+        self.learnt: list[list[int]] = []
         self.sat_calls = 0
         logger.debug("BMC encoding: %d variables, %d clauses, horizon %d", self._nvars, len(self.clauses), H)
 
@@ -218,7 +218,9 @@ class BMCEncoder:
     # -- solving ----------------------------------------------------------------------------------
     def add_clause(self, clause: Sequence[int]) -> None:
         """Add a (blocking or pruning) clause for good."""
-        self.solver.add_clause([int(v) for v in clause])
+        lits = [int(v) for v in clause]
+        self.learnt.append(lits)
+        self.solver.add_clause(lits)
 
     def set_phases(self, literals: Sequence[int]) -> None:
         """Preferred polarities for the next searches."""

@@ -22,6 +22,7 @@ from ..belief import rollout
 from ..monitor import robustness
 from .abstraction import Abstraction
 from .bmc import BMCEncoder
+from .milp import solve_milp
 from .plan import DiscretePlan, extract_witness
 from .problem import SolveResult, SolverOptions, SolveStats
 from .sampler import BeliefSampler
@@ -30,6 +31,9 @@ from .teacher import solve_plan_lp
 __all__ = ["synthesize"]
 
 logger = logging.getLogger(__name__)
+
+_LAZY_CANDIDATES = 10
+"""Candidates the lazy loop may try before an LP-exact problem goes to the eager MILP."""
 
 
 class _Clock:
@@ -89,11 +93,14 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
         with _Clock(stats, "time_bmc"):
             depth = _shortest_depth(enc, H)
         sampler: BeliefSampler | None = None
+        eager = system.num_modes == 1 and not system.system_modes[0].has_state_dependent_noise
         while True:
             if time.perf_counter() > deadline:
                 return done("budget_exhausted", f"time limit of {budget:.3g} s reached")
             if options.max_candidates is not None and stats.candidates >= options.max_candidates:
                 return done("budget_exhausted", f"{options.max_candidates} candidates tried")
+            if eager and stats.candidates >= _LAZY_CANDIDATES:
+                return _eager(problem, enc, abstraction, deadline, stats, done)
             stats.bmc_depth = max(stats.bmc_depth, depth)
             with _Clock(stats, "time_bmc"):
                 sat = enc.solve(depth)
@@ -193,6 +200,55 @@ def _add_pruning(enc: BMCEncoder, report, stats: SolveStats) -> None:
             enc.add_clause(clause)
     stats.pruned_letters = len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
     stats.pruned_steps = len(report.impossible_steps)
+
+
+def _eager(problem, enc: BMCEncoder, abstraction: Abstraction, deadline: float, stats: SolveStats, done):
+    """Hand an LP-exact, single-mode problem to HiGHS as one MILP (see :mod:`.milp`).
+
+    The MILP chooses the discrete plan; its continuous part is re-solved by the plan LP (with the
+    execution margin) when the MILP's own controls miss the exact check by solver tolerances.
+    """
+    logger.info("%d candidates refuted: switching to the eager MILP", stats.candidates)
+    init, system = problem.initial_state, problem.switched_system
+    with _Clock(stats, "time_lp"):
+        status, actions, controls, claims = solve_milp(
+            enc,
+            abstraction,
+            system,
+            problem.control_domain,
+            init.mean,
+            init.cov,
+            deadline - time.perf_counter(),
+        )
+    stats.lp_calls += 1
+    if status == "infeasible":
+        return done("infeasible", "the eager MILP proved that no plan exists within the horizon")
+    if status != "found":
+        return done("budget_exhausted", "time limit reached in the eager MILP")
+    witness = extract_witness(problem.stl_formula, claims, abstraction.index, prefer_late=True)
+    if witness is not None:
+        required, L = witness
+        plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
+        with _Clock(stats, "time_lp"):
+            lp = solve_plan_lp(
+                system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                abstraction,
+                plan,
+                _execution_margin(system, init, abstraction, plan),
+            )
+        stats.lp_calls += 1
+        if lp.feasible:
+            actions, controls = np.zeros(L - 1, dtype=int), lp.controls
+    result = _verify(problem, actions, controls)
+    if result is not None:
+        traj, margin = result
+        return done(
+            "found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin
+        )
+    return done("budget_exhausted", "the MILP's plan failed the monitor's exact re-check")
 
 
 def _shortest_depth(enc: BMCEncoder, H: int) -> int:

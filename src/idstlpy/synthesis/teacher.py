@@ -29,8 +29,8 @@ __all__ = ["LPOutcome", "covariance_schedule", "solve_plan_lp"]
 
 logger = logging.getLogger(__name__)
 
-_FEAS_TOL = 1e-7
-_TIGHTEN = 1e-7  # keep a hair of margin so the monitor's exact re-check passes
+_FEAS_TOL = 1e-9
+_TIGHTEN = 1e-6  # above HiGHS' primal tolerance (1e-7): the monitor's exact re-check passes
 
 
 @dataclass
