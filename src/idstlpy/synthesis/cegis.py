@@ -163,7 +163,9 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
             stats.nodes += out.nodes
             stats.sat_calls += enc.sat_calls - sat_before
             if out.actions is not None:
-                result = _verify(problem, out.actions, out.controls)
+                with _Clock(stats, "time_sampling"):
+                    actions, controls = sampler.shortcut(out.actions, out.controls)
+                result = _verify(problem, actions, controls)
                 if result is not None:
                     traj, margin = result
                     return done(

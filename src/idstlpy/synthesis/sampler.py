@@ -243,6 +243,59 @@ class BeliefSampler:
         truth = tree.truth[path].T
         return bool(evaluate_bool(self.formula, truth, self.abs.index)[id(self.formula)][0])
 
+    # -- post-processing --------------------------------------------------------------------------
+    def shortcut(
+        self, actions: np.ndarray, controls: np.ndarray, max_checks: int = 24
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Shorten a found plan greedily (sampling plans wander); every accepted cut is re-checked.
+
+        From step ``i``, try to reach the planned mean of a later step ``j`` directly with the
+        steering law in fewer steps; splice the cut in when the whole re-rolled plan still
+        satisfies the formula (its covariances change: a cut that skips the sensing detour is
+        refused). Deterministic, and bounded by ``max_checks`` full re-checks.
+        """
+        modes = self.system.system_modes
+        init = self.problem.initial_state
+        checks = 0
+        i = 0
+        while checks < max_checks:
+            N = actions.shape[0]
+            means, covs = _roll(modes, init.mean, init.cov, actions, controls)
+            if i >= N - 2:
+                break
+            improved = False
+            for j in sorted({N, (i + N) // 2 + 1, i + (N - i) // 4 + 2, i + 8, i + 4}, reverse=True):
+                if not i + 2 <= j <= N or checks >= max_checks:
+                    continue
+                q = int(actions[i])
+                mean, target = means[i], means[j]
+                cut_u = []
+                for _ in range(j - i - 1):
+                    u = self._steer(q, mean, target)
+                    cut_u.append(u)
+                    mean = modes[q].A @ mean + modes[q].B @ u
+                    if np.linalg.norm(mean - target) <= 1e-9 * (1.0 + np.linalg.norm(target)):
+                        break
+                else:
+                    continue
+                new_actions = np.concatenate([actions[:i], np.full(len(cut_u), q), actions[j:]])
+                new_controls = np.vstack([controls[:i], np.array(cut_u), controls[j:]])
+                checks += 1
+                m2, c2 = _roll(modes, init.mean, init.cov, new_actions, new_controls)
+                truth = np.array(
+                    [
+                        self.abs.truth(m2[k], c2[k], int(new_actions[k - 1]) if k else -1)
+                        for k in range(len(m2))
+                    ]
+                ).T
+                if evaluate_bool(self.formula, truth, self.abs.index)[id(self.formula)][0]:
+                    actions, controls = new_actions, new_controls
+                    improved = True
+                    break
+            if not improved:
+                i += max(1, (actions.shape[0] - i) // 8)
+        return actions, controls
+
     # -- main loop --------------------------------------------------------------------------------
     def run(self, plan: DiscretePlan, deadline: float) -> SamplerOutcome:
         """Grow a tree guided by ``plan`` until a goal node is found or ``deadline`` passes."""
@@ -368,6 +421,16 @@ class BeliefSampler:
             return  # dominated: the new node stays as an interior node only
         tree.active[close] = False
         tree.active[leaf] = True
+
+
+def _roll(modes, mean0, cov0, actions, controls) -> tuple[np.ndarray, np.ndarray]:
+    N = actions.shape[0]
+    means = np.empty((N + 1, mean0.shape[0]))
+    covs = np.empty((N + 1, *cov0.shape))
+    means[0], covs[0] = mean0, cov0
+    for k in range(N):
+        means[k + 1], covs[k + 1] = belief_step(modes[int(actions[k])], means[k], covs[k], controls[k])
+    return means, covs
 
 
 def _bucket(run: np.ndarray | int) -> np.ndarray:
