@@ -124,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.extend(r for r in load_rows(str(a.reuse_peers), "peers")
                     if r["suite"] in a.suites and (r["suite"] != "stlpy" or r["scenario"] in cfg.scenarios))
         logging.info("reusing %d peer rows from %s", len(rows), a.reuse_peers)
+        cfg.extra["known"] = list(rows)
     csv_path, md_path, png_path = a.out / "results.csv", a.out / "results.md", a.out / "horizon_scaling.png"
     with Worker() as worker:
         for suite, runner in (("stlpy", run_stlpy_suite), ("prstl", run_prstl_suite),
