@@ -4,7 +4,8 @@ Suites: ``stlpy`` (stlpy's scenarios through idstlpy and stlpy's MICP on Gurobi 
 side by side), ``prstl`` (noisy reach-avoid vs a chance-constrained MILP), ``lightdark`` (the
 paper's example over seeds, and its stretched horizon). Writes ``results.csv``,
 ``results.md`` and ``horizon_scaling.png`` into ``--out`` (default ``results/``) and, unless
-``--quick`` or ``--no-doc``, refreshes ``BENCHMARKS.md`` at the repository root.
+``--quick`` or ``--no-doc``, refreshes ``BENCHMARKS.md`` at the repository root and keeps a copy of
+the CSV and the plot it shows under ``benchmarks/results/``.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import logging
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -143,6 +145,12 @@ def main(argv: list[str] | None = None) -> int:
                        f"{mach['cpu']}\n\n{tables}\n")
     logging.info("wrote %s, %s%s", csv_path, md_path, f", {png_path}" if plotted else "")
     if not a.quick and not a.no_doc:
+        # results/ is scratch (git-ignored); the figures BENCHMARKS.md shows are kept beside the code.
+        kept = ROOT / "benchmarks" / "results"
+        kept.mkdir(exist_ok=True)
+        shutil.copy(csv_path, kept / "results.csv")
+        if plotted:
+            png_path = Path(shutil.copy(png_path, kept / "horizon_scaling.png"))
         analysis_file = Path(__file__).with_name("analysis.md")
         analysis = analysis_file.read_text() if analysis_file.exists() else None
         try:

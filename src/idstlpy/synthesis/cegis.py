@@ -167,7 +167,8 @@ def synthesize(problem, options: SolverOptions) -> SolveResult:
                     actions, controls = sampler.shortcut(out.actions, out.controls)
                 result = _verify(problem, actions, controls)
                 if result is not None:
-                    traj, margin = result
+                    with _Clock(stats, "time_lp"):
+                        traj, margin = _polish(problem, abstraction, *result, stats)
                     return done(
                         "found",
                         "the belief-space sampler met the plan and the monitor agrees",
@@ -304,6 +305,49 @@ def _execution_margin(system, init, abstraction: Abstraction, plan: DiscretePlan
         if np.isfinite(radius) and radius < 1e5:
             radii.append(radius)
     return 0.5 * min(radii) if radii else 1.0
+
+
+def _polish(problem, abstraction: Abstraction, traj, margin: float, stats: SolveStats, rounds: int = 4):
+    """Move a sampler's plan away from the boundaries it grazes, keeping its modes.
+
+    The sampler stops at the first belief that meets the plan, often a hair inside a required
+    region, and such a plan breaks under execution noise. Each round freezes the trajectory's
+    exact covariances, asks the plan LP for the controls that maximise the smallest slack of the
+    requirements the trajectory meets (means may move by at most ``trust``), re-rolls the exact
+    belief dynamics and keeps the result only if the monitor's margin grew; ``trust`` halves
+    after a round that did not help.
+    """
+    init, system = problem.initial_state, problem.switched_system
+    trust = np.inf  # set from the first round's margin target
+    for _ in range(rounds):
+        actions = traj.get_action()
+        modes = np.concatenate([[-1], actions]).astype(int)
+        means, covs = traj.get_mean(), traj.get_cov()
+        labels = [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)]
+        truth = np.stack(labels, axis=1)
+        witness = extract_witness(problem.stl_formula, truth, abstraction.index, prefer_late=False)
+        if witness is None:
+            break
+        required, L = witness
+        plan = DiscretePlan(required[:, :L], modes[:L], L)
+        target = _execution_margin(system, init, abstraction, plan)
+        if target <= margin:
+            break
+        trust = min(trust, 2.0 * target)
+        lp = solve_plan_lp(
+            system, problem.control_domain, init.mean, init.cov, abstraction, plan, target,
+            covs=covs[:L], anchor=means[:L], trust=trust,
+        )
+        stats.lp_calls += 1
+        if lp.feasible:
+            moved = rollout(system, init, actions[: L - 1], lp.controls)
+            moved_margin = robustness(moved, problem.stl_formula)
+            if moved_margin > margin:
+                logger.debug("polish: margin %.3g -> %.3g (trust %.3g)", margin, moved_margin, trust)
+                traj, margin = moved, moved_margin
+                continue
+        trust *= 0.5
+    return traj, margin
 
 
 def _verify(problem, actions: np.ndarray, controls: np.ndarray):

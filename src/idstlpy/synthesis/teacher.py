@@ -96,17 +96,29 @@ def solve_plan_lp(
     abstraction: Abstraction,
     plan: DiscretePlan,
     margin: float = 0.0,
+    *,
+    covs: np.ndarray | None = None,
+    anchor: np.ndarray | None = None,
+    trust: float = np.inf,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
     With ``margin > 0``, a feasible plan is re-solved to push every required face up to
     ``margin`` (in state units) inside its bound, so the plan survives execution noise; the
     first LP alone would return a vertex on the boundary.
+
+    ``covs`` (shape (K+1, n, n)) replaces the covariance schedule of the modes, e.g. the exact
+    covariances of a trajectory under state-dependent noise; the result is then exact only near
+    that trajectory, so ``anchor`` (its means, shape (K+1, n)) and ``trust`` bound how far every
+    mean may move (infinity norm) in the margin phase.
     """
     n, m = system.n, system.m
     K = plan.num_transitions
     actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
-    covs, exact = covariance_schedule(system, cov0, actions)
+    if covs is None:
+        covs, exact = covariance_schedule(system, cov0, actions)
+    else:
+        exact = False
     reqs = [(k, i) for (k, i) in plan.requirements() if k >= 1 and abstraction.atoms[i].predicates]
     if K == 0:
         return LPOutcome(True, exact, np.zeros((0, m)), mean0[None, :].copy(), [], covs)
@@ -197,6 +209,9 @@ def solve_plan_lp(
             cost2 = np.zeros(nvar)
             cost2[-1] = -1.0
             bounds2 = [(None, None)] * (nx + nu) + [(0, 0)] * ns + [(0, margin)]
+            if anchor is not None and np.isfinite(trust):
+                ref = np.asarray(anchor)[1 : K + 1].ravel()
+                bounds2[:nx] = list(zip(ref - trust, ref + trust, strict=True))
             res2 = linprog(cost2, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds2, method="highs")
             if res2.status == 0:
                 x = res2.x
