@@ -904,7 +904,7 @@ class _Builder:
             mode = self.mode(("modes", q), md, n, m, planning=True)
             n, m = mode.n, mode.m
             modes.append(mode)
-        assert n is not None and m is not None
+        n, m = modes[0].n, modes[0].m  # every mode was checked against the first
         system = mk_switched_sys(modes)
         control = self.control_domain(data["control_domain"], m)
         belief = self.initial_belief(data["initial_belief"], n)

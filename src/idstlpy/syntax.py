@@ -181,8 +181,7 @@ def _tokenize(text: str) -> list[_Token]:
         m = _TOKEN_RE.match(text, pos)
         if m is None:
             raise FormulaSyntaxError(text, pos, f"unexpected character {text[pos]!r}")
-        kind = m.lastgroup
-        assert kind is not None
+        kind = m.lastgroup or ""
         if kind == "num":
             digits = m.group()
             kind = "int" if digits.isdigit() else "num"
@@ -402,9 +401,8 @@ class _Parser:
         level = self.number("probability level")
         if not 0.5 <= level <= 1.0:
             raise self.error(f"probability level must lie in [0.5, 1], got {level_tok.text}", level_tok)
-        assert self.variable is not None
         try:
-            return ProbabilisticLinearPredicate(h, c, self.variable, 1.0 - level)
+            return ProbabilisticLinearPredicate(h, c, self._state_variable(), 1.0 - level)
         except InvalidArgumentError as exc:  # pragma: no cover - guarded above
             raise self.error(str(exc), start) from exc
 
@@ -440,9 +438,13 @@ class _Parser:
             else:
                 return h, 0.0 if c is None else c
 
+    def _state_variable(self):
+        if self.variable is None:
+            raise self.error("this formula refers to a state variable, but none was given", self.tok)
+        return self.variable
+
     def var_index(self) -> int:
-        var = self.variable
-        assert var is not None
+        var = self._state_variable()
         tok = self.tok
         if tok.kind != "name" or tok.text != var.name:
             raise self.error(f"expected the state variable {var.name!r}, got {self._show(tok)}")
