@@ -2,9 +2,10 @@
 
 Run: ``python -m benchmarks.lp_path [--horizons 25,50,100,200] [--repeats 5] [--lazy-candidates N]``.
 
-A 4-D double integrator (``|u_i| <= 0.5``, zero covariance, so every chance constraint is a
-plain linear one) must avoid the box ``[3, 5] x [4, 6]`` at every step and reach ``[7, 8] x [8, 9]``
-within ``T`` steps from ``(1, 1)`` at rest: ``G[0,T] avoid & F[0,T] goal``. Prints a Markdown table
+:func:`idstlpy.scenarios.reach_avoid`: a 4-D double integrator (``|u_i| <= 0.5``, zero
+covariance, so every chance constraint is a plain linear one) must avoid the box
+``[3, 5] x [4, 6]`` at every step and reach ``[7, 8] x [8, 9]`` within ``T`` steps from ``(1, 1)``
+at rest: ``G[0,T] avoid & F[0,T] goal``. Prints a Markdown table
 (median of the repeats, and which path decided the problem). ``--lazy-candidates`` overrides how
 many candidates the lazy SAT/LP loop refutes before it hands the problem to the eager MILP
 (idstlpy's default is 10; this problem needs 17 lazily).
@@ -16,29 +17,7 @@ import argparse
 import statistics
 import time
 
-import numpy as np
-
-import idstlpy as stl
-
-
-def reach_avoid(T: int) -> stl.Problem:
-    """The double-integrator reach-avoid problem with horizon ``T``."""
-    x = stl.mk_variable(4)
-    u = stl.mk_variable(2, name="u")
-    A = np.eye(4)
-    A[0, 2] = A[1, 3] = 1.0
-    B = np.zeros((4, 2))
-    B[2, 0] = B[3, 1] = 1.0
-    system = stl.mk_switched_sys([stl.mk_lbs(A, B, np.zeros((4, 4)))])
-    domain = stl.logical_and(u[0] >= -0.5, u[0] <= 0.5, u[1] >= -0.5, u[1] <= 0.5).region
-
-    def p(pred):
-        return stl.prob(pred) >= 0.99
-
-    avoid = stl.logical_or(p(x[0] <= 3), p(x[0] >= 5), p(x[1] <= 4), p(x[1] >= 6))
-    goal = stl.logical_and(p(x[0] >= 7), p(x[0] <= 8), p(x[1] >= 8), p(x[1] <= 9), name="goal")
-    formula = stl.logical_and(stl.always(0, T, avoid), stl.eventually(0, T, goal))
-    return stl.Problem(system, domain, stl.to_belief([1, 1, 0, 0], np.zeros((4, 4))), formula)
+from idstlpy.scenarios import reach_avoid
 
 
 def main(argv: list[str] | None = None) -> int:

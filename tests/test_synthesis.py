@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import idstlpy as stl
-from idstlpy.scenarios import light_dark
+from idstlpy.scenarios import double_integrator, light_dark, reach_avoid
 
 LISTING = dict(
     rrt_timeout=60,
@@ -103,25 +103,10 @@ def test_stats_describe_the_run(light_dark_result):
     assert s.time_total >= s.time_sampling > 0
 
 
-def _double_integrator():
-    x = stl.mk_variable(4)
-    u = stl.mk_variable(2, name="u")
-    A = np.eye(4)
-    A[0, 2] = A[1, 3] = 1.0
-    B = np.zeros((4, 2))
-    B[2, 0] = B[3, 1] = 1.0
-    system = stl.mk_switched_sys([stl.mk_lbs(A, B, np.zeros((4, 4)))])
-    domain = stl.logical_and(u[0] >= -0.5, u[0] <= 0.5, u[1] >= -0.5, u[1] <= 0.5).region
-    return x, system, domain
-
-
 @pytest.mark.parametrize("T", [25, 60])
 def test_noise_free_reach_avoid_through_the_lp_path(T):
-    x, system, domain = _double_integrator()
-    avoid = stl.logical_or(P(x[0] <= 3), P(x[0] >= 5), P(x[1] <= 4), P(x[1] >= 6))
-    goal = stl.logical_and(P(x[0] >= 7), P(x[0] <= 8), P(x[1] >= 8), P(x[1] <= 9), name="goal")
-    formula = stl.logical_and(stl.always(0, T, avoid), stl.eventually(0, T, goal))
-    problem = stl.Problem(system, domain, stl.to_belief([1, 1, 0, 0], np.zeros((4, 4))), formula)
+    problem = reach_avoid(T)
+    formula = problem.stl_formula
     result = problem.solve_result(rrt_timeout=5, seed=0)
     assert result.status == "found"
     assert result.stats.nodes == 0  # decided by the LP teacher, no sampling
@@ -309,7 +294,7 @@ def test_fuzz_verified_plan_or_none(problem, seed):
 
 
 def _reach_avoid_in_a_box(T, goal_low=(7.0, 8.0)):
-    x, system, domain = _double_integrator()
+    x, system, domain = double_integrator()
     avoid = stl.logical_or(P(x[0] <= 3), P(x[0] >= 5), P(x[1] <= 4), P(x[1] >= 6))
     goal = stl.logical_and(
         P(x[0] >= goal_low[0]),

@@ -1,4 +1,4 @@
-"""Ready-made problems: the paper's light-dark example and its variants."""
+"""Ready-made problems: the paper's light-dark example and its variants, and a noise-free reach-avoid."""
 
 from __future__ import annotations
 
@@ -8,10 +8,17 @@ from . import dynamical_system
 from .belief import to_belief
 from .dynamical_system import SwitchedSystem, mk_lcs, mk_switched_sys
 from .expressions import mk_variable, prob
-from .formulas import always, logical_and, until
+from .formulas import always, eventually, logical_and, logical_or, until
+from .sets import Polytope
 from .synthesis.problem import Problem
 
-__all__ = ["light_dark", "light_dark_real_system", "LIGHT_DARK_REAL_INITIAL_STATE"]
+__all__ = [
+    "light_dark",
+    "light_dark_real_system",
+    "LIGHT_DARK_REAL_INITIAL_STATE",
+    "double_integrator",
+    "reach_avoid",
+]
 
 LIGHT_DARK_REAL_INITIAL_STATE = np.array([0.5, 2.75])
 """True start of the robot in the paper's execution (the belief's mean is [0, 2.5])."""
@@ -74,3 +81,41 @@ def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
 def light_dark_real_system() -> SwitchedSystem:
     """The noise-free real system the paper executes the plan on."""
     return mk_switched_sys([mk_lcs(A=np.identity(2), B=0.25 * np.identity(2))])
+
+
+def double_integrator():
+    """A noise-free 2-D double integrator: state ``(p_x, p_y, v_x, v_y)``, ``|u_i| <= 0.5``.
+
+    Returns
+    -------
+    x : RealValuedVariable, size 4
+    system : SwitchedSystem
+        One mode, zero process noise, no sensor.
+    control_domain : Polytope, in R^2
+    """
+    x = mk_variable(4)
+    u = mk_variable(2, name="u")
+    A = np.eye(4)
+    A[0, 2] = A[1, 3] = 1.0
+    B = np.zeros((4, 2))
+    B[2, 0] = B[3, 1] = 1.0
+    system = mk_switched_sys([dynamical_system.mk_lbs(A, B, np.zeros((4, 4)))])
+    domain: Polytope = logical_and(u[0] >= -0.5, u[0] <= 0.5, u[1] >= -0.5, u[1] <= 0.5).region
+    return x, system, domain
+
+
+def reach_avoid(T: int) -> Problem:
+    """Avoid the box ``[3, 5] x [4, 6]`` at every step, reach ``[7, 8] x [8, 9]`` within ``T`` steps.
+
+    :func:`double_integrator` from ``(1, 1)`` at rest with zero covariance, so every chance
+    constraint (0.99) is a plain linear one and the LP decides each candidate exactly.
+    """
+    x, system, domain = double_integrator()
+
+    def p(pred):
+        return prob(pred) >= 0.99
+
+    avoid = logical_or(p(x[0] <= 3), p(x[0] >= 5), p(x[1] <= 4), p(x[1] >= 6))
+    goal = logical_and(p(x[0] >= 7), p(x[0] <= 8), p(x[1] >= 8), p(x[1] <= 9), name="goal")
+    formula = logical_and(always(0, T, avoid), eventually(0, T, goal))
+    return Problem(system, domain, to_belief([1, 1, 0, 0], np.zeros((4, 4))), formula)
