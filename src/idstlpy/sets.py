@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import linprog
-from scipy.special import ndtri
 
 from ._checks import as_covariance, as_matrix, as_vector
+from .chance import quantile, std_terms
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from .expressions import (
     ConvexConstraint,
@@ -35,11 +35,6 @@ __all__ = [
 ]
 
 _INTERIOR_TOL = 1e-9
-
-
-def quantile(eps: Any) -> np.ndarray:
-    """``Phi^-1(1 - eps)``: the number of standard deviations a chance constraint reserves."""
-    return ndtri(1.0 - np.asarray(eps, dtype=float))
 
 
 def _lp(cost: np.ndarray, A_ub: np.ndarray, b_ub: np.ndarray, bounds: Any = (None, None)):
@@ -274,12 +269,7 @@ class BeliefCone:
 
         ``eps = 0`` with positive variance gives inf.
         """
-        var = np.einsum("ij,jk,ik->i", self.H, cov, self.H)
-        sd = np.sqrt(np.maximum(var, 0.0))
-        with np.errstate(invalid="ignore"):
-            terms = self.z * sd
-        # eps = 0 (z = inf) with zero variance reserves nothing; with variance it is impossible.
-        return np.where(np.isinf(self.z) & (sd <= 0), 0.0, terms)
+        return std_terms(self.H, self.z, cov)
 
     def slack(self, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
         """Per face, the distance of the deterministic equivalent from its bound (>= 0: holds)."""
