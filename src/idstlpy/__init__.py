@@ -70,7 +70,7 @@ from .sets import (
     Polytope,
 )
 from .syntax import FormulaSyntaxError, parse_formula
-from .synthesis import Problem, SolveResult, SolveStats
+from .synthesis import Problem, SolveResult, SolverOptions, SolveStats, load_result
 from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
@@ -130,6 +130,8 @@ __all__ = [
     # synthesis
     "Problem",
     "SolveResult",
+    "SolverOptions",
+    "load_result",
     "SolveStats",
     # execution
     "finite_horizon_lqr",

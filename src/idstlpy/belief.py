@@ -30,6 +30,7 @@ __all__ = [
     "kalman_update",
     "belief_step",
     "rollout",
+    "rollout_arrays",
 ]
 
 
@@ -65,12 +66,31 @@ def to_belief(mean: Any, cov: Any) -> GaussianBelief:
     Parameters
     ----------
     mean : array_like, shape (n,)
-    cov : array_like, shape (n, n)
-        Symmetric positive semi-definite.
+    cov : array_like, shape (n, n) or (n,)
+        Symmetric positive semi-definite; a vector gives the variances of a diagonal covariance
+        (as problem files accept).
+
+    Returns
+    -------
+    GaussianBelief
     """
     mean = as_vector(mean, "mean")
+    arr = np.asarray(cov, dtype=float) if _is_numeric(cov) else cov
+    if isinstance(arr, np.ndarray) and arr.ndim == 1 and arr.shape[0] == mean.shape[0] > 1:
+        variances = as_vector(arr, "cov", mean.shape[0])
+        if np.any(variances < 0):
+            raise InvalidArgumentError(f"cov given as variances must be >= 0, got {variances.tolist()}")
+        cov = np.diag(variances)
     cov = as_covariance(cov, "cov", mean.shape[0])
     return GaussianBelief(mean, cov)
+
+
+def _is_numeric(value: Any) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return True
 
 
 def predict(
@@ -174,10 +194,33 @@ def rollout(
         )
     if not np.all(np.isfinite(controls)):
         raise InvalidArgumentError("controls contain NaN or inf")
-    means = np.empty((N + 1, system.n))
-    covs = np.empty((N + 1, system.n, system.n))
-    means[0], covs[0] = initial.mean, initial.cov
-    modes = system.system_modes
-    for k in range(N):
-        means[k + 1], covs[k + 1] = belief_step(modes[actions[k]], means[k], covs[k], controls[k])
+    means, covs = rollout_arrays(system.system_modes, initial.mean, initial.cov, actions, controls)
     return ProbabilisticTSTrajectory(means, covs, actions, controls)
+
+
+def rollout_arrays(
+    modes: Sequence[Any], mean0: np.ndarray, cov0: np.ndarray, actions: np.ndarray, controls: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The MLO roll-out on plain arrays (no validation): the one loop every part calls.
+
+    Parameters
+    ----------
+    modes : sequence of LCS
+        The system's modes.
+    mean0 : ndarray, shape (n,)
+    cov0 : ndarray, shape (n, n)
+    actions : ndarray of int, shape (N,)
+    controls : ndarray, shape (N, m)
+
+    Returns
+    -------
+    means : ndarray, shape (N + 1, n)
+    covs : ndarray, shape (N + 1, n, n)
+    """
+    N = actions.shape[0]
+    means = np.empty((N + 1, mean0.shape[0]))
+    covs = np.empty((N + 1, *cov0.shape))
+    means[0], covs[0] = mean0, cov0
+    for k in range(N):
+        means[k + 1], covs[k + 1] = belief_step(modes[int(actions[k])], means[k], covs[k], controls[k])
+    return means, covs

@@ -1,5 +1,7 @@
-"""Synthesis: the counterexample-guided loop of BMC proposer and continuous teacher."""
+"""Synthesis: the counterexample-guided loop of BMC proposer and continuous teachers."""
 
-from .problem import Problem, SolveResult, SolveStats
+from .options import SolverOptions
+from .problem import Problem
+from .results import SolveResult, SolveStats, load_result
 
-__all__ = ["Problem", "SolveResult", "SolveStats"]
+__all__ = ["Problem", "SolveResult", "SolveStats", "SolverOptions", "load_result"]

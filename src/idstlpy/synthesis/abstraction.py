@@ -11,16 +11,17 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
+from scipy.sparse import csr_matrix
 
+from ..chance import slack
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
+from .backends import Backend, HighsBackend, LinearModel
+from .interfaces import Budget
 
 __all__ = ["Abstraction", "PruningReport"]
 
 logger = logging.getLogger(__name__)
-
-_MAX_STEP_LPS = 400
 
 
 @dataclass
@@ -86,13 +87,7 @@ class Abstraction:
         """Slack of every face (>= 0 satisfied), shape (F,)."""
         if not self.H.shape[0]:
             return np.zeros(0)
-        Hc = self.H @ cov
-        var = np.einsum("ij,ij->i", Hc, self.H)
-        sd = np.sqrt(np.maximum(var, 0.0))
-        with np.errstate(invalid="ignore"):
-            terms = self.z * sd
-        terms = np.where(np.isinf(self.z) & (sd <= 0), 0.0, terms)
-        return -(self.H @ mean + self.c + terms)
+        return slack(self.H, self.c, self.z, mean, cov)
 
     def truth(self, mean: np.ndarray, cov: np.ndarray, arrival_mode: int) -> np.ndarray:
         """Which propositions hold for belief ``N(mean, cov)`` reached with ``arrival_mode``.
@@ -117,6 +112,17 @@ class Abstraction:
             return Polytope(np.zeros((0, self.n)), np.zeros(0))
         return Polytope(ap.cone.H, ap.cone.c)
 
+    def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding box ``(low, high)`` of proposition ``i``'s mean region (cached; infinite where open)."""
+        cache = self.__dict__.setdefault("_bounds", {})
+        if i not in cache:
+            r = self.region(i)
+            if not r.H.shape[0] or r.is_empty():
+                cache[i] = (np.full(self.n, -np.inf), np.full(self.n, np.inf))
+            else:
+                cache[i] = r.bounding_box()
+        return cache[i]
+
     def radius(self, i: int) -> float:
         """Chebyshev radius of proposition ``i``'s mean region (cached; ``inf`` without faces)."""
         cache = self.__dict__.setdefault("_radii", {})
@@ -127,13 +133,40 @@ class Abstraction:
 
     # -- pruning ------------------------------------------------------------------------------------
     def prune(
-        self, system, control_domain: Polytope, initial_mean: np.ndarray, initial_cov: np.ndarray
+        self,
+        system,
+        control_domain: Polytope,
+        initial_mean: np.ndarray,
+        initial_cov: np.ndarray,
+        budget: Budget | None = None,
+        max_step_lps: int = 400,
+        backend: Backend | None = None,
+        units: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> PruningReport:
-        """Prove letters empty, pairs disjoint and steps impossible (mean relaxation, HiGHS)."""
+        """Prove letters empty, pairs disjoint and steps impossible (mean relaxation).
+
+        Parameters
+        ----------
+        system : SwitchedSystem
+        control_domain : Polytope
+        initial_mean : ndarray, shape (n,)
+        initial_cov : ndarray, shape (n, n)
+        budget : Budget, optional
+            Wall-clock cap (checked between LPs).
+        max_step_lps : int
+            Skip one-step pruning when it would take more LPs than this.
+        backend : Backend, optional
+            LP back-end for the one-step LPs (default HiGHS).
+        units : (ndarray (n,), ndarray (m,)), optional
+            Units of the state and input coordinates: the LPs are solved in them, with
+            normalised rows, so that infeasibility is judged relative to the problem's scale.
+        """
         regions = [self.region(i) for i in range(self.num_atoms)]
         empty = [i for i, r in enumerate(regions) if r.H.shape[0] and r.is_empty()]
         disjoint: list[tuple[int, int]] = []
         for i in range(self.num_atoms):
+            if budget is not None:
+                budget.check("LP pruning")
             for j in range(i + 1, self.num_atoms):
                 if i in empty or j in empty or not regions[i].H.shape[0] or not regions[j].H.shape[0]:
                     continue
@@ -141,7 +174,9 @@ class Abstraction:
                     disjoint.append((i, j))
         init = self.truth(initial_mean, initial_cov, -1)
         initial_false = [i for i in range(self.num_atoms) if not init[i]]
-        steps = self._impossible_steps(system, control_domain, regions, set(empty))
+        steps = self._impossible_steps(
+            system, control_domain, regions, set(empty), budget, max_step_lps, backend or HighsBackend(), units
+        )
         report = PruningReport(empty, disjoint, steps, initial_false)
         logger.info(
             "LP pruning: %d empty letters, %d disjoint pairs, %d impossible steps, "
@@ -154,7 +189,15 @@ class Abstraction:
         return report
 
     def _impossible_steps(
-        self, system, U: Polytope, regions: list[Polytope], empty: set[int]
+        self,
+        system,
+        U: Polytope,
+        regions: list[Polytope],
+        empty: set[int],
+        budget: Budget | None,
+        max_lps: int,
+        backend: Backend,
+        units: tuple[np.ndarray, np.ndarray] | None,
     ) -> list[tuple[int, int, int]]:
         bounded = []
         for i, r in enumerate(regions):
@@ -164,12 +207,14 @@ class Abstraction:
             if np.all(np.isfinite(low)) and np.all(np.isfinite(high)):
                 bounded.append(i)
         pairs = [(i, j) for i in bounded for j in bounded if i != j]
-        if len(pairs) * system.num_modes > _MAX_STEP_LPS:
+        if len(pairs) * system.num_modes > max_lps:
             logger.debug("skipping one-step pruning: %d pairs", len(pairs))
             return []
         out: list[tuple[int, int, int]] = []
         n, m = system.n, system.m
         for i, j in pairs:
+            if budget is not None:
+                budget.check("LP pruning")
             bad_modes = []
             for q, mode in enumerate(system.system_modes):
                 # Variables (x, u): x in R_i, u in U, A x + B u in R_j.
@@ -182,8 +227,21 @@ class Abstraction:
                     ]
                 )
                 b_ub = np.concatenate([-Ri.c, -U.c, -Rj.c])
-                res = linprog(np.zeros(n + m), A_ub=A_ub, b_ub=b_ub, bounds=(None, None), method="highs")
-                if res.status == 2:
+                if units is not None:
+                    A_ub = A_ub * np.concatenate(units)[None, :]
+                norms = np.linalg.norm(A_ub, axis=1)
+                norms = np.where(norms > 0, norms, 1.0)
+                A_ub, b_ub = A_ub / norms[:, None], b_ub / norms
+                model = LinearModel(
+                    np.zeros(n + m),
+                    csr_matrix(A_ub),
+                    np.full(b_ub.shape[0], -np.inf),
+                    b_ub,
+                    np.full(n + m, -np.inf),
+                    np.full(n + m, np.inf),
+                )
+                limit = budget.remaining() if budget is not None else 60.0
+                if backend.solve(model, max(limit, 1e-3)).status == "infeasible":
                     bad_modes.append(q)
             if len(bad_modes) == system.num_modes:
                 out.append((i, j, -1))

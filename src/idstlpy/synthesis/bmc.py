@@ -25,18 +25,26 @@ Gates are hash-consed (Tseitin with constant folding), so equal sub-terms share 
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Iterable, Sequence
 
 import numpy as np
-from pysat.solvers import Solver
+from pysat.solvers import Solver, SolverNames
 
+from ..errors import InvalidArgumentError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
+from .interfaces import Budget, BudgetExceeded
 
-__all__ = ["BMCEncoder"]
+__all__ = ["BMCEncoder", "sat_backends"]
 
 logger = logging.getLogger(__name__)
 
-SAT_BACKEND = "cadical195"
+_CHECK_EVERY = 1 << 15  # variables between two looks at the wall-clock cap while encoding
+
+
+def sat_backends() -> list[str]:
+    """Names python-sat accepts for its solvers (``SolverOptions.sat_backend``)."""
+    return sorted({name for names in vars(SolverNames).values() if isinstance(names, tuple) for name in names})
 
 
 class BMCEncoder:
@@ -48,14 +56,30 @@ class BMCEncoder:
     atoms : sequence of STLAtomicProposition
         The non-constant propositions, in a fixed order (index ``i`` of ``p[i, k]``).
     num_modes : int
+    bound : int, optional
+        Last step the encoding unrolls (plans of at most ``bound + 1`` steps); default the
+        formula's horizon. Steps past it satisfy nothing, exactly as past the end of a plan.
+    sat_backend : str
+        python-sat solver name.
+    budget : Budget, optional
+        Wall-clock cap, checked while encoding and enforced on every SAT call.
     """
 
-    def __init__(self, formula: STLFormula, atoms: Sequence[STLAtomicProposition], num_modes: int) -> None:
+    def __init__(
+        self,
+        formula: STLFormula,
+        atoms: Sequence[STLAtomicProposition],
+        num_modes: int,
+        bound: int | None = None,
+        sat_backend: str = "cadical195",
+        budget: Budget | None = None,
+    ) -> None:
         self.formula = formula
         self.atoms = list(atoms)
         self.atom_index = {id(a): i for i, a in enumerate(self.atoms)}
         self.num_modes = num_modes
-        self.H = formula.horizon
+        self.H = formula.horizon if bound is None else int(bound)
+        self.budget = budget
         self._nvars = 0
         self.clauses: list[list[int]] = []
         self.T = self._new()
@@ -90,7 +114,14 @@ class BMCEncoder:
         self._conj: dict[int, STLFormula] = {}
         self.root = self.lit(formula, 0)
         self.clauses.append([self.root])
-        self.solver = Solver(name=SAT_BACKEND, bootstrap_with=self.clauses)
+        self.selector = self._new()  # assumed true while abandoned candidates are set aside
+        try:
+            self.solver = Solver(name=sat_backend, bootstrap_with=self.clauses)
+        except (ValueError, NotImplementedError) as exc:
+            raise InvalidArgumentError(
+                f"sat_backend {sat_backend!r} is not a python-sat solver ({exc}); "
+                f"try one of {', '.join(sat_backends())}"
+            ) from None
         self.learnt: list[list[int]] = []
         self.sat_calls = 0
         logger.debug("BMC encoding: %d variables, %d clauses, horizon %d", self._nvars, len(self.clauses), H)
@@ -98,6 +129,8 @@ class BMCEncoder:
     # -- gates ------------------------------------------------------------------------------------
     def _new(self) -> int:
         self._nvars += 1
+        if self.budget is not None and not self._nvars % _CHECK_EVERY:
+            self.budget.check(f"SAT encoding of {self.H + 1} steps")
         return self._nvars
 
     @property
@@ -227,12 +260,30 @@ class BMCEncoder:
         self.solver.set_phases([int(v) for v in literals])
 
     def solve(self, depth: int | None = None, assumptions: Sequence[int] = ()) -> bool:
-        """Is there a claim assignment of length ``<= depth + 1`` steps (default: the horizon)?"""
+        """Is there a claim assignment of length ``<= depth + 1`` steps (default: the bound)?
+
+        Raises
+        ------
+        BudgetExceeded
+            When the wall-clock cap interrupts the SAT search.
+        """
         assume = [int(v) for v in assumptions]
         if depth is not None and depth < self.H:
             assume.append(-self.alive[depth + 1])
         self.sat_calls += 1
-        return bool(self.solver.solve(assumptions=assume))
+        if self.budget is None:
+            return bool(self.solver.solve(assumptions=assume))
+        self.budget.check("SAT search")
+        timer = threading.Timer(max(self.budget.remaining(), 0.0), self.solver.interrupt)
+        timer.daemon = True
+        timer.start()
+        try:
+            out = self.solver.solve_limited(assumptions=assume, expect_interrupt=True)
+        finally:
+            timer.cancel()
+        if out is None:
+            raise BudgetExceeded("SAT search")
+        return bool(out)
 
     def model_claims(self) -> tuple[np.ndarray, np.ndarray, int]:
         """Claims of the last model: ``(truth (n_atoms, H+1) bool, modes (H+1,) int, length)``.

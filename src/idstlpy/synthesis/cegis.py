@@ -1,238 +1,241 @@
 """Counterexample-guided synthesis: the proposer / teacher loop of the paper's Fig. 1.
 
-1. LP pruning proves letters empty, pairs disjoint and steps impossible; these become clauses.
-2. The BMC proposer finds the shortest depth with a satisfying claim assignment (iterative
-   deepening on one incremental SAT solver) and proposes a candidate; a witness extraction keeps
-   only the requirements that matter.
-3. The LP teacher decides the candidate exactly when the covariance does not depend on the mean;
-   otherwise it is a sound relaxation, and the belief-space sampler searches for real controls.
-4. An LP infeasibility proof blocks its infeasible subset of requirements (with the modes that
-   shaped it); a sampler time-out blocks exactly the failed candidate.
-5. Every returned plan is re-rolled with the exact belief dynamics and passes the monitor.
+The loop orchestrates typed parts (:mod:`.interfaces`) and decides nothing itself:
+
+1. LP pruning (:class:`~.abstraction.Abstraction`) proves letters empty, pairs disjoint and
+   steps impossible; the proposer takes these as proven clauses.
+2. The proposer (:class:`~.proposer.BMCProposer`) offers the shortest discrete plan left.
+3. The teachers, in order, decide it: the plan LP (:class:`~.teacher.LPTeacher`; exact when
+   the covariance does not depend on the mean), then, under state-dependent noise, the
+   belief-space sampler (:class:`~.sampler.SamplerTeacher`). The first ``Found`` or
+   ``Refuted`` settles the candidate; ``Unknown`` passes it on.
+4. ``Refuted`` becomes a proven clause; a candidate every teacher gave up on is *abandoned*
+   (set aside, not a proof). A ``Found`` plan is re-rolled with the exact belief dynamics and
+   must pass the monitor; otherwise it is abandoned.
+5. On an LP-exact single-mode problem whose lazy loop has not converged after
+   ``lazy_candidates`` candidates, the eager MILP (:mod:`.milp`) chooses the discrete plan.
+
+Statuses: ``found`` (monitor-verified), ``infeasible`` (the proposer ran dry over proven
+clauses at the formula's full horizon, or the MILP over a correctly bounded model proved it),
+``budget_exhausted`` otherwise, with the counts of refuted and abandoned candidates.
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from typing import Any
 
 import numpy as np
 
 from ..belief import rollout
 from ..monitor import robustness
+from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .bmc import BMCEncoder
+from .backends import get_backend
+from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp
+from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness
-from .problem import SolveResult, SolverOptions, SolveStats
-from .sampler import BeliefSampler
-from .teacher import solve_plan_lp
+from .plan_lp import Scaling
+from .proposer import BMCProposer
+from .results import SolveResult, SolveStats, Status
+from .sampler import SamplerTeacher
+from .teacher import LPTeacher, execution_margin, solve_plan_lp
 
 __all__ = ["synthesize"]
 
 logger = logging.getLogger(__name__)
 
-_LAZY_CANDIDATES = 10
-"""Candidates the lazy loop may try before an LP-exact problem goes to the eager MILP."""
 
+class _Run:
+    """The state of one solve: the parts, the budget and the statistics."""
 
-class _Clock:
-    def __init__(self, stats: SolveStats, field: str) -> None:
-        self.stats, self.field = stats, field
+    def __init__(self, problem: Any, options: SolverOptions, start: float) -> None:
+        self.problem = problem
+        self.options = options
+        self.budget = Budget(options.total_time_cap, start)
+        self.stats = SolveStats()
+        self.formula = problem.stl_formula
 
-    def __enter__(self) -> None:
-        self.t0 = time.perf_counter()
-
-    def __exit__(self, *exc: object) -> None:
-        setattr(self.stats, self.field, getattr(self.stats, self.field) + time.perf_counter() - self.t0)
-
-
-def synthesize(problem, options: SolverOptions) -> SolveResult:
-    """Run the CEGIS loop on ``problem`` (see the module docstring)."""
-    t0 = time.perf_counter()
-    stats = SolveStats()
-    budget = options.time_limit if options.time_limit is not None else 10.0 * options.rrt_timeout
-    deadline = t0 + budget
-    rng = np.random.default_rng(options.seed)
-    system = problem.switched_system
-    formula = problem.stl_formula
-    init = problem.initial_state
-
-    def done(status: str, reason: str, traj=None, margin: float = float("nan")) -> SolveResult:
-        stats.time_total = time.perf_counter() - t0
+    def done(
+        self, status: Status, reason: str, traj: ProbabilisticTSTrajectory | None = None, margin: float = np.nan
+    ) -> SolveResult:
+        stats = self.stats
+        stats.time_total = self.budget.elapsed()
+        if status != "found" and "time_limit" in stats.caps_hit:
+            reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
-        return SolveResult(status, traj, reason, margin, stats)  # type: ignore[arg-type]
+        return SolveResult(status, traj, reason, margin, stats, str(self.formula))
 
-    abstraction = Abstraction(formula, system.n)
-    with _Clock(stats, "time_bmc"):
-        enc = BMCEncoder(formula, abstraction.atoms, system.num_modes)
-    try:
-        with _Clock(stats, "time_lp"):
-            report = abstraction.prune(system, problem.control_domain, init.mean, init.cov)
-        _add_pruning(enc, report, stats)
-        H = enc.H
-        if abstraction.num_atoms:
-            enc.set_phases([int(v) for v in enc.p.ravel()])
-        with _Clock(stats, "time_bmc"):
-            sat = enc.solve()
-            if sat:
-                for i in report.initial_false:
-                    enc.add_clause([-int(enc.p[i, 0])])
-                sat_init = enc.solve()
-        if not sat:
-            return done(
-                "infeasible",
-                "the formula is unsatisfiable over its propositions (its logic, or empty / disjoint regions)",
-            )
-        if not sat_init:
-            names = ", ".join(abstraction.names()[i] for i in report.initial_false)
-            return done(
-                "infeasible",
-                f"the initial belief does not satisfy what the formula requires at step 0 ({names})",
-            )
-        with _Clock(stats, "time_bmc"):
-            depth = _shortest_depth(enc, H)
-        sampler: BeliefSampler | None = None
-        eager = system.num_modes == 1 and not system.system_modes[0].has_state_dependent_noise
-        while True:
-            if time.perf_counter() > deadline:
-                return done("budget_exhausted", f"time limit of {budget:.3g} s reached")
-            if options.max_candidates is not None and stats.candidates >= options.max_candidates:
-                return done("budget_exhausted", f"{options.max_candidates} candidates tried")
-            if eager and stats.candidates >= _LAZY_CANDIDATES:
-                return _eager(problem, enc, abstraction, deadline, stats, done)
-            stats.bmc_depth = max(stats.bmc_depth, depth)
-            with _Clock(stats, "time_bmc"):
-                sat = enc.solve(depth)
-            if not sat:
-                if depth >= H:
-                    return done(
-                        "infeasible",
-                        "every discrete plan up to the formula's horizon was refuted by the dynamics",
-                    )
-                depth = min(H, depth + max(1, depth // 4))
-                logger.info("BMC: deepening to %d steps", depth)
-                continue
-            claims, modes, length = enc.model_claims()
-            witness = extract_witness(formula, claims[:, :length], abstraction.index, prefer_late=True)
-            if witness is None:  # cannot happen for a model of the encoding; block and go on
-                logger.warning("BMC model does not satisfy the formula; blocking it")
-                enc.add_clause([-int(v) for v in enc.p[:, :length][claims[:, :length]]] or [-enc.T])
-                continue
-            required, L = witness
-            plan = DiscretePlan(required[:, :L], modes[:L].copy(), L)
-            stats.candidates += 1
-            with _Clock(stats, "time_lp"):
-                margin = _execution_margin(system, init, abstraction, plan)
-                lp = solve_plan_lp(
-                    system, problem.control_domain, init.mean, init.cov, abstraction, plan, margin
-                )
-            stats.lp_calls += 1
-            if lp.means is not None and abstraction.num_atoms:
-                _guide_phases(enc, abstraction, lp, plan)
-            if not lp.feasible:
-                _block(enc, plan, lp.conflict, system.num_modes)
-                stats.counterexamples += 1
-                logger.debug(
-                    "candidate %d: LP conflict on %d requirements",
-                    stats.candidates,
-                    len(lp.conflict),
-                )
-                continue
-            actions = plan.modes[1:L].astype(int)
-            if lp.exact:
-                result = _verify(problem, actions, lp.controls)
-                if result is not None:
-                    traj, margin = result
-                    return done(
-                        "found",
-                        "the plan LP is feasible and the plan passes the monitor",
-                        traj,
-                        margin,
-                    )
-                _block(enc, plan, plan.requirements(), system.num_modes)
-                stats.counterexamples += 1
-                continue
-            # State-dependent noise: the LP was a relaxation; search belief space for real controls.
-            if sampler is None:
-                sampler = BeliefSampler(problem, abstraction, enc, options, rng)
-            stop = min(deadline, time.perf_counter() + options.rrt_timeout)
-            sat_before = enc.sat_calls
-            with _Clock(stats, "time_sampling"):
-                out = sampler.run(plan, stop)
-            stats.nodes += out.nodes
-            stats.sat_calls += enc.sat_calls - sat_before
-            if out.actions is not None:
-                with _Clock(stats, "time_sampling"):
-                    actions, controls = sampler.shortcut(out.actions, out.controls)
-                result = _verify(problem, actions, controls)
-                if result is not None:
-                    with _Clock(stats, "time_lp"):
-                        traj, margin = _polish(problem, abstraction, *result, stats)
-                    return done(
-                        "found",
-                        "the belief-space sampler met the plan and the monitor agrees",
-                        traj,
-                        margin,
-                    )
-            _block(enc, plan, plan.requirements(), system.num_modes)
-            stats.counterexamples += 1
-            logger.info(
-                "candidate %d: sampler time-out after %d nodes; blocked",
-                stats.candidates,
-                out.nodes,
-            )
-    finally:
-        stats.sat_calls = max(stats.sat_calls, enc.sat_calls)
-        enc.close()
+    def counts(self) -> str:
+        s = self.stats
+        return f"{s.candidates} candidates: {s.refuted} refuted by proofs, {s.abandoned} abandoned"
 
 
-def _add_pruning(enc: BMCEncoder, report, stats: SolveStats) -> None:
-    H = enc.H
-    for i in report.empty_atoms:
-        for k in range(H + 1):
-            enc.add_clause([-int(enc.p[i, k])])
-    for i, j in report.disjoint_pairs:
-        for k in range(H + 1):
-            enc.add_clause([-int(enc.p[i, k]), -int(enc.p[j, k])])
-    for i, j, q in report.impossible_steps:
-        for k in range(H):
-            clause = [-int(enc.p[i, k]), -int(enc.p[j, k + 1])]
-            if q >= 0:
-                clause.append(-int(enc.m[q, k + 1]))
-            enc.add_clause(clause)
-    stats.pruned_letters = len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
-    stats.pruned_steps = len(report.impossible_steps)
+def synthesize(problem: Any, options: SolverOptions, start: float | None = None) -> SolveResult:
+    """Run the CEGIS loop on ``problem`` (see the module docstring).
 
+    Parameters
+    ----------
+    problem : Problem
+    options : SolverOptions
+    start : float, optional
+        ``time.perf_counter()`` at the first line of ``solve``: the wall-clock cap counts from it.
 
-def _eager(problem, enc: BMCEncoder, abstraction: Abstraction, deadline: float, stats: SolveStats, done):
-    """Hand an LP-exact, single-mode problem to HiGHS as one MILP (see :mod:`.milp`).
-
-    The MILP chooses the discrete plan; its continuous part is re-solved by the plan LP (with the
-    execution margin) when the MILP's own controls miss the exact check by solver tolerances.
+    Returns
+    -------
+    SolveResult
     """
-    logger.info("%d candidates refuted: switching to the eager MILP", stats.candidates)
-    init, system = problem.initial_state, problem.switched_system
-    with _Clock(stats, "time_lp"):
-        status, actions, controls, claims = solve_milp(
-            enc,
-            abstraction,
+    run = _Run(problem, options, time.perf_counter() if start is None else start)
+    try:
+        return _loop(run, problem, options)
+    except BudgetExceeded as exc:
+        run.stats.caps_hit.append("time_limit")
+        return run.done(
+            "budget_exhausted",
+            f"time limit of {options.total_time_cap:.3g} s reached during {exc.where}; {run.counts()}",
+        )
+
+
+def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
+    system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
+    stats, budget = run.stats, run.budget
+    lp_backend = get_backend(options.lp_backend)
+    abstraction = Abstraction(formula, system.n)
+    scaling = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
+    with stats.clock("time_lp"):
+        report = abstraction.prune(
             system,
             problem.control_domain,
             init.mean,
             init.cov,
-            deadline - time.perf_counter(),
+            budget,
+            options.max_pruning_lps,
+            lp_backend,
+            (scaling.dx, scaling.du),
         )
-    stats.lp_calls += 1
-    if status == "infeasible":
-        return done("infeasible", "the eager MILP proved that no plan exists within the horizon")
-    if status != "found":
-        return done("budget_exhausted", "time limit reached in the eager MILP")
+    stats.pruned_letters = len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
+    stats.pruned_steps = len(report.impossible_steps)
+    proposer = BMCProposer(formula, abstraction, system.num_modes, report, options, budget, stats)
+    try:
+        seeds = np.random.SeedSequence(options.seed)
+        teachers: list[Teacher] = [LPTeacher(problem, abstraction, scaling, lp_backend)]
+        sampler = SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
+        if sampler.applies(problem):
+            teachers.append(sampler)
+        lp_exact = teachers[0].exact(problem)
+        eager = lp_exact and system.num_modes == 1
+        while True:
+            budget.check("the proposer / teacher loop")
+            if options.max_candidates is not None and stats.candidates >= options.max_candidates:
+                return run.done("budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}")
+            if eager and stats.candidates >= options.lazy_candidates:
+                result = _eager(run, proposer, abstraction, scaling)
+                if result is not None:
+                    return result
+                eager = False  # the model could not be bounded soundly: stay lazy
+            proposal = proposer.propose()
+            if isinstance(proposal, ProposerDry):
+                if proposal.proven:
+                    return run.done("infeasible", f"{proposal.reason}; {run.counts()}")
+                return run.done("budget_exhausted", f"{proposal.reason}; {run.counts()}")
+            plan = proposal
+            stats.candidates += 1
+            verdict = None
+            for teacher in teachers:
+                verdict = teacher.teach(plan, budget, stats)
+                if teacher is teachers[0] and isinstance(teacher, LPTeacher):
+                    _guide(proposer, abstraction, teacher, plan)
+                if not isinstance(verdict, Unknown):
+                    break
+            if isinstance(verdict, Refuted):
+                proposer.block(verdict.conflict)
+                stats.refuted += 1
+                stats.counterexamples += 1
+                logger.debug("candidate %d refuted: %s", stats.candidates, verdict.conflict.proof)
+                continue
+            if isinstance(verdict, Found):
+                checked = _verify(problem, verdict.actions, verdict.controls)
+                if checked is not None:
+                    traj, margin = checked
+                    return run.done("found", f"{verdict.how} met the plan and the monitor agrees", traj, margin)
+                why = "the plan failed the monitor's exact re-check"
+            else:
+                why = verdict.why if verdict is not None else "no teacher applies"
+            proposer.abandon(plan)
+            stats.abandoned += 1
+            logger.info("candidate %d abandoned: %s", stats.candidates, why)
+    finally:
+        stats.sat_calls = proposer.sat_calls
+        proposer.close()
+
+
+def _guide(proposer: BMCProposer, abstraction: Abstraction, teacher: LPTeacher, plan: DiscretePlan) -> None:
+    """Prefer, in the next SAT searches, the labels the LP's trajectory actually has."""
+    out = teacher.last
+    if out is None or out.means is None or out.covs is None or not abstraction.num_atoms:
+        return
+    K = out.means.shape[0] - 1
+    truth = np.stack(
+        [abstraction.truth(out.means[k], out.covs[k], int(plan.modes[k]) if k else -1) for k in range(K + 1)],
+        axis=1,
+    )
+    proposer.guide(plan, truth)
+
+
+def _eager(run: _Run, proposer: BMCProposer, abstraction: Abstraction, scaling: Scaling) -> SolveResult | None:
+    """Hand an LP-exact, single-mode problem to a MILP back-end (see :mod:`.milp`).
+
+    Returns ``None`` when the model cannot be bounded soundly (the lazy loop goes on).
+    """
+    problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
+    init, system = problem.initial_state, problem.switched_system
+    backend = get_backend(options.milp_backend, integer=True)
+    while True:
+        logger.info("%d candidates tried: the eager MILP takes over at %d steps", stats.candidates, proposer.bound + 1)
+        with stats.clock("time_lp"):
+            out = solve_milp(
+                proposer.export(),
+                abstraction,
+                system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                scaling,
+                backend,
+                budget,
+            )
+        stats.milp_calls += 1
+        if out.status == "unsupported":
+            logger.info("eager MILP not used: %s", out.why)
+            return None
+        if out.status == "timeout":
+            budget.check("the eager MILP")
+            return run.done("budget_exhausted", f"the eager MILP stopped: {out.why}; {run.counts()}")
+        if out.status == "infeasible":
+            if proposer.bound >= proposer.H:
+                return run.done(
+                    "infeasible", f"the eager MILP proved that no plan exists within the horizon; {run.counts()}"
+                )
+            if proposer.bound >= proposer.cap:
+                return run.done(
+                    "budget_exhausted",
+                    f"no plan of at most max_plan_length = {options.max_plan_length} steps (eager MILP); "
+                    f"{run.counts()}",
+                )
+            proposer.grow()
+            continue
+        break
+    claims, controls = out.claims, out.controls
+    if claims is None or controls is None:
+        return None
+    actions = np.zeros(controls.shape[0], dtype=int)
     witness = extract_witness(problem.stl_formula, claims, abstraction.index, prefer_late=True)
     if witness is not None:
         required, L = witness
         plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
-        with _Clock(stats, "time_lp"):
+        with stats.clock("time_lp"):
             lp = solve_plan_lp(
                 system,
                 problem.control_domain,
@@ -240,117 +243,23 @@ def _eager(problem, enc: BMCEncoder, abstraction: Abstraction, deadline: float, 
                 init.cov,
                 abstraction,
                 plan,
-                _execution_margin(system, init, abstraction, plan),
+                execution_margin(system, init, abstraction, plan),
+                scaling=scaling,
+                backend=get_backend(options.lp_backend),
+                time_limit=max(budget.remaining(), 1e-3),
             )
         stats.lp_calls += 1
-        if lp.feasible:
+        if lp.feasible and lp.controls is not None:
             actions, controls = np.zeros(L - 1, dtype=int), lp.controls
-    result = _verify(problem, actions, controls)
-    if result is not None:
-        traj, margin = result
-        return done(
-            "found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin
-        )
-    return done("budget_exhausted", "the MILP's plan failed the monitor's exact re-check")
+    checked = _verify(problem, actions, controls)
+    if checked is not None:
+        traj, margin = checked
+        return run.done("found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin)
+    return None
 
 
-def _shortest_depth(enc: BMCEncoder, H: int) -> int:
-    """Smallest bound with a satisfying claim assignment (binary search; SAT is monotone in it)."""
-    lo, hi = 0, H
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if enc.solve(mid):
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
-def _block(enc: BMCEncoder, plan: DiscretePlan, conflict, num_modes: int) -> None:
-    """Forbid the conflicting requirements together (with the modes that led to them)."""
-    clause = [-int(enc.p[i, k]) for (k, i) in conflict]
-    if num_modes > 1 and conflict:
-        last = max(k for k, _ in conflict)
-        clause += [-int(enc.m[int(plan.modes[j]), j]) for j in range(1, last + 1)]
-    if not clause:
-        clause = [-enc.T]  # nothing left to try
-    enc.add_clause(clause)
-
-
-def _guide_phases(enc: BMCEncoder, abstraction: Abstraction, lp, plan: DiscretePlan) -> None:
-    """Prefer, in the next SAT search, the labels the LP's trajectory actually has."""
-    K = lp.means.shape[0] - 1
-    phases = []
-    for k in range(1, K + 1):
-        truth = abstraction.truth(lp.means[k], lp.covs[k], int(plan.modes[k]))
-        phases.extend(int(v) if t else -int(v) for v, t in zip(enc.p[:, k], truth, strict=True))
-    phases.extend(int(v) for v in enc.p[:, K + 1 :].ravel())
-    enc.set_phases(phases)
-
-
-def _execution_margin(system, init, abstraction: Abstraction, plan: DiscretePlan) -> float:
-    """Room to leave inside required regions when the plan will meet noise (0 when it will not).
-
-    Half the Chebyshev radius of the smallest bounded required region (1 state unit when every
-    required region is unbounded).
-    """
-    noisy = np.any(init.cov != 0) or any(
-        np.any(mode.process_cov != 0) or mode.p > 0 for mode in system.system_modes
-    )
-    if not noisy:
-        return 0.0
-    radii = []
-    for i in np.nonzero(plan.required.any(axis=1))[0]:
-        radius = abstraction.radius(int(i))
-        if np.isfinite(radius) and radius < 1e5:
-            radii.append(radius)
-    return 0.5 * min(radii) if radii else 1.0
-
-
-def _polish(problem, abstraction: Abstraction, traj, margin: float, stats: SolveStats, rounds: int = 4):
-    """Move a sampler's plan away from the boundaries it grazes, keeping its modes.
-
-    The sampler stops at the first belief that meets the plan, often a hair inside a required
-    region, and such a plan breaks under execution noise. Each round freezes the trajectory's
-    exact covariances, asks the plan LP for the controls that maximise the smallest slack of the
-    requirements the trajectory meets (means may move by at most ``trust``), re-rolls the exact
-    belief dynamics and keeps the result only if the monitor's margin grew; ``trust`` halves
-    after a round that did not help.
-    """
-    init, system = problem.initial_state, problem.switched_system
-    trust = np.inf  # set from the first round's margin target
-    for _ in range(rounds):
-        actions = traj.get_action()
-        modes = np.concatenate([[-1], actions]).astype(int)
-        means, covs = traj.get_mean(), traj.get_cov()
-        labels = [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)]
-        truth = np.stack(labels, axis=1)
-        witness = extract_witness(problem.stl_formula, truth, abstraction.index, prefer_late=False)
-        if witness is None:
-            break
-        required, L = witness
-        plan = DiscretePlan(required[:, :L], modes[:L], L)
-        target = _execution_margin(system, init, abstraction, plan)
-        if target <= margin:
-            break
-        trust = min(trust, 2.0 * target)
-        lp = solve_plan_lp(
-            system, problem.control_domain, init.mean, init.cov, abstraction, plan, target,
-            covs=covs[:L], anchor=means[:L], trust=trust,
-        )
-        stats.lp_calls += 1
-        if lp.feasible:
-            moved = rollout(system, init, actions[: L - 1], lp.controls)
-            moved_margin = robustness(moved, problem.stl_formula)
-            if moved_margin > margin:
-                logger.debug("polish: margin %.3g -> %.3g (trust %.3g)", margin, moved_margin, trust)
-                traj, margin = moved, moved_margin
-                continue
-        trust *= 0.5
-    return traj, margin
-
-
-def _verify(problem, actions: np.ndarray, controls: np.ndarray):
+def _verify(problem: Any, actions: np.ndarray, controls: np.ndarray) -> tuple[ProbabilisticTSTrajectory, float] | None:
+    """Re-roll the exact belief dynamics and run the monitor; the plan and its margin if it passes."""
     traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
     margin = robustness(traj, problem.stl_formula)
     if margin >= 0:

@@ -18,64 +18,97 @@ problem to HiGHS' branch and bound in one piece:
 
 The encoding keeps the compact windows of :mod:`~idstlpy.synthesis.bmc` (``O(H log b)`` gates), so
 the model is much smaller than the usual MILP encodings of STL.
+
+Its ``infeasible`` is a proof for plans of at most ``bound + 1`` steps only when every big-M is
+finite and moderate (a bounded control domain, or invariants that bound the means); otherwise
+the model is not built (``unsupported``) and the lazy loop goes on. Variables are scaled and
+rows normalised as in the plan LP (:mod:`.plan_lp`), so tolerances are relative to the problem.
 """
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import os
-import sys
+from typing import Any, Literal
 
 import numpy as np
-from scipy.optimize import Bounds, LinearConstraint, milp
-from scipy.sparse import coo_matrix, vstack
+from scipy.sparse import coo_matrix, csr_matrix, hstack, vstack
 
+from ..chance import std_terms
 from ..formulas import STLAnd, STLAtomicProposition, STLRelease
 from .abstraction import Abstraction
+from .backends import Backend, LinearModel
 from .bmc import BMCEncoder
-from .teacher import covariance_schedule
+from .interfaces import Budget
+from .plan_lp import Scaling, build_plan_rows
 
-__all__ = ["solve_milp"]
+__all__ = ["MILPOutcome", "solve_milp"]
 
 logger = logging.getLogger(__name__)
 
-_TIGHTEN = 1e-6  # HiGHS' feasibility tolerance; the monitor re-checks exactly
 _INT_TOL = 2e-6  # above HiGHS' mip_feasibility_tolerance (1e-6): a binary may be off by that much
+_MAX_BIG_M = 1e7  # in normalised, scaled units: beyond this the model is numerically unreliable
+
+MILPStatus = Literal["found", "infeasible", "timeout", "unsupported"]
 
 
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Silence HiGHS' C++ debug prints for the duration of a solve (library code never prints)."""
-    try:
-        fd = sys.stdout.fileno()
-    except (AttributeError, OSError, ValueError):
-        yield
-        return
-    sys.stdout.flush()
-    saved = os.dup(fd)
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), fd)
-            yield
-    finally:
-        os.dup2(saved, fd)
-        os.close(saved)
+class MILPOutcome:
+    """What the eager MILP returns.
+
+    Attributes
+    ----------
+    status : {"found", "infeasible", "timeout", "unsupported"}
+        ``infeasible`` is a proof for plans of at most ``bound + 1`` steps; ``unsupported``
+        means the model could not be bounded soundly (unbounded inputs, huge big-M).
+    actions : ndarray of int, shape (H,), or None
+    controls : ndarray, shape (H, m), or None
+    claims : ndarray of bool, shape (n_atoms, H + 1), or None
+    why : str
+    """
+
+    def __init__(
+        self,
+        status: MILPStatus,
+        actions: np.ndarray | None = None,
+        controls: np.ndarray | None = None,
+        claims: np.ndarray | None = None,
+        why: str = "",
+    ) -> None:
+        self.status = status
+        self.actions = actions
+        self.controls = controls
+        self.claims = claims
+        self.why = why
 
 
-def _control_vertices(U) -> np.ndarray:
-    """Vertices of the (bounded) control domain, shape (v, m)."""
-    m = U.dim
-    if m == 1:
-        low, high = U.bounding_box()
-        return np.array([[low[0]], [high[0]]])
-    from scipy.spatial import HalfspaceIntersection
+def _support(U: Any, D: np.ndarray) -> np.ndarray:
+    """``max_{u in U} d'u`` for every row ``d`` of ``D`` (an upper bound; ``inf`` if unbounded).
 
-    center, _ = U.chebyshev_center()
-    return HalfspaceIntersection(np.hstack([U.H, U.c[:, None]]), center).intersections
+    Exact from the vertices of a bounded, full-dimensional domain; for flat domains (where
+    Qhull fails) the bounding box gives a sound over-estimate.
+    """
+    low, high = U.bounding_box()
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
+        box = np.where(D > 0, D * high, D * low)
+        box = np.where(D == 0, 0.0, box)
+        return np.asarray(box.sum(axis=1))
+    verts = None
+    if U.dim == 1:
+        verts = np.array([[low[0]], [high[0]]])
+    elif getattr(U, "is_full_dimensional", False):
+        from scipy.spatial import HalfspaceIntersection
+        from scipy.spatial import QhullError
+
+        try:
+            center, _ = U.chebyshev_center()
+            verts = HalfspaceIntersection(np.hstack([U.H, U.c[:, None]]), center).intersections
+        except (QhullError, ValueError):
+            verts = None
+    if verts is not None:
+        return np.asarray((D @ verts.T).max(axis=1))
+    return np.asarray(np.where(D > 0, D * high, D * low).sum(axis=1))
 
 
-def _invariants(formula, abstraction: Abstraction) -> list[tuple[int, int]]:
+def _invariants(formula: Any, abstraction: Abstraction) -> list[tuple[int, int]]:
     """Propositions the formula requires at every step ``0..b``: ``(atom, b)`` pairs.
 
     Read off the top-level conjunction: ``always(0, b, ap)`` (or of a conjunction of them).
@@ -83,7 +116,12 @@ def _invariants(formula, abstraction: Abstraction) -> list[tuple[int, int]]:
     parts = formula.children if isinstance(formula, STLAnd) else (formula,)
     out = []
     for f in parts:
-        if isinstance(f, STLRelease) and f.a == 0 and f.left.is_false:
+        if (
+            isinstance(f, STLRelease)
+            and f.a == 0
+            and isinstance(f.left, STLAtomicProposition)
+            and f.left.is_false
+        ):
             body = f.right.children if isinstance(f.right, STLAnd) else (f.right,)
             for ap in body:
                 if isinstance(ap, STLAtomicProposition) and id(ap) in abstraction.index and ap.predicates:
@@ -91,11 +129,11 @@ def _invariants(formula, abstraction: Abstraction) -> list[tuple[int, int]]:
     return out
 
 
-def _invariant_box(formula, abstraction: Abstraction, n: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+def _invariant_box(formula: Any, abstraction: Abstraction, n: int, H: int) -> tuple[np.ndarray, np.ndarray]:
     """Per step, the bounding box of the means the invariants allow, shapes (H+1, n)."""
     low, high = np.full((H + 1, n), -np.inf), np.full((H + 1, n), np.inf)
     for i, b in _invariants(formula, abstraction):
-        lo_i, hi_i = abstraction.region(i).bounding_box()
+        lo_i, hi_i = abstraction.bounds(i)
         steps = slice(0, min(b, H) + 1)
         low[steps] = np.maximum(low[steps], lo_i)
         high[steps] = np.minimum(high[steps], hi_i)
@@ -105,41 +143,51 @@ def _invariant_box(formula, abstraction: Abstraction, n: int, H: int) -> tuple[n
 def solve_milp(
     enc: BMCEncoder,
     abstraction: Abstraction,
-    system,
-    control_domain,
+    system: Any,
+    control_domain: Any,
     mean0: np.ndarray,
     cov0: np.ndarray,
-    time_limit: float,
-) -> tuple[str, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
-    """Solve the whole synthesis problem as one MILP (single mode, mean-independent covariance).
+    scaling: Scaling,
+    backend: Backend,
+    budget: Budget,
+) -> MILPOutcome:
+    """Solve the bounded synthesis problem as one MILP (single mode, mean-independent covariance).
+
+    Parameters
+    ----------
+    enc : BMCEncoder
+        The proposer's current encoding (its proven clauses; abandoned ones are switched off).
+    abstraction : Abstraction
+    system : SwitchedSystem
+    control_domain : Polytope
+    mean0 : ndarray, shape (n,)
+    cov0 : ndarray, shape (n, n)
+    scaling : Scaling
+    backend : Backend
+        A MILP-capable back-end.
+    budget : Budget
 
     Returns
     -------
-    status : {"found", "infeasible", "timeout"}
-    actions : ndarray of int, shape (H,), or None
-    controls : ndarray, shape (H, m), or None
-    claims : ndarray of bool, shape (n_atoms, H+1), or None
-        The propositions the MILP's solution claims at each step (its discrete plan).
+    MILPOutcome
     """
     H = enc.H
     n, m = system.n, system.m
     mode = system.system_modes[0]
     A, B = mode.A, mode.B
+    dx = scaling.dx
     actions = np.zeros(H, dtype=int)
-    covs, exact = covariance_schedule(system, cov0, actions)
-    if not exact:
-        raise ValueError("the MILP path needs a mean-independent covariance schedule")
+    rows = build_plan_rows(system.system_modes, control_domain, mean0, cov0, abstraction, [], actions, scaling)
+    if not rows.exact:
+        return MILPOutcome("unsupported", why="the covariance depends on the mean")
+    covs = rows.covs
     nb = enc.num_vars
     nx, nu = H * n, H * m
     nvar = nb + nx + nu
-    ox, ou = nb, nb + nx
 
-    def col_x(k: int) -> int:  # x_k for k >= 1
-        return ox + (k - 1) * n
+    blocks, lo, hi = [], [], []
 
-    rows_A, lo, hi = [], [], []
-
-    # Clauses.
+    # Clauses: l_1 | ... | l_r  ->  sum(pos) - sum(neg) >= 1 - |neg|.
     clauses = enc.clauses + enc.learnt
     r_idx, c_idx, vals, rhs = [], [], [], []
     for r, clause in enumerate(clauses):
@@ -151,78 +199,48 @@ def solve_milp(
             neg += lit < 0
         rhs.append(1.0 - neg)
     if clauses:
-        rows_A.append(coo_matrix((vals, (r_idx, c_idx)), shape=(len(clauses), nvar)))
+        blocks.append(coo_matrix((vals, (r_idx, c_idx)), shape=(len(clauses), nvar)).tocsr())
         lo.append(np.array(rhs))
         hi.append(np.full(len(clauses), np.inf))
 
-    # Dynamics x_{k+1} = A x_k + B u_k.
-    r_idx, c_idx, vals = [], [], []
-    eq = np.zeros(nx)
-    ri, ci = np.indices((n, n))
-    rb, cb = np.indices((n, m))
-    for k in range(H):
-        base = k * n
-        r_idx.append((base + ri).ravel())
-        c_idx.append((col_x(k + 1) + ci).ravel())
-        vals.append(np.eye(n).ravel())
-        if k >= 1:
-            r_idx.append((base + ri).ravel())
-            c_idx.append((col_x(k) + ci).ravel())
-            vals.append(-A.ravel())
-        else:
-            eq[:n] = A @ mean0
-        r_idx.append((base + rb).ravel())
-        c_idx.append((ou + k * m + cb).ravel())
-        vals.append(-B.ravel())
-    rows_A.append(
-        coo_matrix((np.concatenate(vals), (np.concatenate(r_idx), np.concatenate(c_idx))), shape=(nx, nvar))
-    )
-    lo.append(eq)
-    hi.append(eq)
+    # Dynamics and control domain (scaled, as in the plan LP).
+    blocks.append(hstack([csr_matrix((rows.A_eq.shape[0], nb)), rows.A_eq]).tocsr())
+    lo.append(rows.b_eq)
+    hi.append(rows.b_eq)
+    blocks.append(hstack([csr_matrix((rows.A_U.shape[0], nb)), rows.A_U]).tocsr())
+    lo.append(np.full(rows.A_U.shape[0], -np.inf))
+    hi.append(rows.b_U)
 
-    # Control domain.
-    UH, Uc = control_domain.H, control_domain.c
-    nU = UH.shape[0]
-    ri, ci = np.indices(UH.shape)
-    r_idx = np.concatenate([(k * nU + ri).ravel() for k in range(H)])
-    c_idx = np.concatenate([(ou + k * m + ci).ravel() for k in range(H)])
-    rows_A.append(coo_matrix((np.tile(UH.ravel(), H), (r_idx, c_idx)), shape=(H * nU, nvar)))
-    lo.append(np.full(H * nU, -np.inf))
-    hi.append(np.tile(-Uc, H))
-
-    # Big-M implications p[i, k] -> faces of proposition i at step k.
-    verts = _control_vertices(control_domain)
+    # Big-M implications p[i, k] -> faces of proposition i at step k (normalised rows).
     F = abstraction.H
     inv_low, inv_high = _invariant_box(enc.formula, abstraction, n, H)
     if F.shape[0]:
-        # sup over reachable means of h' x_k = h A^k x0 + sum_j max_v h A^j B v.
+        budget.check("building the MILP")
         powers = np.empty((H + 1, F.shape[0], n))
         powers[0] = F
         for j in range(1, H + 1):
             powers[j] = powers[j - 1] @ A
-        gain = np.einsum("jfn,nm,vm->jfv", powers[:H], B, verts).max(axis=2)  # (H, F)
+        gain = np.stack([_support(control_domain, powers[j] @ B) for j in range(H)]) if H else np.zeros((0, F.shape[0]))
         reach_max = np.einsum("kfn,n->kf", powers, mean0)
-        reach_max[1:] += np.cumsum(gain, axis=0)
+        with np.errstate(invalid="ignore"):
+            reach_max[1:] += np.cumsum(gain, axis=0)
+        G = F * dx[None, :]
+        g = np.linalg.norm(G, axis=1)
+        g = np.where(g > 0, g, 1.0)
         r_idx, c_idx, vals, ub = [], [], [], []
         row = 0
-        fi = np.arange(F.shape[0])
         for k in range(1, H + 1):
-            var = np.einsum("ij,jk,ik->i", F, covs[k], F)
-            sd = np.sqrt(np.maximum(var, 0.0))
-            with np.errstate(invalid="ignore"):
-                terms = np.where(np.isinf(abstraction.z) & (sd <= 0), 0.0, abstraction.z * sd)
-            bound = -(abstraction.c + terms) - _TIGHTEN  # h' x_k <= bound when p holds
-            # The tightest bound on h' x_k: reachability, or a region required at every step.
+            terms = std_terms(F, abstraction.z, covs[k])
+            bound = -(abstraction.c + terms)  # h' x_k <= bound when p holds
             with np.errstate(invalid="ignore"):
                 box_max = np.where(F > 0, F * inv_high[k], F * inv_low[k])
             box_max = np.where(F == 0, 0.0, box_max).sum(axis=1)
-            big = np.maximum(np.minimum(reach_max[k], box_max) - bound, 0.0)
-            impossible = ~np.isfinite(bound)
+            with np.errstate(invalid="ignore"):
+                big = np.maximum(np.minimum(reach_max[k], box_max) - bound, 0.0) / g
             p_cols = enc.p[abstraction.owner, k] - 1
-            for f in fi:
-                if impossible[f]:
-                    # eps = 0 with variance: the proposition cannot hold here.
-                    r_idx.append(row)
+            for f in range(F.shape[0]):
+                if not np.isfinite(bound[f]):
+                    r_idx.append(row)  # eps = 0 with variance: the proposition cannot hold here
                     c_idx.append(int(p_cols[f]))
                     vals.append(1.0)
                     ub.append(0.0)
@@ -230,43 +248,40 @@ def solve_milp(
                     continue
                 if big[f] <= 0:
                     continue  # every reachable mean satisfies the face
+                if not np.isfinite(big[f]) or big[f] > _MAX_BIG_M:
+                    return MILPOutcome("unsupported", why="the reachable means are unbounded (no finite big-M)")
                 r_idx.extend([row] * (n + 1))
-                c_idx.extend(list(range(col_x(k), col_x(k) + n)) + [int(p_cols[f])])
-                # p within HiGHS' integrality tolerance of 1 must still enforce the face.
-                vals.extend(list(F[f]) + [float(big[f]) / (1.0 - _INT_TOL)])
-                ub.append(bound[f] + big[f])
+                c_idx.extend(list(range(nb + (k - 1) * n, nb + k * n)) + [int(p_cols[f])])
+                vals.extend(list(G[f] / g[f]) + [float(big[f]) / (1.0 - _INT_TOL)])
+                ub.append(bound[f] / g[f] + big[f])
                 row += 1
         if row:
-            rows_A.append(coo_matrix((vals, (r_idx, c_idx)), shape=(row, nvar)))
+            blocks.append(coo_matrix((vals, (r_idx, c_idx)), shape=(row, nvar)).tocsr())
             lo.append(np.full(row, -np.inf))
             hi.append(np.array(ub))
 
-    A_all = vstack(rows_A).tocsr()
+    A_all = vstack(blocks).tocsr()
     lower = np.concatenate([np.zeros(nb), np.full(nx + nu, -np.inf)])
     upper = np.concatenate([np.ones(nb), np.full(nx + nu, np.inf)])
-    # The trace is the whole horizon: every step exists.
+    # The trace is the whole bound: every step exists (a shorter plan extends to it).
     alive = np.asarray(enc.alive[: H + 1]) - 1
     lower[alive] = 1.0
     upper[enc.alive[H + 1] - 1] = 0.0
+    upper[enc.selector - 1] = 0.0  # abandoned candidates are not proofs: their clauses are off
     # Only the letters branch: every gate is a full Tseitin equivalence of its inputs, so it is
     # integral whenever they are (a continuous gate in [0, 1] is exact and halves HiGHS' work).
     integrality = np.zeros(nvar)
     for letters in (np.asarray(enc.alive), enc.p.ravel(), enc.m.ravel()):
-        integrality[letters - 1] = 1
-    logger.info("MILP: %d binaries, %d continuous, %d rows", nb, nx + nu, A_all.shape[0])
-    with _quiet_stdout():
-        res = milp(
-            np.zeros(nvar),
-            integrality=integrality,
-            bounds=Bounds(lower, upper),
-            constraints=LinearConstraint(A_all, np.concatenate(lo), np.concatenate(hi)),
-            options={"time_limit": max(time_limit, 0.01), "disp": False},
-        )
-    if res.status == 0 and res.x is not None:
-        controls = res.x[ou:].reshape(H, m)
-        claims = np.round(res.x[enc.p - 1]).astype(bool) if enc.p.size else np.zeros((0, H + 1), bool)
-        return "found", actions, controls, claims
-    if res.status == 2:
-        return "infeasible", None, None, None
-    logger.info("MILP stopped: %s", res.message)
-    return "timeout", None, None, None
+        integrality[np.asarray(letters, dtype=np.int64) - 1] = 1
+    logger.info("MILP: %d binaries, %d continuous, %d rows", int(integrality.sum()), nx + nu, A_all.shape[0])
+    model = LinearModel(np.zeros(nvar), A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality)
+    sol = backend.solve(model, max(budget.remaining(), 1e-3))
+    if sol.status == "optimal" and sol.x is not None:
+        z = sol.x[nb:]
+        controls = z[nx:].reshape(H, m) * scaling.du
+        claims = np.round(sol.x[enc.p - 1]).astype(bool) if enc.p.size else np.zeros((0, H + 1), bool)
+        return MILPOutcome("found", actions, controls, claims)
+    if sol.status == "infeasible":
+        return MILPOutcome("infeasible", why="the MILP is infeasible")
+    logger.info("MILP stopped: %s", sol.message)
+    return MILPOutcome("timeout", why=sol.message)

@@ -3,144 +3,21 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
-from typing import Any, Literal
+import time
+from typing import Any
 
-import numpy as np
-
-from .._checks import as_float, as_int
 from ..belief import GaussianBelief
 from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
 from ..formulas import STLFormula, as_formula
 from ..sets import Polytope
 from ..trajectory import ProbabilisticTSTrajectory
+from .options import SolverOptions
+from .results import SolveResult
 
-__all__ = ["Problem", "SolveResult", "SolveStats", "SolverOptions"]
+__all__ = ["Problem"]
 
 logger = logging.getLogger(__name__)
-
-Status = Literal["found", "infeasible", "budget_exhausted"]
-
-
-@dataclass
-class SolveStats:
-    """How the solver spent its effort.
-
-    Attributes
-    ----------
-    candidates : int
-        Discrete plans proposed by the BMC proposer.
-    counterexamples : int
-        Blocking clauses added (LP infeasibility proofs and failed prefixes).
-    pruned_letters, pruned_steps : int
-        Letters / letter-to-letter steps excluded for good by LP pruning.
-    bmc_depth : int
-        Deepest bound the proposer reached.
-    nodes : int
-        Belief nodes grown by the sampler.
-    sat_calls, lp_calls : int
-    time_total, time_bmc, time_lp, time_sampling : float
-        Seconds.
-    """
-
-    candidates: int = 0
-    counterexamples: int = 0
-    pruned_letters: int = 0
-    pruned_steps: int = 0
-    bmc_depth: int = 0
-    nodes: int = 0
-    sat_calls: int = 0
-    lp_calls: int = 0
-    time_total: float = 0.0
-    time_bmc: float = 0.0
-    time_lp: float = 0.0
-    time_sampling: float = 0.0
-
-    def as_dict(self) -> dict[str, Any]:
-        """Plain-data copy (for JSON result files)."""
-        return dict(self.__dict__)
-
-
-@dataclass
-class SolveResult:
-    """Outcome of :meth:`Problem.solve`.
-
-    Attributes
-    ----------
-    status : {"found", "infeasible", "budget_exhausted"}
-        ``infeasible`` is a proof (the proposer ran out of plans); ``budget_exhausted`` is not.
-    trajectory : ProbabilisticTSTrajectory or None
-        The verified plan when ``status == "found"``.
-    reason : str
-        One sentence on why the solver stopped.
-    margin : float
-        Monitor robustness of the returned plan (``nan`` without a plan).
-    stats : SolveStats
-    """
-
-    status: Status
-    trajectory: ProbabilisticTSTrajectory | None
-    reason: str
-    margin: float = float("nan")
-    stats: SolveStats = field(default_factory=SolveStats)
-
-    @property
-    def found(self) -> bool:
-        """True when a verified plan was found."""
-        return self.status == "found"
-
-    @property
-    def solve_time(self) -> float:
-        """Wall-clock seconds spent in ``solve``."""
-        return self.stats.time_total
-
-
-@dataclass(frozen=True)
-class SolverOptions:
-    """Validated parameters of :meth:`Problem.solve` (paper Section III)."""
-
-    rrt_timeout: float = 60.0
-    delta_near: float = 2.0
-    delta_drain: float = 0.5
-    goal_bias: float = 0.25
-    min_num_of_steps: int = 3
-    max_num_of_steps: int = 15
-    seed: int | None = None
-    time_limit: float | None = None
-    max_candidates: int | None = None
-
-    @classmethod
-    def make(cls, **kw: Any) -> SolverOptions:
-        rrt_timeout = as_float(kw["rrt_timeout"], "rrt_timeout", 0.0, low_open=True)
-        delta_near = as_float(kw["delta_near"], "delta_near", 0.0)
-        delta_drain = as_float(kw["delta_drain"], "delta_drain", 0.0)
-        goal_bias = as_float(kw["goal_bias"], "goal_bias", 0.0, 1.0)
-        lo = as_int(kw["min_num_of_steps"], "min_num_of_steps", minimum=1)
-        hi = as_int(kw["max_num_of_steps"], "max_num_of_steps", minimum=1)
-        if lo > hi:
-            raise InvalidArgumentError(f"min_num_of_steps must be <= max_num_of_steps, got {lo} > {hi}")
-        seed = kw.get("seed")
-        if seed is not None and not isinstance(seed, int | np.integer):
-            raise InvalidTypeError(f"seed must be an int or None, got {type(seed).__name__}")
-        time_limit = kw.get("time_limit")
-        if time_limit is not None:
-            time_limit = as_float(time_limit, "time_limit", 0.0, low_open=True)
-        max_candidates = kw.get("max_candidates")
-        if max_candidates is not None:
-            max_candidates = as_int(max_candidates, "max_candidates", minimum=1)
-        return cls(
-            rrt_timeout,
-            delta_near,
-            delta_drain,
-            goal_bias,
-            lo,
-            hi,
-            None if seed is None else int(seed),
-            time_limit,
-            max_candidates,
-        )
-
 
 class Problem:
     """A PrSTL synthesis problem (paper Section IV-E).
@@ -222,37 +99,40 @@ class Problem:
 
     def solve(
         self,
-        rrt_timeout: float = 60.0,
-        delta_near: float = 2.0,
-        delta_drain: float = 0.5,
-        goal_bias: float = 0.25,
-        min_num_of_steps: int = 3,
-        max_num_of_steps: int = 15,
-        seed: int | None = None,
+        rrt_timeout: float | None = None,
+        delta_near: float | None = None,
+        delta_drain: float | None = None,
+        goal_bias: float | None = None,
+        min_num_of_steps: int | None = None,
+        max_num_of_steps: int | None = None,
+        seed: Any = None,
         *,
-        time_limit: float | None = None,
-        max_candidates: int | None = None,
+        options: SolverOptions | None = None,
+        **more: Any,
     ) -> ProbabilisticTSTrajectory | None:
         """Find modes and controls whose MLO belief trajectory satisfies the formula.
 
         Parameters
         ----------
-        rrt_timeout : float
-            Seconds the belief-space sampler may spend on one candidate plan.
-        delta_near : float
+        rrt_timeout : float, default 60
+            Wall-clock safety cap (seconds) on the sampler's search for one candidate; it also
+            sets the sampler's work budget (see :class:`SolverOptions`).
+        delta_near : float, default 2
             Radius within which the sampler prefers the least uncertain node to extend.
-        delta_drain : float
+        delta_drain : float, default 0.5
             Radius within which only the least uncertain node is kept.
-        goal_bias : float
+        goal_bias : float, default 0.25
             Probability of aiming at the candidate's next required region.
-        min_num_of_steps, max_num_of_steps : int
+        min_num_of_steps, max_num_of_steps : int, default 3 and 15
             Range of the number of steps of one extension.
-        seed : int, optional
-            Seed of the sampler; the same seed gives the same plan.
-        time_limit : float, optional
-            Overall wall-clock budget in seconds (default ``10 * rrt_timeout``).
-        max_candidates : int, optional
-            Stop after this many discrete candidates.
+        seed : int, numpy Generator or None
+            Seed of every random choice: the same seed gives the same plan (unless a wall-clock
+            cap was hit, which ``last_result.stats.caps_hit`` reports).
+        options : SolverOptions, optional
+            Every solver parameter at once; explicit keywords override it.
+        **more
+            Any other :class:`SolverOptions` field (``time_limit``, ``max_candidates``,
+            ``sampler_iterations``, ``lazy_candidates``, ``max_plan_length``, back-ends, ...).
 
         Returns
         -------
@@ -267,38 +147,59 @@ class Problem:
             min_num_of_steps,
             max_num_of_steps,
             seed,
-            time_limit=time_limit,
-            max_candidates=max_candidates,
+            options=options,
+            **more,
         ).trajectory
 
     def solve_result(
         self,
-        rrt_timeout: float = 60.0,
-        delta_near: float = 2.0,
-        delta_drain: float = 0.5,
-        goal_bias: float = 0.25,
-        min_num_of_steps: int = 3,
-        max_num_of_steps: int = 15,
-        seed: int | None = None,
+        rrt_timeout: float | None = None,
+        delta_near: float | None = None,
+        delta_drain: float | None = None,
+        goal_bias: float | None = None,
+        min_num_of_steps: int | None = None,
+        max_num_of_steps: int | None = None,
+        seed: Any = None,
         *,
-        time_limit: float | None = None,
-        max_candidates: int | None = None,
+        options: SolverOptions | None = None,
+        **more: Any,
     ) -> SolveResult:
-        """Like :meth:`solve`, but return the full :class:`SolveResult` (status, reason, statistics)."""
-        options = SolverOptions.make(
-            rrt_timeout=rrt_timeout,
-            delta_near=delta_near,
-            delta_drain=delta_drain,
-            goal_bias=goal_bias,
-            min_num_of_steps=min_num_of_steps,
-            max_num_of_steps=max_num_of_steps,
-            seed=seed,
-            time_limit=time_limit,
-            max_candidates=max_candidates,
-        )
+        """Like :meth:`solve`, but return the full :class:`SolveResult` (status, reason, statistics).
+
+        Parameters
+        ----------
+        rrt_timeout, delta_near, delta_drain, goal_bias, min_num_of_steps, max_num_of_steps, seed
+            As in :meth:`solve` (``None``: the value in ``options``, or the default).
+        options : SolverOptions, optional
+            Every solver parameter at once; explicit arguments override it.
+        **more
+            Any other :class:`SolverOptions` field.
+
+        Returns
+        -------
+        SolveResult
+        """
+        start = time.perf_counter()
+        given = {
+            "rrt_timeout": rrt_timeout,
+            "delta_near": delta_near,
+            "delta_drain": delta_drain,
+            "goal_bias": goal_bias,
+            "min_num_of_steps": min_num_of_steps,
+            "max_num_of_steps": max_num_of_steps,
+            "seed": seed,
+        }
+        overrides = {k: v for k, v in given.items() if v is not None}
+        overrides.update(more)
+        if options is None:
+            opts = SolverOptions.make(**overrides)
+        elif isinstance(options, SolverOptions):
+            opts = options.with_(**overrides) if overrides else options
+        else:
+            raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
         from .cegis import synthesize
 
-        result = synthesize(self, options)
+        result = synthesize(self, opts, start)
         self.last_result = result
         return result
 

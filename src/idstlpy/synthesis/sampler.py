@@ -16,6 +16,11 @@ Nodes are MLO beliefs ``(step, mean, cov)`` reached by a mode/control sequence. 
 A step that breaks the plan does not kill the branch at once: the proposer is asked (SAT with the
 realised labels as assumptions) whether the realised prefix can still be completed, and if so the
 node follows the new plan. A node is a goal when its realised label trace satisfies the formula.
+
+The search is decided by a work budget (``SolverOptions.iterations_per_candidate`` iterations)
+and a random stream of its own per candidate, spawned from the solve's seed: the same seed gives
+the same plan on any machine. ``rrt_timeout`` is only a wall-clock safety cap; hitting it is
+reported (``SolveStats.caps_hit``).
 """
 
 from __future__ import annotations
@@ -23,15 +28,21 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from ..belief import belief_step
+from ..belief import belief_step, rollout, rollout_arrays
+from ..monitor import robustness
 from .abstraction import Abstraction
-from .bmc import BMCEncoder
+from .interfaces import Budget, Found, Unknown, Verdict
 from .plan import DiscretePlan, evaluate_bool, extract_witness
+from .plan_lp import Scaling
+from .proposer import BMCProposer
+from .results import SolveStats
+from .teacher import execution_margin, solve_plan_lp
 
-__all__ = ["BeliefSampler", "SamplerOutcome"]
+__all__ = ["BeliefSampler", "SamplerOutcome", "SamplerTeacher"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,7 +54,8 @@ class SamplerOutcome:
     actions: np.ndarray | None
     controls: np.ndarray | None
     nodes: int
-    sat_calls: int
+    iterations: int
+    capped: bool
 
 
 class _Tree:
@@ -105,18 +117,17 @@ class BeliefSampler:
 
     def __init__(
         self,
-        problem,
+        problem: Any,
         abstraction: Abstraction,
-        encoder: BMCEncoder,
-        options,
-        rng: np.random.Generator,
+        proposer: BMCProposer,
+        options: Any,
     ) -> None:
         self.problem = problem
         self.system = problem.switched_system
         self.abs = abstraction
-        self.enc = encoder
+        self.proposer = proposer
         self.opt = options
-        self.rng = rng
+        self.rng = np.random.default_rng(0)  # replaced by each run's own stream
         self.formula = problem.stl_formula
         U = problem.control_domain
         self.UH, self.Uc = U.H, U.c
@@ -164,8 +175,9 @@ class BeliefSampler:
     def _sample_in_atom(self, i: int) -> np.ndarray | None:
         low, high = self._boxes[i]
         wl, wh = self.workspace
-        low = np.where(np.isfinite(low), low, wl)
-        high = np.where(np.isfinite(high), high, wh)
+        # Open sides (half-planes) borrow the workspace box, never crossing the finite side.
+        low = np.where(np.isfinite(low), low, np.minimum(wl, np.where(np.isfinite(high), high, wl)))
+        high = np.where(np.isfinite(high), high, np.maximum(wh, low))
         region = self._regions[i]
         center = self._centers[i]
         for _ in range(20):
@@ -211,32 +223,11 @@ class BeliefSampler:
     def _replan(
         self, tree: _Tree, leaf_truth: np.ndarray, leaf_k: int, leaf_mode: int, parent: int
     ) -> DiscretePlan | None:
-        """A plan consistent with the realised prefix (path to ``parent`` plus the new step), or None.
-
-        The plan is the witness of the *optimistic* completion (every proposition claimed at every
-        later step) with the latest until-witnesses, so the branch keeps it as long as possible;
-        the SAT proposer then confirms the prefix is completable under everything learnt so far
-        (pruning facts and counterexamples).
-        """
+        """A plan consistent with the realised prefix (path to ``parent`` plus the new step), or None."""
         path = tree.path(parent)
         truth = np.vstack([tree.truth[path], leaf_truth[None, :]]).T  # (n_atoms, k+1)
-        H = self.enc.H
-        optimistic = np.ones((truth.shape[0], H + 1), dtype=bool)
-        optimistic[:, : leaf_k + 1] = truth
-        w = extract_witness(self.formula, optimistic, self.abs.index, prefer_late=True)
-        if w is None:
-            return None  # not even the best possible future satisfies the formula
-        modes = np.concatenate([tree.action[path[1:]], [leaf_mode]])
-        assume = [-int(v) for v in self.enc.p[:, : leaf_k + 1][~truth]]
-        if self.system.num_modes > 1:
-            assume += [int(self.enc.m[q, j + 1]) for j, q in enumerate(modes)]
-        if not self.enc.solve(assumptions=assume):
-            return None
-        required, L = w
-        _, model_modes, _ = self.enc.model_claims()
-        mm = model_modes[: max(L, leaf_k + 1)].copy()
-        mm[1 : leaf_k + 1] = modes
-        return DiscretePlan(required[:, :L], mm[:L], L)
+        modes = np.concatenate([tree.action[path[1:]], [leaf_mode]]).astype(int)
+        return self.proposer.complete(truth, modes)
 
     def _satisfied(self, tree: _Tree, leaf: int) -> bool:
         path = tree.path(leaf)
@@ -260,7 +251,7 @@ class BeliefSampler:
         i = 0
         while checks < max_checks:
             N = actions.shape[0]
-            means, covs = _roll(modes, init.mean, init.cov, actions, controls)
+            means, covs = rollout_arrays(modes, init.mean, init.cov, actions, controls)
             if i >= N - 2:
                 break
             improved = False
@@ -281,7 +272,7 @@ class BeliefSampler:
                 new_actions = np.concatenate([actions[:i], np.full(len(cut_u), q), actions[j:]])
                 new_controls = np.vstack([controls[:i], np.array(cut_u), controls[j:]])
                 checks += 1
-                m2, c2 = _roll(modes, init.mean, init.cov, new_actions, new_controls)
+                m2, c2 = rollout_arrays(modes, init.mean, init.cov, new_actions, new_controls)
                 truth = np.array(
                     [
                         self.abs.truth(m2[k], c2[k], int(new_actions[k - 1]) if k else -1)
@@ -297,9 +288,16 @@ class BeliefSampler:
         return actions, controls
 
     # -- main loop --------------------------------------------------------------------------------
-    def run(self, plan: DiscretePlan, deadline: float) -> SamplerOutcome:
-        """Grow a tree guided by ``plan`` until a goal node is found or ``deadline`` passes."""
-        opt, rng, abs_ = self.opt, self.rng, self.abs
+    def run(
+        self, plan: DiscretePlan, iterations: int, rng: np.random.Generator, deadline: float
+    ) -> SamplerOutcome:
+        """Grow a tree guided by ``plan`` for at most ``iterations`` iterations.
+
+        ``rng`` is the candidate's own random stream; ``deadline`` (``time.perf_counter()``
+        seconds) is a safety cap only.
+        """
+        self.rng = rng
+        opt, abs_ = self.opt, self.abs
         sys = self.system
         modes = sys.system_modes
         init = self.problem.initial_state
@@ -307,11 +305,14 @@ class BeliefSampler:
         plans = [plan]
         root = tree.add(init.mean, init.cov, 0, -1, -1, None, abs_.truth(init.mean, init.cov, -1), 0)
         tree.active[root] = True
-        sat0 = self.enc.sat_calls
-        H = self.enc.H
+        H = self.proposer.cap
         goal_cache: dict[int, int | None] = {}
         iters = 0
-        while time.perf_counter() < deadline:
+        capped = False
+        while iters < iterations:
+            if not iters % 32 and time.perf_counter() >= deadline:
+                capped = True
+                break
             iters += 1
             act = np.nonzero(tree.active[: tree.size])[0]
             if act.size == 0:
@@ -368,14 +369,16 @@ class BeliefSampler:
                 path = tree.path(leaf)
                 logger.info("sampler: goal after %d iterations, %d nodes", iters, tree.size)
                 return SamplerOutcome(
-                    tree.action[path[1:]].copy(),
-                    tree.control[path[1:]].copy(),
-                    tree.size,
-                    self.enc.sat_calls - sat0,
+                    tree.action[path[1:]].copy(), tree.control[path[1:]].copy(), tree.size, iters, False
                 )
             self._drain(tree, leaf, act)
-        logger.info("sampler: time-out after %d iterations, %d nodes", iters, tree.size)
-        return SamplerOutcome(None, None, tree.size, self.enc.sat_calls - sat0)
+        logger.info(
+            "sampler: %s after %d iterations, %d nodes",
+            "wall-clock cap" if capped else "budget spent",
+            iters,
+            tree.size,
+        )
+        return SamplerOutcome(None, None, tree.size, iters, capped)
 
     def _select(self, tree: _Tree, pool: np.ndarray, s: np.ndarray, goal: int | None) -> int:
         """Least uncertain node within ``delta_near`` of ``s`` (else the nearest).
@@ -423,15 +426,131 @@ class BeliefSampler:
         tree.active[leaf] = True
 
 
-def _roll(modes, mean0, cov0, actions, controls) -> tuple[np.ndarray, np.ndarray]:
-    N = actions.shape[0]
-    means = np.empty((N + 1, mean0.shape[0]))
-    covs = np.empty((N + 1, *cov0.shape))
-    means[0], covs[0] = mean0, cov0
-    for k in range(N):
-        means[k + 1], covs[k + 1] = belief_step(modes[int(actions[k])], means[k], covs[k], controls[k])
-    return means, covs
-
-
 def _bucket(run: np.ndarray | int) -> np.ndarray:
     return np.floor(np.log2(np.asarray(run) + 1.0)).astype(int)
+
+
+class SamplerTeacher:
+    """Decides candidates under state-dependent noise by sampling belief space (never refutes).
+
+    Parameters
+    ----------
+    problem : Problem
+    abstraction : Abstraction
+    proposer : BMCProposer
+        Used to re-time a branch whose realised prefix breaks the candidate.
+    options : SolverOptions
+    scaling : Scaling
+        Units for the polish LP.
+    seeds : numpy.random.SeedSequence
+        Parent of every candidate's random stream (one child spawned per candidate).
+    """
+
+    name = "sampler"
+
+    def __init__(
+        self,
+        problem: Any,
+        abstraction: Abstraction,
+        proposer: BMCProposer,
+        options: Any,
+        scaling: Scaling,
+        seeds: np.random.SeedSequence,
+    ) -> None:
+        self.problem = problem
+        self.abs = abstraction
+        self.options = options
+        self.scaling = scaling
+        self.seeds = seeds
+        self.sampler = BeliefSampler(problem, abstraction, proposer, options)
+
+    def applies(self, problem: Any) -> bool:
+        """Only problems with state-dependent noise need sampling."""
+        return any(m.has_state_dependent_noise for m in problem.switched_system.system_modes)
+
+    def exact(self, problem: Any) -> bool:
+        """Sampling never proves a candidate impossible."""
+        return False
+
+    def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
+        """Search belief space for ``plan`` within its work budget; shortcut and polish a find."""
+        rng = np.random.default_rng(self.seeds.spawn(1)[0])
+        cap = min(budget.deadline, time.perf_counter() + self.options.rrt_timeout)
+        budget_iters = self.options.iterations_per_candidate
+        with stats.clock("time_sampling"):
+            out = self.sampler.run(plan, budget_iters, rng, cap)
+        stats.nodes += out.nodes
+        stats.sampler_iterations += out.iterations
+        if out.capped and not budget.expired() and "rrt_timeout" not in stats.caps_hit:
+            stats.caps_hit.append("rrt_timeout")
+        if out.actions is None or out.controls is None:
+            why = (
+                f"sampler: rrt_timeout ({self.options.rrt_timeout:g} s) reached after {out.iterations} iterations"
+                if out.capped
+                else f"sampler: no plan within its budget of {budget_iters} iterations"
+            )
+            return Unknown(why)
+        with stats.clock("time_sampling"):
+            actions, controls = self.sampler.shortcut(out.actions, out.controls, self.options.shortcut_checks)
+        with stats.clock("time_lp"):
+            actions, controls = self._polish(actions, controls, stats)
+        return Found(actions, controls, "the belief-space sampler")
+
+    def _polish(
+        self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Move a sampled plan away from the boundaries it grazes, keeping its modes.
+
+        The sampler stops at the first belief that meets the plan, often a hair inside a
+        required region, and such a plan breaks under execution noise. Each round freezes the
+        trajectory's exact covariances, asks the plan LP for the controls that maximise the
+        smallest slack of the requirements the trajectory meets (means may move by at most
+        ``trust``), re-rolls the exact belief dynamics and keeps the result only if the
+        monitor's margin grew; ``trust`` halves after a round that did not help.
+        """
+        problem = self.problem
+        init, system, formula = problem.initial_state, problem.switched_system, problem.stl_formula
+        traj = rollout(system, init, actions, controls)
+        margin = robustness(traj, formula)
+        if margin < 0:
+            return actions, controls  # the loop's monitor will reject it; nothing to polish
+        trust = np.inf
+        for _ in range(self.options.polish_rounds):
+            acts = traj.get_action()
+            modes = np.concatenate([[-1], acts]).astype(int)
+            means, covs = traj.get_mean(), traj.get_cov()
+            truth = np.stack(
+                [self.abs.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)], axis=1
+            )
+            witness = extract_witness(formula, truth, self.abs.index, prefer_late=False)
+            if witness is None:
+                break
+            required, L = witness
+            plan = DiscretePlan(required[:, :L], modes[:L], L)
+            target = execution_margin(system, init, self.abs, plan)
+            if target <= margin:
+                break
+            trust = min(trust, 2.0 * target)
+            lp = solve_plan_lp(
+                system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                self.abs,
+                plan,
+                target,
+                covs=covs[:L],
+                anchor=means[:L],
+                trust=trust,
+                scaling=self.scaling,
+            )
+            stats.lp_calls += 1
+            if lp.feasible and lp.controls is not None:
+                moved = rollout(system, init, acts[: L - 1], lp.controls)
+                moved_margin = robustness(moved, formula)
+                if moved_margin > margin:
+                    logger.debug("polish: margin %.3g -> %.3g (trust %.3g)", margin, moved_margin, trust)
+                    traj, margin = moved, moved_margin
+                    continue
+            trust *= 0.5
+        return traj.get_action(), traj.get_control()

@@ -1,36 +1,45 @@
-"""The exact LP teacher: controls for a discrete plan, or a proof that there are none.
+"""The LP teacher: controls for a discrete plan, or a proof that there are none.
 
-For a fixed mode sequence the MLO mean is affine in the controls and, when no mode's noise
-depends on the state, the covariance schedule is fixed: every chance constraint of the plan is a
-linear constraint on the controls, and one LP (scipy's HiGHS) decides the plan exactly. With
-state-dependent noise the same LP is run with a *lower bound* on the covariance (the update with
-zero observation noise; the Riccati update is monotone in ``R``), which makes it a sound
-necessary condition: its infeasibility proofs are still valid counterexamples.
+The plan LP (:mod:`.plan_lp`) is solved in two phases through a registered back-end:
 
-The LP is elastic (one slack per requirement, minimise their sum); when the optimum is positive
-the requirements whose rows carry non-zero duals form an infeasible subset (a Farkas
-certificate), which the proposer blocks.
+1. *elastic*: one slack per requirement, minimise their sum. An optimum far above the solver's
+   tolerances is a proof of infeasibility, and the requirements whose rows carry non-zero duals
+   form an infeasible subset on their own (the duals are a Farkas certificate of that subset
+   together with the dynamics and the control domain): that subset is the conflict. A
+   borderline optimum is *unknown*;
+2. *margin*: with the slacks at zero, push every required face inside its bound by up to
+   ``margin`` (state units), so the plan survives execution noise; a zero-slack plan keeps
+   margin 0 and the monitor decides it exactly.
+
+When no mode's noise depends on the state the LP is exact (``Found`` / ``Refuted``); otherwise
+it is a sound relaxation (``Refuted`` or ``Unknown``).
 """
 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
-from scipy.optimize import linprog
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix, hstack, vstack
 
-from ..belief import kalman_update
 from .abstraction import Abstraction
+from .backends import Backend, HighsBackend, LinearModel
+from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan
+from .plan_lp import PlanRows, Scaling, build_plan_rows, covariance_schedule, plan_requirements
+from .results import SolveStats
 
-__all__ = ["LPOutcome", "covariance_schedule", "solve_plan_lp"]
+__all__ = ["LPOutcome", "LPTeacher", "covariance_schedule", "execution_margin", "solve_plan_lp"]
 
 logger = logging.getLogger(__name__)
 
-_FEAS_TOL = 1e-9
-_TIGHTEN = 1e-6  # above HiGHS' primal tolerance (1e-7): the monitor's exact re-check passes
+FEASIBLE_TOL = 1e-9
+"""Elastic optimum (per requirement, normalised rows) at or below which the plan is feasible."""
+REFUTE_TOL = 1e-6
+"""Elastic optimum above which infeasibility is claimed (10x HiGHS' primal tolerance)."""
+_DUAL_TOL = 1e-9
 
 
 @dataclass
@@ -39,58 +48,38 @@ class LPOutcome:
 
     Attributes
     ----------
-    feasible : bool
+    status : {"feasible", "infeasible", "unknown"}
+        ``infeasible`` is a proof (see the module docstring); ``unknown`` is not.
     exact : bool
         True when the covariance schedule is exact (no state-dependent noise on the plan).
     controls : ndarray, shape (K, m), or None
-    means : ndarray, shape (K+1, n), or None
-        Means of the LP's trajectory (also returned when infeasible: the least-violating one).
+    means : ndarray, shape (K + 1, n), or None
+        Means of the LP's trajectory (also the least-violating one when infeasible).
     conflict : list of (step, atom)
-        An infeasible subset of the requirements (empty when feasible).
-    covs : ndarray, shape (K+1, n, n), or None
+        An infeasible subset of the requirements (empty unless infeasible).
+    covs : ndarray, shape (K + 1, n, n), or None
         The covariance schedule the LP used (exact or lower bound).
+    why : str
+        Why the outcome is ``unknown`` (empty otherwise).
     """
 
-    feasible: bool
+    status: Literal["feasible", "infeasible", "unknown"]
     exact: bool
     controls: np.ndarray | None
     means: np.ndarray | None
-    conflict: list[tuple[int, int]]
+    conflict: list[tuple[int, int]] = field(default_factory=list)
     covs: np.ndarray | None = None
+    why: str = ""
 
-
-def covariance_schedule(system, cov0: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Covariances along a mode sequence, exact or a lower bound.
-
-    Returns
-    -------
-    covs : ndarray, shape (K+1, n, n)
-    exact : bool
-        False when some mode's noise depends on the state (then ``covs`` is the zero-noise lower
-        bound at those steps).
-    """
-    K = actions.shape[0]
-    n = cov0.shape[0]
-    covs = np.empty((K + 1, n, n))
-    covs[0] = cov0
-    exact = True
-    modes = system.system_modes
-    for k in range(K):
-        mode = modes[actions[k]]
-        P = mode.A @ covs[k] @ mode.A.T + mode.process_cov
-        if mode.p == 0:
-            covs[k + 1] = P
-        elif mode.has_state_dependent_noise:
-            exact = False
-            covs[k + 1] = kalman_update(mode, np.zeros(n), P, R=np.zeros((mode.p, mode.p)))[1]
-        else:
-            covs[k + 1] = kalman_update(mode, np.zeros(n), P)[1]
-    return covs, exact
+    @property
+    def feasible(self) -> bool:
+        """True when the LP found controls."""
+        return self.status == "feasible"
 
 
 def solve_plan_lp(
-    system,
-    control_domain,
+    system: Any,
+    control_domain: Any,
     mean0: np.ndarray,
     cov0: np.ndarray,
     abstraction: Abstraction,
@@ -100,128 +89,219 @@ def solve_plan_lp(
     covs: np.ndarray | None = None,
     anchor: np.ndarray | None = None,
     trust: float = np.inf,
+    scaling: Scaling | None = None,
+    backend: Backend | None = None,
+    time_limit: float = np.inf,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
-    With ``margin > 0``, a feasible plan is re-solved to push every required face up to
-    ``margin`` (in state units) inside its bound, so the plan survives execution noise; the
-    first LP alone would return a vertex on the boundary.
+    Parameters
+    ----------
+    system : SwitchedSystem
+    control_domain : Polytope
+    mean0 : ndarray, shape (n,)
+    cov0 : ndarray, shape (n, n)
+    abstraction : Abstraction
+    plan : DiscretePlan
+    margin : float
+        Room to leave inside every required face, in state units (second phase).
+    covs : ndarray, shape (K + 1, n, n), optional
+        Covariances to use instead of the modes' schedule (e.g. a sampled trajectory's); the
+        result is then exact only near that trajectory, so ``anchor`` (its means, shape
+        (K + 1, n)) and ``trust`` bound how far every mean may move (infinity norm) in the
+        margin phase.
+    anchor : ndarray, optional
+    trust : float
+    scaling : Scaling, optional
+        Units of the LP's variables (default: from ``mean0``, ``cov0`` and the regions).
+    backend : Backend, optional
+        LP back-end (default HiGHS).
+    time_limit : float
+        Wall-clock cap in seconds for each LP.
 
-    ``covs`` (shape (K+1, n, n)) replaces the covariance schedule of the modes, e.g. the exact
-    covariances of a trajectory under state-dependent noise; the result is then exact only near
-    that trajectory, so ``anchor`` (its means, shape (K+1, n)) and ``trust`` bound how far every
-    mean may move (infinity norm) in the margin phase.
+    Returns
+    -------
+    LPOutcome
     """
-    n, m = system.n, system.m
     K = plan.num_transitions
     actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
-    if covs is None:
-        covs, exact = covariance_schedule(system, cov0, actions)
-    else:
-        exact = False
-    reqs = [(k, i) for (k, i) in plan.requirements() if k >= 1 and abstraction.atoms[i].predicates]
+    modes = system.system_modes
+    if scaling is None:
+        scaling = Scaling.compute(system, control_domain, mean0, cov0, abstraction)
+    backend = backend if backend is not None else HighsBackend()
+    reqs = plan_requirements(plan, abstraction)
     if K == 0:
-        return LPOutcome(True, exact, np.zeros((0, m)), mean0[None, :].copy(), [], covs)
-
-    nx, nu, ns = K * n, K * m, len(reqs)
-    nvar = nx + nu + ns + 1  # the last column is the uniform margin t of the second phase
-
-    # Dynamics: x_{k+1} - A x_k - B u_k = 0 (x_0 is the fixed initial mean).
-    rows, cols, vals = [], [], []
-    b_eq = np.zeros(K * n)
-    eye = np.eye(n)
-    for k in range(K):
-        mode = system.system_modes[actions[k]]
-        r0 = k * n
-        ri, ci = np.indices((n, n))
-        rows.append((r0 + ri).ravel())
-        cols.append((k * n + ci).ravel())
-        vals.append(eye.ravel())
-        if k >= 1:
-            rows.append((r0 + ri).ravel())
-            cols.append(((k - 1) * n + ci).ravel())
-            vals.append(-mode.A.ravel())
-        else:
-            b_eq[:n] = mode.A @ mean0
-        rb, cb = np.indices((n, m))
-        rows.append((r0 + rb).ravel())
-        cols.append((nx + k * m + cb).ravel())
-        vals.append(-mode.B.ravel())
-    A_eq = coo_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(K * n, nvar)
-    ).tocsr()
-
-    # Inequalities: control domain at every step, then one block of faces per requirement.
-    UH, Uc = control_domain.H, control_domain.c
-    nU = UH.shape[0]
-    rows, cols, vals, rhs = [], [], [], []
-    ri, ci = np.indices(UH.shape)
-    for k in range(K):
-        rows.append((k * nU + ri).ravel())
-        cols.append((nx + k * m + ci).ravel())
-        vals.append(UH.ravel())
-    rhs.append(np.tile(-Uc, K))
-    row = K * nU
-    owner_rows: list[np.ndarray] = []
-    impossible: list[tuple[int, int]] = []
-    for r, (k, i) in enumerate(reqs):
-        cone = abstraction.atoms[i].cone
-        var = np.einsum("ij,jk,ik->i", cone.H, covs[k], cone.H)
-        sd = np.sqrt(np.maximum(var, 0.0))
-        if np.any(np.isinf(cone.z) & (sd > 0)):
-            impossible.append((k, i))
-        with np.errstate(invalid="ignore"):
-            terms = np.where(np.isinf(cone.z) & (sd <= 0), 0.0, cone.z * sd)
-        terms = np.where(np.isfinite(terms), terms, 0.0)
-        f = cone.num_faces
-        fi, fj = np.indices((f, n))
-        rows.append((row + fi).ravel())
-        cols.append(((k - 1) * n + fj).ravel())
-        vals.append(cone.H.ravel())
-        rows.append(row + np.arange(f))
-        cols.append(np.full(f, nx + nu + r))
-        vals.append(-np.ones(f))
-        rows.append(row + np.arange(f))
-        cols.append(np.full(f, nvar - 1))
-        vals.append(np.linalg.norm(cone.H, axis=1))
-        rhs.append(-(cone.c + terms) - _TIGHTEN)
-        owner_rows.append(np.full(f, r))
-        row += f
-    if impossible:
-        return LPOutcome(False, exact, None, None, impossible[:1], covs)
-    A_ub = coo_matrix(
-        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row, nvar)
-    ).tocsr()
-    b_ub = np.concatenate(rhs)
-    cost = np.concatenate([np.zeros(nx + nu), np.ones(ns), [0.0]])
-    bounds = [(None, None)] * (nx + nu) + [(0, None)] * ns + [(0, 0)]
-    res = linprog(cost, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds, method="highs")
-    if res.status != 0:
-        # The dynamics and control domain alone are infeasible (an empty control set): block the
-        # whole plan.
-        logger.debug("plan LP status %d: %s", res.status, res.message)
-        return LPOutcome(False, exact, None, None, reqs, covs)
-    x = res.x
-    means = np.vstack([mean0, x[:nx].reshape(K, n)])
-    controls = x[nx : nx + nu].reshape(K, m)
-    if res.fun <= _FEAS_TOL * max(1, ns):
-        if margin > 0 and ns:
-            cost2 = np.zeros(nvar)
-            cost2[-1] = -1.0
-            bounds2 = [(None, None)] * (nx + nu) + [(0, 0)] * ns + [(0, margin)]
-            if anchor is not None and np.isfinite(trust):
-                ref = np.asarray(anchor)[1 : K + 1].ravel()
-                bounds2[:nx] = list(zip(ref - trust, ref + trust, strict=True))
-            res2 = linprog(cost2, A_ub=A_ub, b_ub=b_ub, A_eq=A_eq, b_eq=b_eq, bounds=bounds2, method="highs")
-            if res2.status == 0:
-                x = res2.x
-                means = np.vstack([mean0, x[:nx].reshape(K, n)])
-                controls = x[nx : nx + nu].reshape(K, m)
-        return LPOutcome(True, exact, controls, means, [], covs)
-    duals = np.abs(res.ineqlin.marginals[K * nU :])
-    owners = np.concatenate(owner_rows) if owner_rows else np.zeros(0, dtype=int)
-    involved = sorted(set(owners[duals > 1e-9].tolist()))
+        covs0 = cov0[None, :, :] if covs is None else covs
+        exact = covs is None and True
+        return LPOutcome("feasible", exact, np.zeros((0, system.m)), mean0[None, :].copy(), [], covs0)
+    rows = build_plan_rows(modes, control_domain, mean0, cov0, abstraction, reqs, actions, scaling, covs)
+    if rows.impossible:
+        return LPOutcome("infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs)
+    limit = float(min(time_limit, 1e9))
+    model, ns = _elastic_model(rows)
+    sol = backend.solve(model, limit)
+    if sol.status != "optimal" or sol.x is None:
+        why = f"plan LP: {sol.status} ({sol.message})"
+        logger.debug(why)
+        return LPOutcome("unknown", rows.exact, None, None, [], rows.covs, why)
+    z = sol.x
+    means, controls = rows.unscale(z, mean0)
+    excess = float(sol.objective)
+    if excess <= FEASIBLE_TOL * max(1, ns):
+        z2 = _margin_phase(rows, backend, limit, margin, anchor, trust)
+        if z2 is not None:
+            means, controls = rows.unscale(z2, mean0)
+        return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
+    if excess <= REFUTE_TOL:
+        why = f"plan LP borderline: total violation {excess:.3g} is within solver tolerances"
+        return LPOutcome("unknown", rows.exact, controls, means, [], rows.covs, why)
+    nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
+    duals = np.abs(sol.row_duals[nE + nU :]) if sol.row_duals is not None else np.zeros(0)
+    involved = sorted(set(rows.face_owner[duals > _DUAL_TOL].tolist())) if duals.size else []
     if not involved:
-        involved = [r for r in range(ns) if x[nx + nu + r] > _FEAS_TOL]
+        slack = z[rows.nx + rows.nu : rows.nx + rows.nu + ns]
+        involved = [r for r in range(ns) if slack[r] > FEASIBLE_TOL]
     conflict = [reqs[r] for r in involved]
-    return LPOutcome(False, exact, controls, means, conflict, covs)
+    return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs)
+
+
+def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
+    ns = len(rows.requirements)
+    ncol = rows.nx + rows.nu
+    R = rows.face_H.shape[0]
+    slack = csr_matrix(
+        (-np.ones(R), (np.arange(R), rows.face_owner)), shape=(R, ns)
+    ) if R else csr_matrix((0, ns))
+    A = vstack(
+        [
+            hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], ns))]),
+            hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], ns))]),
+            hstack([rows.face_H, slack]),
+        ]
+    ).tocsr()
+    lo = np.concatenate([rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)])
+    hi = np.concatenate([rows.b_eq, rows.b_U, -rows.face_off])
+    c = np.concatenate([np.zeros(ncol), np.ones(ns)])
+    lb = np.concatenate([np.full(ncol, -np.inf), np.zeros(ns)])
+    ub = np.full(ncol + ns, np.inf)
+    return LinearModel(c, A, lo, hi, lb, ub), ns
+
+
+def _margin_phase(
+    rows: PlanRows,
+    backend: Backend,
+    limit: float,
+    margin: float,
+    anchor: np.ndarray | None,
+    trust: float,
+) -> np.ndarray | None:
+    """Maximise a uniform margin ``t`` (state units) inside every required face."""
+    R = rows.face_H.shape[0]
+    if R == 0:
+        return None
+    ncol = rows.nx + rows.nu
+    dx = rows.scaling.dx
+    t_max = max(float(margin), 1e-6 * float(np.min(dx)))
+    A = vstack(
+        [
+            hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], 1))]),
+            hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], 1))]),
+            hstack([rows.face_H, csr_matrix(rows.face_norm[:, None])]),
+        ]
+    ).tocsr()
+    lo = np.concatenate([rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)])
+    hi = np.concatenate([rows.b_eq, rows.b_U, -rows.face_off])
+    c = np.concatenate([np.zeros(ncol), [-1.0]])
+    lb = np.concatenate([np.full(ncol, -np.inf), [0.0]])
+    ub = np.concatenate([np.full(ncol, np.inf), [t_max]])
+    if anchor is not None and np.isfinite(trust):
+        ref = (np.asarray(anchor)[1 : rows.K + 1] / dx).ravel()
+        width = (trust / np.tile(dx, rows.K))
+        lb[: rows.nx] = ref - width
+        ub[: rows.nx] = ref + width
+    sol = backend.solve(LinearModel(c, A, lo, hi, lb, ub), limit)
+    if sol.status != "optimal" or sol.x is None:
+        return None
+    return sol.x[:ncol]
+
+
+def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: DiscretePlan) -> float:
+    """Room to leave inside required regions when the plan will meet noise (0 when it will not).
+
+    Half the Chebyshev radius of the smallest bounded required region (one unit of the largest
+    state scale when every required region is unbounded).
+    """
+    noisy = bool(np.any(init.cov != 0)) or any(
+        np.any(mode.process_cov != 0) or mode.p > 0 for mode in system.system_modes
+    )
+    if not noisy:
+        return 0.0
+    radii = []
+    for i in np.nonzero(plan.required.any(axis=1))[0]:
+        radius = abstraction.radius(int(i))
+        if np.isfinite(radius):
+            radii.append(radius)
+    if radii:
+        return 0.5 * min(radii)
+    return 0.0
+
+
+class LPTeacher:
+    """Decides candidates with the plan LP (exact without state-dependent noise).
+
+    Parameters
+    ----------
+    problem : Problem
+    abstraction : Abstraction
+    scaling : Scaling
+    backend : Backend
+    """
+
+    name = "lp"
+
+    def __init__(self, problem: Any, abstraction: Abstraction, scaling: Scaling, backend: Backend) -> None:
+        self.problem = problem
+        self.abs = abstraction
+        self.scaling = scaling
+        self.backend = backend
+        self.last: LPOutcome | None = None
+
+    def applies(self, problem: Any) -> bool:
+        """The LP is a sound relaxation of every problem."""
+        return True
+
+    def exact(self, problem: Any) -> bool:
+        """Exact when no mode's noise depends on the state."""
+        return not any(m.has_state_dependent_noise for m in problem.switched_system.system_modes)
+
+    def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
+        """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`)."""
+        problem = self.problem
+        system, init = problem.switched_system, problem.initial_state
+        margin = execution_margin(system, init, self.abs, plan)
+        with stats.clock("time_lp"):
+            out = solve_plan_lp(
+                system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                self.abs,
+                plan,
+                margin,
+                scaling=self.scaling,
+                backend=self.backend,
+                time_limit=max(budget.remaining(), 1e-3),
+            )
+        stats.lp_calls += 1
+        self.last = out
+        if out.status == "infeasible":
+            last = max((k for k, _ in out.conflict), default=0)
+            modes = plan.modes[: last + 1].copy() if system.num_modes > 1 else None
+            kind = "exact" if out.exact else "lower-bound covariance"
+            return Refuted(Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})"))
+        if out.status == "unknown":
+            return Unknown(out.why, out.means)
+        if out.exact and out.controls is not None:
+            actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
+            return Found(actions, out.controls, "the plan LP")
+        return Unknown("the plan LP is only a relaxation under state-dependent noise", out.means)

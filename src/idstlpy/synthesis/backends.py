@@ -1,0 +1,279 @@
+"""LP and MILP back-ends behind one small interface.
+
+A back-end takes a pure linear model (:class:`LinearModel`: ``min c'x`` subject to
+``row_lo <= A x <= row_hi``, ``lb <= x <= ub``, some variables integer) and a wall-clock cap,
+and returns a :class:`BackendSolution`: a status, the solution, and for LPs the row duals (from
+which the teachers read infeasibility certificates). Back-ends register themselves by name;
+adding a solver is a new class and one :func:`register_backend` call, nothing else changes.
+HiGHS (through SciPy) is always available and is the default.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import logging
+import os
+import sys
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import ClassVar, Literal, Protocol
+
+import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
+from scipy.sparse import csr_matrix, vstack
+
+from ..errors import InvalidArgumentError
+
+__all__ = [
+    "Backend",
+    "BackendSolution",
+    "HighsBackend",
+    "LinearModel",
+    "available_backends",
+    "get_backend",
+    "register_backend",
+]
+
+logger = logging.getLogger(__name__)
+
+SolutionStatus = Literal["optimal", "infeasible", "unbounded", "time_limit", "error"]
+
+
+@dataclass
+class LinearModel:
+    """``min c'x`` subject to ``row_lo <= A x <= row_hi`` and ``lb <= x <= ub``.
+
+    Attributes
+    ----------
+    c : ndarray, shape (nvar,)
+    A : scipy.sparse.csr_matrix, shape (nrow, nvar)
+    row_lo, row_hi : ndarray, shape (nrow,)
+        ``-inf`` / ``inf`` for one-sided rows; equal for equalities.
+    lb, ub : ndarray, shape (nvar,)
+    integrality : ndarray of int, shape (nvar,), optional
+        1 for integer variables (a MILP), 0 for continuous ones.
+    """
+
+    c: np.ndarray
+    A: csr_matrix
+    row_lo: np.ndarray
+    row_hi: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+    integrality: np.ndarray | None = None
+
+    @property
+    def num_vars(self) -> int:
+        """Number of variables."""
+        return int(self.c.shape[0])
+
+    @property
+    def num_rows(self) -> int:
+        """Number of rows of ``A``."""
+        return int(self.A.shape[0])
+
+    @property
+    def is_mip(self) -> bool:
+        """True when some variable is integer."""
+        return self.integrality is not None and bool(np.any(self.integrality))
+
+
+@dataclass
+class BackendSolution:
+    """What a back-end returns.
+
+    Attributes
+    ----------
+    status : {"optimal", "infeasible", "unbounded", "time_limit", "error"}
+        ``infeasible`` is the solver's proof of infeasibility; ``time_limit`` and ``error`` are
+        not proofs of anything.
+    x : ndarray, shape (nvar,), or None
+        A solution (for ``time_limit``, the best feasible one found, if any).
+    objective : float
+    row_duals : ndarray, shape (nrow,), or None
+        LP duals of the rows, sign convention ``d objective / d row bound`` (``<= 0`` on an
+        active upper bound of a minimisation).
+    message : str
+    """
+
+    status: SolutionStatus
+    x: np.ndarray | None
+    objective: float = float("nan")
+    row_duals: np.ndarray | None = None
+    message: str = ""
+
+
+class Backend(Protocol):
+    """The interface every LP / MILP back-end implements."""
+
+    name: ClassVar[str]
+    supports_integer: ClassVar[bool]
+
+    @classmethod
+    def is_available(cls) -> bool:
+        """Whether the solver can be used here (checked without importing it where possible)."""
+        ...
+
+    def solve(self, model: LinearModel, time_limit: float) -> BackendSolution:
+        """Solve ``model`` within ``time_limit`` seconds."""
+        ...
+
+
+@contextlib.contextmanager
+def quiet_stdout() -> Iterator[None]:
+    """Silence a native solver's direct writes to file descriptor 1 (library code never prints)."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), fd)
+            yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+class HighsBackend:
+    """HiGHS through :func:`scipy.optimize.linprog` (LPs, with duals) and :func:`~scipy.optimize.milp`."""
+
+    name: ClassVar[str] = "highs"
+    supports_integer: ClassVar[bool] = True
+
+    @classmethod
+    def is_available(cls) -> bool:
+        """SciPy ships HiGHS: always available."""
+        return True
+
+    def solve(self, model: LinearModel, time_limit: float) -> BackendSolution:
+        """Solve ``model`` (see :class:`Backend`)."""
+        limit = max(float(time_limit), 1e-3)
+        if model.is_mip:
+            return self._milp(model, limit)
+        return self._lp(model, limit)
+
+    @staticmethod
+    def _milp(model: LinearModel, limit: float) -> BackendSolution:
+        with quiet_stdout():
+            res = milp(
+                model.c,
+                integrality=model.integrality,
+                bounds=Bounds(model.lb, model.ub),
+                constraints=LinearConstraint(model.A, model.row_lo, model.row_hi),
+                options={"time_limit": limit, "disp": False},
+            )
+        status: SolutionStatus
+        if res.status == 0:
+            status = "optimal"
+        elif res.status == 2:
+            status = "infeasible"
+        elif res.status == 3:
+            status = "unbounded"
+        elif res.status == 1:
+            status = "time_limit"
+        else:
+            status = "error"
+        fun = float(res.fun) if res.fun is not None else float("nan")
+        return BackendSolution(status, res.x, fun, None, str(res.message))
+
+    @staticmethod
+    def _lp(model: LinearModel, limit: float) -> BackendSolution:
+        A, lo, hi = model.A, model.row_lo, model.row_hi
+        eq = np.isfinite(lo) & np.isfinite(hi) & (lo == hi)
+        up = np.isfinite(hi) & ~eq
+        down = np.isfinite(lo) & ~eq
+        up_idx, down_idx, eq_idx = np.nonzero(up)[0], np.nonzero(down)[0], np.nonzero(eq)[0]
+        A_ub = vstack([A[up_idx], -A[down_idx]]).tocsr() if up_idx.size + down_idx.size else None
+        b_ub = np.concatenate([hi[up_idx], -lo[down_idx]]) if A_ub is not None else None
+        A_eq = A[eq_idx] if eq_idx.size else None
+        b_eq = lo[eq_idx] if eq_idx.size else None
+        bounds = np.column_stack([model.lb, model.ub])
+        bounds = np.where(np.isfinite(bounds), bounds, np.nan)
+        res = linprog(
+            model.c,
+            A_ub=A_ub,
+            b_ub=b_ub,
+            A_eq=A_eq,
+            b_eq=b_eq,
+            bounds=[(None if np.isnan(a) else a, None if np.isnan(b) else b) for a, b in bounds],
+            method="highs",
+            options={"time_limit": limit},
+        )
+        status: SolutionStatus
+        if res.status == 0:
+            status = "optimal"
+        elif res.status == 2:
+            status = "infeasible"
+        elif res.status == 3:
+            status = "unbounded"
+        elif res.status == 1:
+            status = "time_limit"
+        else:
+            status = "error"
+        duals = None
+        if status == "optimal":
+            duals = np.zeros(model.num_rows)
+            if A_ub is not None:
+                marg = np.asarray(res.ineqlin.marginals)
+                duals[up_idx] += marg[: up_idx.size]
+                duals[down_idx] -= marg[up_idx.size :]
+            if A_eq is not None:
+                duals[eq_idx] += np.asarray(res.eqlin.marginals)
+        fun = float(res.fun) if res.fun is not None else float("nan")
+        return BackendSolution(status, res.x, fun, duals, str(res.message))
+
+
+_REGISTRY: dict[str, type] = {}
+
+
+def register_backend(cls: type) -> type:
+    """Register a back-end class under ``cls.name`` (usable as a decorator)."""
+    name = getattr(cls, "name", None)
+    if not isinstance(name, str) or not name:
+        raise InvalidArgumentError("a back-end class needs a non-empty string attribute `name`")
+    _REGISTRY[name] = cls
+    return cls
+
+
+def available_backends(integer: bool = False) -> list[str]:
+    """Names of the registered back-ends usable here (``integer``: those that solve MILPs)."""
+    return [
+        name
+        for name, cls in sorted(_REGISTRY.items())
+        if (not integer or cls.supports_integer) and cls.is_available()
+    ]
+
+
+def get_backend(name: str, integer: bool = False) -> Backend:
+    """An instance of the back-end registered as ``name``.
+
+    Raises
+    ------
+    InvalidArgumentError
+        When no back-end has that name, it is not installed, or it cannot solve MILPs and
+        ``integer`` is asked for.
+    """
+    cls = _REGISTRY.get(name)
+    if cls is None:
+        raise InvalidArgumentError(
+            f"unknown LP/MILP back-end {name!r}; registered: {', '.join(sorted(_REGISTRY))}"
+        )
+    if integer and not cls.supports_integer:
+        raise InvalidArgumentError(f"back-end {name!r} cannot solve MILPs")
+    if not cls.is_available():
+        raise InvalidArgumentError(f"back-end {name!r} is not installed here")
+    backend: Backend = cls()
+    return backend
+
+
+def module_available(module: str) -> bool:
+    """Whether ``module`` can be imported, checked without importing it."""
+    return importlib.util.find_spec(module) is not None
+
+
+register_backend(HighsBackend)

@@ -1,0 +1,185 @@
+"""The typed contracts between the parts of the synthesis core.
+
+- A **proposer** offers discrete plans (:class:`~.plan.DiscretePlan`) at growing depths, takes
+  *proven* conflicts as blocking clauses, sets abandoned candidates aside without treating them
+  as proofs, and tells, when it runs dry, whether that is a proof.
+- A **teacher** decides a candidate: :class:`Found` (controls), :class:`Refuted` (a conflict
+  with its proof: only this may become a clause) or :class:`Unknown` (why it gave up). It
+  declares whether it decides a problem exactly.
+- A :class:`Budget` carries the wall-clock safety cap from the first line of ``solve`` to every
+  part (encoding, LPs, sampling); :class:`BudgetExceeded` unwinds to the loop when it is hit.
+
+This module is a leaf: the parts import it, it imports only the plan and option types.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from .plan import DiscretePlan
+
+if TYPE_CHECKING:
+    from .problem import Problem
+    from .results import SolveStats
+
+__all__ = [
+    "Budget",
+    "BudgetExceeded",
+    "Conflict",
+    "Found",
+    "Proposer",
+    "ProposerDry",
+    "Refuted",
+    "Teacher",
+    "Unknown",
+    "Verdict",
+]
+
+
+class BudgetExceeded(Exception):
+    """Internal: the overall wall-clock cap was hit (caught by the loop, never seen by users)."""
+
+    def __init__(self, where: str) -> None:
+        super().__init__(where)
+        self.where = where
+
+
+class Budget:
+    """The overall wall-clock safety cap of one solve.
+
+    Parameters
+    ----------
+    seconds : float
+        The cap, counted from ``start``.
+    start : float, optional
+        ``time.perf_counter()`` at the first line of ``solve`` (default: now).
+    """
+
+    def __init__(self, seconds: float, start: float | None = None) -> None:
+        self.start = time.perf_counter() if start is None else start
+        self.seconds = seconds
+        self.deadline = self.start + seconds
+
+    def elapsed(self) -> float:
+        """Seconds since the start."""
+        return time.perf_counter() - self.start
+
+    def remaining(self) -> float:
+        """Seconds left (may be negative)."""
+        return self.deadline - time.perf_counter()
+
+    def expired(self) -> bool:
+        """Whether the cap has been reached."""
+        return time.perf_counter() >= self.deadline
+
+    def check(self, where: str) -> None:
+        """Raise :class:`BudgetExceeded` (naming ``where``) when the cap has been reached."""
+        if time.perf_counter() >= self.deadline:
+            raise BudgetExceeded(where)
+
+
+@dataclass
+class Conflict:
+    """A set of requirements no plan can meet together, with the modes that shaped them.
+
+    Attributes
+    ----------
+    requirements : list of (step, atom)
+        ``(k, i)``: proposition ``i`` at step ``k``.
+    modes : ndarray of int, shape (K + 1,) or None
+        ``modes[k]`` for ``1 <= k <= K`` (the modes that lead up to the last requirement) when
+        the conflict depends on them; ``None`` when it holds for every mode sequence.
+    proof : str
+        What proves it (e.g. "Farkas certificate of the plan LP").
+    """
+
+    requirements: list[tuple[int, int]]
+    modes: np.ndarray | None
+    proof: str
+
+
+@dataclass
+class Found:
+    """A teacher's plan: modes and controls (the loop re-rolls and monitors them)."""
+
+    actions: np.ndarray
+    controls: np.ndarray
+    how: str
+
+
+@dataclass
+class Refuted:
+    """A teacher's proof that the candidate cannot be met."""
+
+    conflict: Conflict
+
+
+@dataclass
+class Unknown:
+    """A teacher gave up: not a proof of anything."""
+
+    why: str
+    hint_means: np.ndarray | None = field(default=None, repr=False)
+
+
+Verdict = Found | Refuted | Unknown
+
+
+@dataclass
+class ProposerDry:
+    """The proposer has no candidate left.
+
+    Attributes
+    ----------
+    proven : bool
+        True when only proven clauses exclude every plan (then no plan exists); False when
+        abandoned candidates or the plan-length cap stand in the way.
+    reason : str
+    """
+
+    proven: bool
+    reason: str
+
+
+class Proposer(Protocol):
+    """Offers discrete plans; learns proven conflicts; sets abandoned candidates aside."""
+
+    def propose(self) -> DiscretePlan | ProposerDry:
+        """The next candidate (shortest first), or why there is none."""
+        ...
+
+    def block(self, conflict: Conflict) -> None:
+        """Forbid a *proven* conflict for good."""
+        ...
+
+    def abandon(self, plan: DiscretePlan) -> None:
+        """Set a candidate aside without a proof (it may count against ``infeasible``)."""
+        ...
+
+    def complete(
+        self, truth: np.ndarray, modes: np.ndarray, optimistic_required: np.ndarray
+    ) -> DiscretePlan | None:
+        """A plan that extends a realised prefix, or ``None`` if none is left."""
+        ...
+
+
+class Teacher(Protocol):
+    """Decides candidates of the problems it applies to."""
+
+    name: str
+
+    def applies(self, problem: Problem) -> bool:
+        """Whether this teacher has anything to say about ``problem``."""
+        ...
+
+    def exact(self, problem: Problem) -> bool:
+        """Whether its Found / Refuted decide every candidate of ``problem`` (never Unknown)."""
+        ...
+
+    def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
+        """Decide ``plan`` within ``budget``; count work in ``stats``."""
+        ...

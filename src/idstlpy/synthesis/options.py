@@ -1,0 +1,177 @@
+"""``SolverOptions``: the single, validated source of every solver parameter.
+
+Budgets that *decide* the search are counted in work (candidates, sampler iterations), so the
+same problem, options and seed give the same plan on any machine under any load. Wall-clock
+limits (``rrt_timeout`` per candidate, ``time_limit`` overall) are safety caps: when one is hit
+the result says so (``SolveStats.caps_hit``) and reproducibility is no longer promised.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from typing import Any
+
+import numpy as np
+
+from .._checks import as_float, as_int
+from ..errors import InvalidArgumentError, InvalidTypeError, OutOfRangeError
+
+__all__ = ["ITERATIONS_PER_SECOND", "SolverOptions"]
+
+ITERATIONS_PER_SECOND = 250
+"""Sampler iterations per second of ``rrt_timeout`` when ``sampler_iterations`` is not given.
+
+The paper's ``rrt_timeout`` is a time; the work budget derived from it is
+``ceil(ITERATIONS_PER_SECOND * rrt_timeout)`` iterations per candidate (15,000 for the paper's
+60 s). A 2-core machine runs 1,500-4,000 light-dark iterations per second, so the budget,
+not the clock, ends a candidate's search: see BENCHMARKS.md.
+"""
+
+_MAX_SEED = 2**63 - 1
+
+
+def _seed(value: Any) -> int | None:
+    if value is None:
+        return None
+    if isinstance(value, np.random.Generator):
+        return int(value.integers(_MAX_SEED))
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise InvalidTypeError(
+            f"seed must be a non-negative int, a numpy Generator or None, got {type(value).__name__}"
+        )
+    if not 0 <= int(value) <= _MAX_SEED:
+        raise OutOfRangeError(f"seed must be an int in [0, 2**63 - 1], got {int(value)}")
+    return int(value)
+
+
+def _name(value: Any, name: str, choices: tuple[str, ...] | None = None) -> str:
+    if not isinstance(value, str) or not value:
+        raise InvalidTypeError(f"{name} must be a non-empty string, got {value!r}")
+    if choices is not None and value not in choices:
+        raise InvalidArgumentError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class SolverOptions:
+    """Validated parameters of :meth:`Problem.solve` (the paper's, and the solver's own).
+
+    Parameters
+    ----------
+    rrt_timeout : float
+        Wall-clock safety cap, in seconds, on the sampler's search for one candidate; it also
+        sets the default work budget ``sampler_iterations``.
+    delta_near : float
+        Radius within which the sampler prefers the least uncertain node to extend.
+    delta_drain : float
+        Radius within which the sampler keeps only the least uncertain node.
+    goal_bias : float
+        Probability of aiming a sample at the candidate's next required region.
+    min_num_of_steps, max_num_of_steps : int
+        Range of the number of steps of one sampler extension.
+    seed : int, numpy Generator or None
+        Seed of every random choice (each candidate gets its own stream spawned from it).
+        ``None`` draws fresh entropy (not reproducible).
+    time_limit : float, optional
+        Overall wall-clock safety cap in seconds, counted from the first line of ``solve``
+        (default ``10 * rrt_timeout``).
+    max_candidates : int, optional
+        Stop after this many discrete candidates (a work budget).
+    sampler_iterations : int, optional
+        Sampler iterations per candidate (the work budget that decides the search); default
+        ``ceil(ITERATIONS_PER_SECOND * rrt_timeout)``.
+    lazy_candidates : int
+        Candidates the lazy loop may try on an LP-exact single-mode problem before the eager
+        MILP takes over.
+    max_plan_length : int
+        Longest plan (in steps) the proposer may unroll; a formula that needs a longer one ends
+        ``budget_exhausted`` with that reason.
+    max_pruning_lps : int
+        Cap on the one-step reachability LPs of the abstraction's pruning.
+    polish_rounds : int
+        Rounds of the margin LP that moves a sampled plan away from the boundaries it grazes.
+    shortcut_checks : int
+        Full re-checks the sampler's plan shortcutting may spend.
+    sat_backend : str
+        python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
+    lp_backend, milp_backend : str
+        Registered linear back-ends (see :mod:`idstlpy.synthesis.backends`); ``"highs"`` is
+        always available.
+    """
+
+    rrt_timeout: float = 60.0
+    delta_near: float = 2.0
+    delta_drain: float = 0.5
+    goal_bias: float = 0.25
+    min_num_of_steps: int = 3
+    max_num_of_steps: int = 15
+    seed: int | None = None
+    time_limit: float | None = None
+    max_candidates: int | None = None
+    sampler_iterations: int | None = None
+    lazy_candidates: int = 10
+    max_plan_length: int = 100_000
+    max_pruning_lps: int = 400
+    polish_rounds: int = 4
+    shortcut_checks: int = 24
+    sat_backend: str = "cadical195"
+    lp_backend: str = "highs"
+    milp_backend: str = "highs"
+
+    def __post_init__(self) -> None:
+        put = object.__setattr__
+        put(self, "rrt_timeout", as_float(self.rrt_timeout, "rrt_timeout", 0.0, low_open=True))
+        put(self, "delta_near", as_float(self.delta_near, "delta_near", 0.0))
+        put(self, "delta_drain", as_float(self.delta_drain, "delta_drain", 0.0))
+        put(self, "goal_bias", as_float(self.goal_bias, "goal_bias", 0.0, 1.0))
+        lo = as_int(self.min_num_of_steps, "min_num_of_steps", minimum=1)
+        hi = as_int(self.max_num_of_steps, "max_num_of_steps", minimum=1)
+        if lo > hi:
+            raise InvalidArgumentError(f"min_num_of_steps must be <= max_num_of_steps, got {lo} > {hi}")
+        put(self, "min_num_of_steps", lo)
+        put(self, "max_num_of_steps", hi)
+        put(self, "seed", _seed(self.seed))
+        if self.time_limit is not None:
+            put(self, "time_limit", as_float(self.time_limit, "time_limit", 0.0, low_open=True))
+        for key in ("max_candidates", "sampler_iterations"):
+            if getattr(self, key) is not None:
+                put(self, key, as_int(getattr(self, key), key, minimum=1))
+        put(self, "lazy_candidates", as_int(self.lazy_candidates, "lazy_candidates", minimum=0))
+        put(self, "max_plan_length", as_int(self.max_plan_length, "max_plan_length", minimum=1))
+        put(self, "max_pruning_lps", as_int(self.max_pruning_lps, "max_pruning_lps", minimum=0))
+        put(self, "polish_rounds", as_int(self.polish_rounds, "polish_rounds", minimum=0))
+        put(self, "shortcut_checks", as_int(self.shortcut_checks, "shortcut_checks", minimum=0))
+        for key in ("sat_backend", "lp_backend", "milp_backend"):
+            put(self, key, _name(getattr(self, key), key))
+
+    @classmethod
+    def make(cls, **kw: Any) -> SolverOptions:
+        """Validated options from keywords; an unknown keyword is an error naming it."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(kw) - known)
+        if unknown:
+            raise InvalidArgumentError(
+                f"unknown solver option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
+        return cls(**kw)
+
+    def with_(self, **kw: Any) -> SolverOptions:
+        """A validated copy with some options replaced."""
+        known = {f.name for f in fields(self)}
+        unknown = sorted(set(kw) - known)
+        if unknown:
+            raise InvalidArgumentError(f"unknown solver option(s) {', '.join(unknown)}")
+        return replace(self, **kw)
+
+    @property
+    def total_time_cap(self) -> float:
+        """The overall wall-clock cap in seconds (``time_limit`` or ``10 * rrt_timeout``)."""
+        return self.time_limit if self.time_limit is not None else 10.0 * self.rrt_timeout
+
+    @property
+    def iterations_per_candidate(self) -> int:
+        """The sampler's work budget per candidate (see :data:`ITERATIONS_PER_SECOND`)."""
+        if self.sampler_iterations is not None:
+            return self.sampler_iterations
+        return max(1, math.ceil(ITERATIONS_PER_SECOND * self.rrt_timeout))

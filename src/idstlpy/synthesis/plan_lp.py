@@ -1,0 +1,300 @@
+"""The plan LP: controls that meet a discrete plan's requirements, as one linear model.
+
+For a fixed mode sequence the MLO mean is affine in the controls, and when no mode's noise
+depends on the state the covariance schedule is fixed: every chance constraint of the plan is a
+linear constraint on the controls and the LP decides the plan exactly. With state-dependent
+noise the same LP is built on a *lower bound* of the covariance (the update with zero
+observation noise; the Riccati update is monotone in ``R`` and in the prior), a sound necessary
+condition whose infeasibility proofs remain valid.
+
+Numerics. Variables are scaled per state and input coordinate (:class:`Scaling`, from the
+problem's own magnitudes) and every inequality row is normalised, so the solver's absolute
+tolerances are relative to the problem: the same plan is found, or refuted, in metres or in
+micrometres. Refutations are claimed only when the elastic LP's optimum is far above the
+solver's tolerances; a borderline optimum is *unknown*, never a proof.
+
+This module builds the rows; :mod:`.teacher` (the LP teacher) and :mod:`.milp` (the eager
+model) both use them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix
+
+from ..belief import kalman_update
+from ..chance import std_terms
+from .abstraction import Abstraction
+from .plan import DiscretePlan
+
+__all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_schedule"]
+
+_TINY = 1e-300
+
+
+def covariance_schedule(modes: Sequence[Any], cov0: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Covariances along a mode sequence: exact, or a lower bound under state-dependent noise.
+
+    Parameters
+    ----------
+    modes : sequence of LCS
+    cov0 : ndarray, shape (n, n)
+    actions : ndarray of int, shape (K,)
+
+    Returns
+    -------
+    covs : ndarray, shape (K + 1, n, n)
+    exact : bool
+        False when some step uses a mode with state-dependent noise (its covariance is then the
+        zero-observation-noise lower bound).
+    """
+    K = actions.shape[0]
+    n = cov0.shape[0]
+    covs = np.empty((K + 1, n, n))
+    covs[0] = cov0
+    exact = True
+    zero_mean = np.zeros(n)
+    for k in range(K):
+        mode = modes[int(actions[k])]
+        P = mode.A @ covs[k] @ mode.A.T + mode.process_cov
+        if mode.p == 0:
+            covs[k + 1] = P
+        elif mode.has_state_dependent_noise:
+            exact = False
+            covs[k + 1] = kalman_update(mode, zero_mean, P, R=np.zeros((mode.p, mode.p)))[1]
+        else:
+            covs[k + 1] = kalman_update(mode, zero_mean, P)[1]
+    return covs, exact
+
+
+def _magnitude(values: np.ndarray) -> float:
+    finite = np.abs(values[np.isfinite(values)])
+    finite = finite[finite > _TINY]
+    return float(np.max(finite)) if finite.size else 0.0
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """Per-coordinate units of the state and input: ``x = dx * x_scaled``, ``u = du * u_scaled``.
+
+    Attributes
+    ----------
+    dx : ndarray, shape (n,)
+    du : ndarray, shape (m,)
+    """
+
+    dx: np.ndarray
+    du: np.ndarray
+
+    @classmethod
+    def compute(
+        cls, system: Any, control_domain: Any, mean0: np.ndarray, cov0: np.ndarray, abstraction: Abstraction
+    ) -> Scaling:
+        """Units read off the prior, the propositions' regions and the control domain."""
+        n, m = system.n, system.m
+        dx = np.zeros(n)
+        for i in range(n):
+            cands = [abs(mean0[i]), float(np.sqrt(max(cov0[i, i], 0.0)))]
+            for j in range(abstraction.num_atoms):
+                low, high = abstraction.bounds(j)
+                cands.append(_magnitude(np.array([low[i], high[i]])))
+            dx[i] = max(cands)
+        fallback = float(np.max(dx)) if np.any(dx > 0) else 1.0
+        dx = np.where(dx > 0, dx, fallback)
+        low, high = control_domain.bounding_box()
+        du = np.array([_magnitude(np.array([low[j], high[j]])) for j in range(m)])
+        if np.any(du == 0):
+            # Unbounded or degenerate input axes: the unit that moves the state by one of its units.
+            for j in np.nonzero(du == 0)[0]:
+                gains = [np.max(np.abs(mode.B[:, j]) / dx) for mode in system.system_modes]
+                g = max(gains)
+                du[j] = 1.0 / g if g > 0 else 1.0
+        return cls(dx, du)
+
+
+@dataclass
+class PlanRows:
+    """The rows of the plan LP in scaled variables ``[x_1..x_K, u_0..u_{K-1}]`` plus extras.
+
+    Attributes
+    ----------
+    K, n, m : int
+    nx, nu : int
+        Column counts of the states and inputs (``K n``, ``K m``).
+    A_eq, b_eq : dynamics rows (``K n``) and right-hand side
+    A_U, b_U : control-domain rows (normalised), ``A_U z <= b_U``
+    face_H : ndarray, shape (R, K n + K m)  (sparse)
+        One row per required face, normalised: ``face_H z + face_off <= 0`` is the face.
+    face_off : ndarray, shape (R,)
+    face_norm : ndarray, shape (R,)
+        ``||h|| / ||h * dx||`` per face: converts a margin in state units to scaled rows.
+    face_owner : ndarray, shape (R,)
+        Index into ``requirements`` of each face row.
+    requirements : list of (step, atom)
+    impossible : list of (step, atom)
+        Requirements no belief can meet (``eps = 0`` with positive variance).
+    covs : ndarray, shape (K + 1, n, n)
+    exact : bool
+    """
+
+    K: int
+    n: int
+    m: int
+    A_eq: csr_matrix
+    b_eq: np.ndarray
+    A_U: csr_matrix
+    b_U: np.ndarray
+    face_H: csr_matrix
+    face_off: np.ndarray
+    face_norm: np.ndarray
+    face_owner: np.ndarray
+    requirements: list[tuple[int, int]]
+    impossible: list[tuple[int, int]]
+    covs: np.ndarray
+    exact: bool
+    scaling: Scaling
+
+    @property
+    def nx(self) -> int:
+        """Number of state columns."""
+        return self.K * self.n
+
+    @property
+    def nu(self) -> int:
+        """Number of input columns."""
+        return self.K * self.m
+
+    def unscale(self, z: np.ndarray, mean0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Means (K + 1, n) and controls (K, m) in problem units from scaled columns ``z``."""
+        K, n, m = self.K, self.n, self.m
+        means = np.vstack([mean0, z[: K * n].reshape(K, n) * self.scaling.dx])
+        controls = z[K * n : K * n + K * m].reshape(K, m) * self.scaling.du
+        return means, controls
+
+
+def build_plan_rows(
+    modes: Sequence[Any],
+    control_domain: Any,
+    mean0: np.ndarray,
+    cov0: np.ndarray,
+    abstraction: Abstraction,
+    requirements: list[tuple[int, int]],
+    actions: np.ndarray,
+    scaling: Scaling,
+    covs: np.ndarray | None = None,
+) -> PlanRows:
+    """Rows of the plan LP for a mode sequence ``actions`` (K,) and ``requirements``.
+
+    ``covs`` (K + 1, n, n) replaces the covariance schedule of the modes (e.g. the exact
+    covariances of a sampled trajectory); the rows are then not exact.
+    """
+    K = int(actions.shape[0])
+    n, m = mean0.shape[0], scaling.du.shape[0]
+    dx, du = scaling.dx, scaling.du
+    if covs is None:
+        covs, exact = covariance_schedule(modes, cov0, actions)
+    else:
+        exact = False
+    ncol = K * n + K * m
+
+    # Dynamics, row-scaled by 1/dx: x~_{k+1} - (A~) x~_k - (B~) u~_k = [k = 0] A~ x~_0.
+    rows, cols, vals = [], [], []
+    b_eq = np.zeros(K * n)
+    ri, ci = np.indices((n, n))
+    rb, cb = np.indices((n, m))
+    eye = np.eye(n).ravel()
+    for k in range(K):
+        mode = modes[int(actions[k])]
+        At = mode.A * dx[None, :] / dx[:, None]
+        Bt = mode.B * du[None, :] / dx[:, None]
+        r0 = k * n
+        rows.append((r0 + ri).ravel())
+        cols.append((k * n + ci).ravel())
+        vals.append(eye)
+        if k >= 1:
+            rows.append((r0 + ri).ravel())
+            cols.append(((k - 1) * n + ci).ravel())
+            vals.append(-At.ravel())
+        else:
+            b_eq[:n] = At @ (mean0 / dx)
+        rows.append((r0 + rb).ravel())
+        cols.append((K * n + k * m + cb).ravel())
+        vals.append(-Bt.ravel())
+    A_eq = _sparse(rows, cols, vals, K * n, ncol)
+
+    # Control domain, normalised rows.
+    UH = control_domain.H * du[None, :]
+    unorm = np.linalg.norm(UH, axis=1)
+    keep = unorm > 0
+    UH, Uc, unorm = UH[keep] / unorm[keep, None], control_domain.c[keep] / unorm[keep], unorm[keep]
+    nU = UH.shape[0]
+    ri, ci = np.indices(UH.shape)
+    A_U = _sparse(
+        [(k * nU + ri).ravel() for k in range(K)],
+        [(K * n + k * m + ci).ravel() for k in range(K)],
+        [UH.ravel()] * K,
+        K * nU,
+        ncol,
+    )
+    b_U = np.tile(-Uc, K)
+
+    # Required faces.
+    rows, cols, vals, off, norms, owner = [], [], [], [], [], []
+    impossible: list[tuple[int, int]] = []
+    r = 0
+    for idx, (k, i) in enumerate(requirements):
+        cone = abstraction.atoms[i].cone
+        terms = std_terms(cone.H, cone.z, covs[k])
+        if np.any(np.isinf(terms)):
+            impossible.append((k, i))
+            continue
+        G = cone.H * dx[None, :]
+        g = np.linalg.norm(G, axis=1)
+        for f in range(cone.num_faces):
+            if g[f] == 0:
+                if cone.c[f] + terms[f] > 0:
+                    impossible.append((k, i))
+                continue
+            rows.append(np.full(n, r))
+            cols.append((k - 1) * n + np.arange(n))
+            vals.append(G[f] / g[f])
+            off.append((cone.c[f] + terms[f]) / g[f])
+            norms.append(np.linalg.norm(cone.H[f]) / g[f])
+            owner.append(idx)
+            r += 1
+    face_H = _sparse(rows, cols, vals, r, ncol)
+    return PlanRows(
+        K,
+        n,
+        m,
+        A_eq,
+        b_eq,
+        A_U,
+        b_U,
+        face_H,
+        np.asarray(off, dtype=float),
+        np.asarray(norms, dtype=float),
+        np.asarray(owner, dtype=int),
+        list(requirements),
+        impossible,
+        covs,
+        exact,
+        scaling,
+    )
+
+
+def _sparse(rows: list[Any], cols: list[Any], vals: list[Any], nrow: int, ncol: int) -> csr_matrix:
+    if not rows:
+        return csr_matrix((nrow, ncol))
+    return coo_matrix(
+        (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(nrow, ncol)
+    ).tocsr()
+
+
+def plan_requirements(plan: DiscretePlan, abstraction: Abstraction) -> list[tuple[int, int]]:
+    """The plan's requirements that constrain the mean (steps >= 1, atoms with predicates)."""
+    return [(k, i) for (k, i) in plan.requirements() if k >= 1 and abstraction.atoms[i].predicates]

@@ -1,0 +1,244 @@
+"""What a solve returns: the status, the verified plan, the reason and the statistics.
+
+A leaf module: every part of the synthesis core may import it, and it imports none of them.
+Statistics are counted here, in one place (:class:`SolveStats`), by the loop.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any, Literal
+
+from ..errors import InvalidArgumentError
+from ..trajectory import ProbabilisticTSTrajectory
+
+__all__ = ["RESULT_SCHEMA", "SolveResult", "SolveStats", "Status", "load_result"]
+
+Status = Literal["found", "infeasible", "budget_exhausted"]
+STATUSES: tuple[str, ...] = ("found", "infeasible", "budget_exhausted")
+
+RESULT_SCHEMA = "idstlpy.result/1"
+"""Identifier and version of the JSON form of :class:`SolveResult` (see ``docs/results-schema.md``)."""
+
+
+@dataclass
+class SolveStats:
+    """How the solver spent its effort.
+
+    Attributes
+    ----------
+    candidates : int
+        Discrete plans proposed by the BMC proposer.
+    refuted : int
+        Candidates a teacher refuted with a proof (each became a blocking clause).
+    abandoned : int
+        Candidates every teacher gave up on (set aside without a proof).
+    counterexamples : int
+        Proven blocking clauses added (``refuted`` plus failed monitor re-checks that were proofs).
+    pruned_letters, pruned_steps : int
+        Letters / letter-to-letter steps excluded for good by LP pruning.
+    bmc_depth : int
+        Deepest plan length - 1 the proposer searched.
+    encoded_depth : int
+        Longest plan the SAT encoding was unrolled for (it grows lazily).
+    nodes : int
+        Belief nodes grown by the sampler.
+    sampler_iterations : int
+        Sampler iterations (the work budget that decides the search).
+    sat_calls, lp_calls, milp_calls : int
+    time_total, time_bmc, time_lp, time_sampling : float
+        Seconds (measured, never used to decide the search).
+    caps_hit : list of str
+        Wall-clock safety caps that were hit (``"time_limit"``, ``"rrt_timeout"``): when not
+        empty, the same seed may give a different answer on another machine.
+    """
+
+    candidates: int = 0
+    refuted: int = 0
+    abandoned: int = 0
+    counterexamples: int = 0
+    pruned_letters: int = 0
+    pruned_steps: int = 0
+    bmc_depth: int = 0
+    encoded_depth: int = 0
+    nodes: int = 0
+    sampler_iterations: int = 0
+    sat_calls: int = 0
+    lp_calls: int = 0
+    milp_calls: int = 0
+    time_total: float = 0.0
+    time_bmc: float = 0.0
+    time_lp: float = 0.0
+    time_sampling: float = 0.0
+    caps_hit: list[str] = field(default_factory=list)
+
+    @contextmanager
+    def clock(self, name: str) -> Iterator[None]:
+        """Add the wall-clock time of the ``with`` block to the attribute ``name``."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            setattr(self, name, getattr(self, name) + time.perf_counter() - t0)
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain-data copy (for JSON result files)."""
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), list) else v) for f in fields(self)}
+
+    to_dict = as_dict
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SolveStats:
+        """Inverse of :meth:`to_dict` (unknown keys are ignored, missing ones take defaults)."""
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+
+def _finite_or_none(x: float) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+@dataclass
+class SolveResult:
+    """Outcome of :meth:`Problem.solve_result`.
+
+    Attributes
+    ----------
+    status : {"found", "infeasible", "budget_exhausted"}
+        ``found``: the plan passed the exact monitor. ``infeasible``: a proof that no plan
+        exists (the proposer ran dry over proven clauses only). ``budget_exhausted``: neither;
+        ``reason`` says which budget ran out and how many candidates were refuted by proofs
+        and how many abandoned.
+    trajectory : ProbabilisticTSTrajectory or None
+        The verified plan when ``status == "found"``.
+    reason : str
+        One sentence on why the solver stopped.
+    margin : float
+        Monitor robustness of the returned plan (``nan`` without a plan).
+    stats : SolveStats
+    formula : str
+        The formula's text (``str(formula)``), for result files.
+    """
+
+    status: Status
+    trajectory: ProbabilisticTSTrajectory | None
+    reason: str
+    margin: float = float("nan")
+    stats: SolveStats = field(default_factory=SolveStats)
+    formula: str = ""
+
+    @property
+    def found(self) -> bool:
+        """True when a verified plan was found."""
+        return self.status == "found"
+
+    @property
+    def solve_time(self) -> float:
+        """Wall-clock seconds spent in ``solve``."""
+        return self.stats.time_total
+
+    def __repr__(self) -> str:
+        steps = "" if self.trajectory is None else f", steps={self.trajectory.num_of_steps}"
+        return (
+            f"SolveResult(status={self.status!r}{steps}, margin={self.margin:.3g}, "
+            f"time={self.stats.time_total:.3g} s, reason={self.reason!r})"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data (NaN and infinities become ``None``), schema :data:`RESULT_SCHEMA`."""
+        traj = self.trajectory
+        return {
+            "schema": RESULT_SCHEMA,
+            "status": self.status,
+            "reason": self.reason,
+            "margin": _finite_or_none(self.margin),
+            "formula": self.formula,
+            "stats": self.stats.to_dict(),
+            "plan": None if traj is None else _trajectory_to_dict(traj),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SolveResult:
+        """Rebuild a result from :meth:`to_dict` output.
+
+        Raises
+        ------
+        InvalidArgumentError
+            When ``data`` is not a result of a known schema.
+        """
+        if not isinstance(data, dict) or data.get("schema") != RESULT_SCHEMA:
+            got = data.get("schema") if isinstance(data, dict) else type(data).__name__
+            raise InvalidArgumentError(f"not an idstlpy result: expected schema {RESULT_SCHEMA!r}, got {got!r}")
+        status = data.get("status")
+        if status not in STATUSES:
+            raise InvalidArgumentError(f"result status must be one of {STATUSES}, got {status!r}")
+        plan = data.get("plan")
+        traj = None if plan is None else _trajectory_from_dict(plan)
+        margin = data.get("margin")
+        return cls(
+            status,  # type: ignore[arg-type]
+            traj,
+            str(data.get("reason", "")),
+            float("nan") if margin is None else float(margin),
+            SolveStats.from_dict(data.get("stats", {})),
+            str(data.get("formula", "")),
+        )
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write :meth:`to_dict` as JSON (strict: no NaN) to ``path``; returns the path."""
+        out = Path(path)
+        out.write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
+        return out
+
+
+def load_result(path: str | os.PathLike[str]) -> SolveResult:
+    """Read a result written by :meth:`SolveResult.save`.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A JSON file of schema :data:`RESULT_SCHEMA`.
+
+    Returns
+    -------
+    SolveResult
+        Its plan (if any) passes ``satisfies`` against the problem it was solved for.
+    """
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InvalidArgumentError(f"cannot read result file {os.fspath(path)!r}: {exc}") from None
+    return SolveResult.from_dict(data)
+
+
+def _trajectory_to_dict(traj: ProbabilisticTSTrajectory) -> dict[str, Any]:
+    to_dict = getattr(traj, "to_dict", None)
+    if to_dict is not None:
+        return dict(to_dict())
+    return {
+        "mean": traj.get_mean().tolist(),
+        "cov": traj.get_cov().tolist(),
+        "action": traj.get_action().tolist(),
+        "control": traj.get_control().tolist(),
+    }
+
+
+def _trajectory_from_dict(data: dict[str, Any]) -> ProbabilisticTSTrajectory:
+    from_dict = getattr(ProbabilisticTSTrajectory, "from_dict", None)
+    if from_dict is not None:
+        return from_dict(data)  # type: ignore[no-any-return]
+    import numpy as np
+
+    return ProbabilisticTSTrajectory(
+        np.asarray(data["mean"], dtype=float),
+        np.asarray(data["cov"], dtype=float),
+        np.asarray(data["action"], dtype=int),
+        np.asarray(data["control"], dtype=float),
+    )
