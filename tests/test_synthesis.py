@@ -318,15 +318,13 @@ def _reach_avoid_in_a_box(T, goal_low=(7.0, 8.0)):
     return stl.Problem(system, domain, stl.to_belief([1, 2, 0, 0], np.zeros((4, 4))), formula)
 
 
-def test_eager_milp_path_plans_and_proves(monkeypatch):
-    import idstlpy.synthesis.cegis as cegis
-
-    monkeypatch.setattr(cegis, "_LAZY_CANDIDATES", 0)
+def test_eager_milp_path_plans_and_proves():
     problem = _reach_avoid_in_a_box(25)
-    result = problem.solve_result(rrt_timeout=10, seed=0)
+    result = problem.solve_result(rrt_timeout=10, seed=0, lazy_candidates=0)
     assert result.status == "found" and "MILP" in result.reason
+    assert result.stats.milp_calls >= 1
     assert stl.satisfies(result.trajectory, problem.stl_formula)
     # Too far for 6 steps at |u| <= 0.5, |v| <= 1: a proof, not a time-out.
     far = _reach_avoid_in_a_box(6)
-    result = far.solve_result(rrt_timeout=10, seed=0)
+    result = far.solve_result(rrt_timeout=10, seed=0, lazy_candidates=0)
     assert result.status == "infeasible"

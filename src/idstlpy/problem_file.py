@@ -73,7 +73,7 @@ from __future__ import annotations
 
 import ast
 import copy
-import inspect
+import dataclasses
 import logging
 import math
 import os
@@ -874,12 +874,9 @@ def apply_overrides(spec: ProblemSpec, overrides: Mapping[str, Any]) -> ProblemS
 
 
 def _solver_parameters() -> dict[str, Any]:
-    sig = inspect.signature(Problem.solve_result)
-    return {
-        name: p.default
-        for name, p in sig.parameters.items()
-        if name != "self" and p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)
-    }
+    from .synthesis.options import SolverOptions
+
+    return {f.name: f.default for f in dataclasses.fields(SolverOptions)}
 
 
 class _Builder:
@@ -1107,17 +1104,22 @@ class _Builder:
         value = _table(self.ctx, path, value, tuple(params))
         kwargs: dict[str, Any] = {}
         for key, v in value.items():
+            default = params[key]
+            if isinstance(default, str):
+                if not isinstance(v, str):
+                    raise self.err(path + (key,), f"must be a string, got {_kind(v)}")
+                kwargs[key] = v
+                continue
             if isinstance(v, bool) or not (_is_number(v) or (v is None)):
                 raise self.err(path + (key,), f"must be a number, got {_kind(v)}")
-            default = params[key]
-            integral = type(default) is int or key in ("seed", "max_candidates")
+            integral = type(default) is int or key in ("seed", "max_candidates", "sampler_iterations")
             if integral:
                 if not (isinstance(v, int) or (isinstance(v, float) and v.is_integer())):
                     raise self.err(path + (key,), f"must be an integer, got {v}")
                 v = int(v)
             kwargs[key] = v
         try:
-            from .synthesis.problem import SolverOptions
+            from .synthesis.options import SolverOptions
 
             SolverOptions.make(**{**params, **kwargs})
         except IdstlpyError as exc:

@@ -40,8 +40,8 @@ def _seed(value: Any) -> int | None:
         raise InvalidTypeError(
             f"seed must be a non-negative int, a numpy Generator or None, got {type(value).__name__}"
         )
-    if not 0 <= int(value) <= _MAX_SEED:
-        raise OutOfRangeError(f"seed must be an int in [0, 2**63 - 1], got {int(value)}")
+    if int(value) < 0:
+        raise OutOfRangeError(f"seed must be a non-negative int, got {int(value)}")
     return int(value)
 
 

@@ -273,7 +273,23 @@ class BMCProposer:
                 f"no plan of at most max_plan_length = {self.options.max_plan_length} steps; the formula's "
                 f"horizon allows {self.H + 1}",
             )
-        return ProposerDry(True, "the proven clauses exclude every discrete plan up to the formula's horizon")
+        return ProposerDry(True, self._proof_reason())
+
+    def _proof_reason(self) -> str:
+        """Name the proof when LP pruning alone (no teacher) excluded every plan."""
+        generic = "the proven clauses exclude every discrete plan up to the formula's horizon"
+        if self.hard or self.H + 1 > self.options.max_plan_length:
+            return generic
+        truth = np.ones((self.abs.num_atoms, self.H + 1), dtype=bool)
+        truth[self.report.empty_atoms, :] = False
+        if extract_witness(self.formula, truth, self.abs.index) is None:
+            return "the formula is unsatisfiable over its propositions (its logic, or empty regions)"
+        truth[self.report.initial_false, 0] = False
+        if extract_witness(self.formula, truth, self.abs.index) is None:
+            names = self.abs.names()
+            bad = ", ".join(names[i] for i in self.report.initial_false)
+            return f"the initial belief does not satisfy what the formula requires at step 0 ({bad})"
+        return "LP pruning (disjoint regions, impossible one-step moves) excludes every discrete plan"
 
     def block(self, conflict: Conflict) -> None:
         """Forbid a proven conflict for good (with the modes that shaped it)."""
