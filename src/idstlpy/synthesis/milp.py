@@ -80,32 +80,36 @@ class MILPOutcome:
         self.why = why
 
 
-def _support(U: Any, D: np.ndarray) -> np.ndarray:
+def _support_points(U: Any) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    """Vertices of the control domain (``None`` when unavailable) and its bounding box."""
+    low, high = U.bounding_box()
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
+        return None, low, high
+    if U.dim == 1:
+        return np.array([[low[0]], [high[0]]]), low, high
+    if getattr(U, "is_full_dimensional", False):
+        from scipy.spatial import HalfspaceIntersection, QhullError
+
+        try:
+            center, _ = U.chebyshev_center()
+            return HalfspaceIntersection(np.hstack([U.H, U.c[:, None]]), center).intersections, low, high
+        except (QhullError, ValueError):
+            pass
+    return None, low, high
+
+
+def _support(points: tuple[np.ndarray | None, np.ndarray, np.ndarray], D: np.ndarray) -> np.ndarray:
     """``max_{u in U} d'u`` for every row ``d`` of ``D`` (an upper bound; ``inf`` if unbounded).
 
     Exact from the vertices of a bounded, full-dimensional domain; for flat domains (where
     Qhull fails) the bounding box gives a sound over-estimate.
     """
-    low, high = U.bounding_box()
-    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
-        box = np.where(D > 0, D * high, D * low)
-        box = np.where(D == 0, 0.0, box)
-        return np.asarray(box.sum(axis=1))
-    verts = None
-    if U.dim == 1:
-        verts = np.array([[low[0]], [high[0]]])
-    elif getattr(U, "is_full_dimensional", False):
-        from scipy.spatial import HalfspaceIntersection
-        from scipy.spatial import QhullError
-
-        try:
-            center, _ = U.chebyshev_center()
-            verts = HalfspaceIntersection(np.hstack([U.H, U.c[:, None]]), center).intersections
-        except (QhullError, ValueError):
-            verts = None
+    verts, low, high = points
     if verts is not None:
         return np.asarray((D @ verts.T).max(axis=1))
-    return np.asarray(np.where(D > 0, D * high, D * low).sum(axis=1))
+    with np.errstate(invalid="ignore"):
+        box = np.where(D > 0, D * high, D * low)
+    return np.asarray(np.where(D == 0, 0.0, box).sum(axis=1))
 
 
 def _invariants(formula: Any, abstraction: Abstraction) -> list[tuple[int, int]]:
@@ -177,7 +181,9 @@ def solve_milp(
     A, B = mode.A, mode.B
     dx = scaling.dx
     actions = np.zeros(H, dtype=int)
-    rows = build_plan_rows(system.system_modes, control_domain, mean0, cov0, abstraction, [], actions, scaling)
+    rows = build_plan_rows(
+        system.system_modes, control_domain, mean0, cov0, abstraction, [], actions, scaling, budget=budget
+    )
     if not rows.exact:
         return MILPOutcome("unsupported", why="the covariance depends on the mean")
     covs = rows.covs
@@ -219,8 +225,11 @@ def solve_milp(
         powers = np.empty((H + 1, F.shape[0], n))
         powers[0] = F
         for j in range(1, H + 1):
+            if not j % 1024:
+                budget.check("building the MILP")
             powers[j] = powers[j - 1] @ A
-        gain = np.stack([_support(control_domain, powers[j] @ B) for j in range(H)]) if H else np.zeros((0, F.shape[0]))
+        points = _support_points(control_domain)
+        gain = np.stack([_support(points, powers[j] @ B) for j in range(H)]) if H else np.zeros((0, F.shape[0]))
         reach_max = np.einsum("kfn,n->kf", powers, mean0)
         with np.errstate(invalid="ignore"):
             reach_max[1:] += np.cumsum(gain, axis=0)
@@ -230,6 +239,8 @@ def solve_milp(
         r_idx, c_idx, vals, ub = [], [], [], []
         row = 0
         for k in range(1, H + 1):
+            if not k % 64:
+                budget.check("building the MILP")
             terms = std_terms(F, abstraction.z, covs[k])
             bound = -(abstraction.c + terms)  # h' x_k <= bound when p holds
             with np.errstate(invalid="ignore"):

@@ -58,6 +58,17 @@ def _next_true(v: np.ndarray) -> np.ndarray:
     return out
 
 
+def _prev_true(v: np.ndarray) -> np.ndarray:
+    """``out[j]`` = last index ``i <= j`` with ``v[i]`` (``-1`` if none), for ``j`` in ``0..L-1``."""
+    L = v.shape[0]
+    idx = np.where(v, np.arange(L), -1)
+    return np.maximum.accumulate(idx) if L else np.zeros(0, dtype=np.int64)
+
+
+def _is_constant_true(f: STLFormula, atom_index: dict[int, int]) -> bool:
+    return isinstance(f, STLAtomicProposition) and f.is_true and id(f) not in atom_index
+
+
 def evaluate_bool(
     formula: STLFormula, truth: np.ndarray, atom_index: dict[int, int]
 ) -> dict[int, np.ndarray]:
@@ -141,6 +152,21 @@ def extract_witness(
     if not values[id(formula)][0]:
         return None
     L = truth.shape[1]
+    nxt_cache: dict[tuple[int, str], np.ndarray] = {}
+    prv_cache: dict[int, np.ndarray] = {}
+
+    def nxt(key: int, tag: str, v: np.ndarray) -> np.ndarray:
+        got = nxt_cache.get((key, tag))
+        if got is None:
+            got = nxt_cache[(key, tag)] = _next_true(v)
+        return got
+
+    def prv(key: int, v: np.ndarray) -> np.ndarray:
+        got = prv_cache.get(key)
+        if got is None:
+            got = prv_cache[key] = _prev_true(v)
+        return got
+
     required = np.zeros_like(truth, dtype=bool)
     last = 0
     seen: set[tuple[int, int]] = set()
@@ -161,32 +187,33 @@ def extract_witness(
             stack.append((child, k))
         elif isinstance(f, STLUntil):
             v1, v2 = values[id(f.left)], values[id(f.right)]
-            start, chosen = k + f.a, None
-            for j in range(start, min(k + f.b, L - 1) + 1):
-                if v2[j]:
-                    chosen = j
-                    if not prefer_late:
-                        break
-                if not v1[j]:
-                    break
-            if chosen is None:  # the evaluation said true: unreachable
+            start, end = k + f.a, min(k + f.b, L - 1)
+            # Witnesses: j in [start, min(end, first failure of the left side)] with the right side.
+            limit = min(end, int(nxt(id(f.left), "not", ~v1)[min(start, L)]))
+            if prefer_late:
+                chosen = int(prv(id(f.right), v2)[limit]) if start <= limit else -1
+            else:
+                chosen = int(nxt(id(f.right), "is", v2)[min(start, L)])
+                chosen = chosen if chosen <= limit else -1
+            if chosen < start:  # the evaluation said true: unreachable
                 raise RuntimeError("until witness not found on a satisfying trace")
             stack.append((f.right, chosen))
-            stack.extend((f.left, j) for j in range(start, chosen))
+            if not _is_constant_true(f.left, atom_index):
+                stack.extend((f.left, j) for j in range(start, chosen))
+            last = max(last, chosen)
         elif isinstance(f, STLRelease):
             v1, v2 = values[id(f.left)], values[id(f.right)]
             start, stop = k + f.a, k + f.b
-            witness = None
-            for j in range(start, min(stop, L - 1) + 1):
-                if not v2[j]:
-                    break
-                if v1[j]:
-                    witness = j
-                    break
+            s0 = min(start, L)
+            fail2 = int(nxt(id(f.right), "not", ~v2)[s0])
+            both = int(nxt(id(f), "both", v1 & v2)[s0])
+            witness = both if both < fail2 and both <= min(stop, L - 1) else None
             end = witness if witness is not None else stop
             if witness is not None:
                 stack.append((f.left, witness))
-            stack.extend((f.right, j) for j in range(start, end + 1))
+            if not _is_constant_true(f.right, atom_index):
+                stack.extend((f.right, j) for j in range(start, end + 1))
+            last = max(last, end)
         else:
             raise TypeError(f"cannot justify {type(f).__name__}")
     return required, last + 1

@@ -29,6 +29,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from ..belief import kalman_update
 from ..chance import std_terms
 from .abstraction import Abstraction
+from .interfaces import Budget
 from .plan import DiscretePlan
 
 __all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_schedule"]
@@ -36,7 +37,9 @@ __all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_schedule"]
 _TINY = 1e-300
 
 
-def covariance_schedule(modes: Sequence[Any], cov0: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, bool]:
+def covariance_schedule(
+    modes: Sequence[Any], cov0: np.ndarray, actions: np.ndarray, budget: Budget | None = None
+) -> tuple[np.ndarray, bool]:
     """Covariances along a mode sequence: exact, or a lower bound under state-dependent noise.
 
     Parameters
@@ -44,6 +47,8 @@ def covariance_schedule(modes: Sequence[Any], cov0: np.ndarray, actions: np.ndar
     modes : sequence of LCS
     cov0 : ndarray, shape (n, n)
     actions : ndarray of int, shape (K,)
+    budget : Budget, optional
+        Wall-clock cap, checked every 1024 steps.
 
     Returns
     -------
@@ -59,6 +64,8 @@ def covariance_schedule(modes: Sequence[Any], cov0: np.ndarray, actions: np.ndar
     exact = True
     zero_mean = np.zeros(n)
     for k in range(K):
+        if budget is not None and not (k + 1) % 1024:
+            budget.check("the covariance schedule")
         mode = modes[int(actions[k])]
         P = mode.A @ covs[k] @ mode.A.T + mode.process_cov
         if mode.p == 0:
@@ -186,6 +193,7 @@ def build_plan_rows(
     actions: np.ndarray,
     scaling: Scaling,
     covs: np.ndarray | None = None,
+    budget: Budget | None = None,
 ) -> PlanRows:
     """Rows of the plan LP for a mode sequence ``actions`` (K,) and ``requirements``.
 
@@ -196,7 +204,7 @@ def build_plan_rows(
     n, m = mean0.shape[0], scaling.du.shape[0]
     dx, du = scaling.dx, scaling.du
     if covs is None:
-        covs, exact = covariance_schedule(modes, cov0, actions)
+        covs, exact = covariance_schedule(modes, cov0, actions, budget)
     else:
         exact = False
     ncol = K * n + K * m
@@ -208,6 +216,8 @@ def build_plan_rows(
     rb, cb = np.indices((n, m))
     eye = np.eye(n).ravel()
     for k in range(K):
+        if budget is not None and not (k + 1) % 1024:
+            budget.check("building the plan LP")
         mode = modes[int(actions[k])]
         At = mode.A * dx[None, :] / dx[:, None]
         Bt = mode.B * du[None, :] / dx[:, None]

@@ -24,6 +24,8 @@ from typing import Any, Literal
 import numpy as np
 from scipy.sparse import csr_matrix, hstack, vstack
 
+from ..belief import rollout
+from ..monitor import robustness
 from .abstraction import Abstraction
 from .backends import Backend, HighsBackend, LinearModel
 from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
@@ -92,6 +94,7 @@ def solve_plan_lp(
     scaling: Scaling | None = None,
     backend: Backend | None = None,
     time_limit: float = np.inf,
+    budget: Budget | None = None,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -118,6 +121,8 @@ def solve_plan_lp(
         LP back-end (default HiGHS).
     time_limit : float
         Wall-clock cap in seconds for each LP.
+    budget : Budget, optional
+        Overall wall-clock cap, checked while the rows are built.
 
     Returns
     -------
@@ -134,7 +139,9 @@ def solve_plan_lp(
         covs0 = cov0[None, :, :] if covs is None else covs
         exact = covs is None and True
         return LPOutcome("feasible", exact, np.zeros((0, system.m)), mean0[None, :].copy(), [], covs0)
-    rows = build_plan_rows(modes, control_domain, mean0, cov0, abstraction, reqs, actions, scaling, covs)
+    rows = build_plan_rows(
+        modes, control_domain, mean0, cov0, abstraction, reqs, actions, scaling, covs, budget=budget
+    )
     if rows.impossible:
         return LPOutcome("infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs)
     limit = float(min(time_limit, 1e9))
@@ -255,15 +262,20 @@ class LPTeacher:
     abstraction : Abstraction
     scaling : Scaling
     backend : Backend
+    rounds : int
+        Fixed-point rounds on re-rolled covariances under state-dependent noise.
     """
 
     name = "lp"
 
-    def __init__(self, problem: Any, abstraction: Abstraction, scaling: Scaling, backend: Backend) -> None:
+    def __init__(
+        self, problem: Any, abstraction: Abstraction, scaling: Scaling, backend: Backend, rounds: int = 3
+    ) -> None:
         self.problem = problem
         self.abs = abstraction
         self.scaling = scaling
         self.backend = backend
+        self.rounds = rounds
         self.last: LPOutcome | None = None
 
     def applies(self, problem: Any) -> bool:
@@ -291,6 +303,7 @@ class LPTeacher:
                 scaling=self.scaling,
                 backend=self.backend,
                 time_limit=max(budget.remaining(), 1e-3),
+                budget=budget,
             )
         stats.lp_calls += 1
         self.last = out
@@ -301,7 +314,49 @@ class LPTeacher:
             return Refuted(Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})"))
         if out.status == "unknown":
             return Unknown(out.why, out.means)
+        actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
         if out.exact and out.controls is not None:
-            actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
             return Found(actions, out.controls, "the plan LP")
+        found = self._fixed_point(plan, actions, out, margin, budget, stats)
+        if found is not None:
+            return found
         return Unknown("the plan LP is only a relaxation under state-dependent noise", out.means)
+
+    def _fixed_point(
+        self, plan: DiscretePlan, actions: np.ndarray, out: LPOutcome, margin: float, budget: Budget, stats: SolveStats
+    ) -> Found | None:
+        """Under state-dependent noise, re-solve the LP on the exact covariances of its own plan.
+
+        Roll the LP's controls out exactly; if the monitor accepts, that is the plan. Otherwise
+        freeze those covariances and solve again (a fixed-point iteration that settles at once
+        when the noise does not really depend on the mean along the plan).
+        """
+        problem = self.problem
+        system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
+        controls = out.controls
+        for _ in range(self.rounds):
+            if controls is None:
+                return None
+            traj = rollout(system, init, actions, controls)
+            if robustness(traj, formula) >= 0:
+                return Found(actions, controls, "the plan LP on re-rolled covariances")
+            with stats.clock("time_lp"):
+                nxt = solve_plan_lp(
+                    system,
+                    problem.control_domain,
+                    init.mean,
+                    init.cov,
+                    self.abs,
+                    plan,
+                    margin,
+                    covs=traj.get_cov(),
+                    scaling=self.scaling,
+                    backend=self.backend,
+                    time_limit=max(budget.remaining(), 1e-3),
+                    budget=budget,
+                )
+            stats.lp_calls += 1
+            if not nxt.feasible:
+                return None
+            controls = nxt.controls
+        return None
