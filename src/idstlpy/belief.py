@@ -52,9 +52,7 @@ class GaussianBelief:
         """State dimension."""
         return self.mean.shape[0]
 
-    def sample(
-        self, size: int | None = None, seed: int | np.random.Generator | None = None
-    ) -> np.ndarray:
+    def sample(self, size: int | None = None, seed: int | np.random.Generator | None = None) -> np.ndarray:
         """Draw states from the belief, shape (size, n) (or (n,) without ``size``)."""
         rng = np.random.default_rng(seed)
         return rng.multivariate_normal(self.mean, self.cov, size=size, method="eigh")
@@ -93,9 +91,7 @@ def _is_numeric(value: Any) -> bool:
     return True
 
 
-def predict(
-    mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def predict(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Prediction step: ``(A mean + B u, A cov A' + W W')``."""
     A = mode.A
     return A @ mean + mode.B @ u, A @ cov @ A.T + mode.process_cov
@@ -148,17 +144,13 @@ def kalman_update(
     return mean, cov
 
 
-def belief_step(
-    mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def belief_step(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One MLO belief transition of ``mode`` under input ``u``; returns ``(mean', cov')``."""
     mean_pred, P = predict(mode, mean, cov, u)
     return kalman_update(mode, mean_pred, P)
 
 
-def rollout(
-    system: Any, initial: GaussianBelief, actions: Sequence[int] | np.ndarray, controls: Any
-) -> Any:
+def rollout(system: Any, initial: GaussianBelief, actions: Sequence[int] | np.ndarray, controls: Any) -> Any:
     """Roll the MLO belief dynamics along a mode and control sequence.
 
     Parameters
@@ -180,18 +172,13 @@ def rollout(
     controls = np.asarray(controls, dtype=float)
     if N and controls.size != N * system.m:
         raise DimensionError(
-            f"controls must have shape ({N}, {system.m}) (one input per action), "
-            f"got {controls.shape}"
+            f"controls must have shape ({N}, {system.m}) (one input per action), got {controls.shape}"
         )
     controls = controls.reshape(N, system.m) if N else np.zeros((0, system.m))
     if initial.n != system.n:
-        raise DimensionError(
-            f"initial belief has dimension {initial.n}, the system has n = {system.n}"
-        )
+        raise DimensionError(f"initial belief has dimension {initial.n}, the system has n = {system.n}")
     if N and (actions.min() < 0 or actions.max() >= system.num_modes):
-        raise OutOfRangeError(
-            f"actions must be modes in 0..{system.num_modes - 1}, got {actions.tolist()}"
-        )
+        raise OutOfRangeError(f"actions must be modes in 0..{system.num_modes - 1}, got {actions.tolist()}")
     if not np.all(np.isfinite(controls)):
         raise InvalidArgumentError("controls contain NaN or inf")
     means, covs = rollout_arrays(system.system_modes, initial.mean, initial.cov, actions, controls)

@@ -175,7 +175,14 @@ class Abstraction:
         init = self.truth(initial_mean, initial_cov, -1)
         initial_false = [i for i in range(self.num_atoms) if not init[i]]
         steps = self._impossible_steps(
-            system, control_domain, regions, set(empty), budget, max_step_lps, backend or HighsBackend(), units
+            system,
+            control_domain,
+            regions,
+            set(empty),
+            budget,
+            max_step_lps,
+            backend or HighsBackend(),
+            units,
         )
         report = PruningReport(empty, disjoint, steps, initial_false)
         logger.info(

@@ -44,7 +44,9 @@ _CHECK_EVERY = 1 << 15  # variables between two looks at the wall-clock cap whil
 
 def sat_backends() -> list[str]:
     """Names python-sat accepts for its solvers (``SolverOptions.sat_backend``)."""
-    return sorted({name for names in vars(SolverNames).values() if isinstance(names, tuple) for name in names})
+    return sorted(
+        {name for names in vars(SolverNames).values() if isinstance(names, tuple) for name in names}
+    )
 
 
 class BMCEncoder:

@@ -59,7 +59,11 @@ class _Run:
         self.formula = problem.stl_formula
 
     def done(
-        self, status: Status, reason: str, traj: ProbabilisticTSTrajectory | None = None, margin: float = np.nan
+        self,
+        status: Status,
+        reason: str,
+        traj: ProbabilisticTSTrajectory | None = None,
+        margin: float = np.nan,
     ) -> SolveResult:
         stats = self.stats
         stats.time_total = self.budget.elapsed()
@@ -129,7 +133,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
         while True:
             budget.check("the proposer / teacher loop")
             if options.max_candidates is not None and stats.candidates >= options.max_candidates:
-                return run.done("budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}")
+                return run.done(
+                    "budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}"
+                )
             if eager and stats.candidates >= options.lazy_candidates:
                 result = _eager(run, proposer, abstraction, scaling)
                 if result is not None:
@@ -159,7 +165,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 checked = _verify(problem, verdict.actions, verdict.controls)
                 if checked is not None:
                     traj, margin = checked
-                    return run.done("found", f"{verdict.how} met the plan and the monitor agrees", traj, margin)
+                    return run.done(
+                        "found", f"{verdict.how} met the plan and the monitor agrees", traj, margin
+                    )
                 why = "the plan failed the monitor's exact re-check"
             else:
                 why = verdict.why if verdict is not None else "no teacher applies"
@@ -184,7 +192,9 @@ def _guide(proposer: BMCProposer, abstraction: Abstraction, teacher: LPTeacher, 
     proposer.guide(plan, truth)
 
 
-def _eager(run: _Run, proposer: BMCProposer, abstraction: Abstraction, scaling: Scaling) -> SolveResult | None:
+def _eager(
+    run: _Run, proposer: BMCProposer, abstraction: Abstraction, scaling: Scaling
+) -> SolveResult | None:
     """Hand an LP-exact, single-mode problem to a MILP back-end (see :mod:`.milp`).
 
     Returns ``None`` when the model cannot be bounded soundly (the lazy loop goes on).
@@ -193,7 +203,9 @@ def _eager(run: _Run, proposer: BMCProposer, abstraction: Abstraction, scaling: 
     init, system = problem.initial_state, problem.switched_system
     backend = get_backend(options.milp_backend, integer=True)
     while True:
-        logger.info("%d candidates tried: the eager MILP takes over at %d steps", stats.candidates, proposer.bound + 1)
+        logger.info(
+            "%d candidates tried: the eager MILP takes over at %d steps", stats.candidates, proposer.bound + 1
+        )
         with stats.clock("time_lp"):
             out = solve_milp(
                 proposer.export(),
@@ -216,7 +228,8 @@ def _eager(run: _Run, proposer: BMCProposer, abstraction: Abstraction, scaling: 
         if out.status == "infeasible":
             if proposer.bound >= proposer.H:
                 return run.done(
-                    "infeasible", f"the eager MILP proved that no plan exists within the horizon; {run.counts()}"
+                    "infeasible",
+                    f"the eager MILP proved that no plan exists within the horizon; {run.counts()}",
                 )
             if proposer.bound >= proposer.cap:
                 return run.done(
@@ -254,11 +267,15 @@ def _eager(run: _Run, proposer: BMCProposer, abstraction: Abstraction, scaling: 
     checked = _verify(problem, actions, controls)
     if checked is not None:
         traj, margin = checked
-        return run.done("found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin)
+        return run.done(
+            "found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin
+        )
     return None
 
 
-def _verify(problem: Any, actions: np.ndarray, controls: np.ndarray) -> tuple[ProbabilisticTSTrajectory, float] | None:
+def _verify(
+    problem: Any, actions: np.ndarray, controls: np.ndarray
+) -> tuple[ProbabilisticTSTrajectory, float] | None:
     """Re-roll the exact belief dynamics and run the monitor; the plan and its margin if it passes."""
     traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
     margin = robustness(traj, problem.stl_formula)

@@ -229,7 +229,9 @@ def solve_milp(
                 budget.check("building the MILP")
             powers[j] = powers[j - 1] @ A
         points = _support_points(control_domain)
-        gain = np.stack([_support(points, powers[j] @ B) for j in range(H)]) if H else np.zeros((0, F.shape[0]))
+        gain = (
+            np.stack([_support(points, powers[j] @ B) for j in range(H)]) if H else np.zeros((0, F.shape[0]))
+        )
         reach_max = np.einsum("kfn,n->kf", powers, mean0)
         with np.errstate(invalid="ignore"):
             reach_max[1:] += np.cumsum(gain, axis=0)
@@ -260,7 +262,9 @@ def solve_milp(
                 if big[f] <= 0:
                     continue  # every reachable mean satisfies the face
                 if not np.isfinite(big[f]) or big[f] > _MAX_BIG_M:
-                    return MILPOutcome("unsupported", why="the reachable means are unbounded (no finite big-M)")
+                    return MILPOutcome(
+                        "unsupported", why="the reachable means are unbounded (no finite big-M)"
+                    )
                 r_idx.extend([row] * (n + 1))
                 c_idx.extend(list(range(nb + (k - 1) * n, nb + k * n)) + [int(p_cols[f])])
                 vals.extend(list(G[f] / g[f]) + [float(big[f]) / (1.0 - _INT_TOL)])
@@ -285,7 +289,9 @@ def solve_milp(
     for letters in (np.asarray(enc.alive), enc.p.ravel(), enc.m.ravel()):
         integrality[np.asarray(letters, dtype=np.int64) - 1] = 1
     logger.info("MILP: %d binaries, %d continuous, %d rows", int(integrality.sum()), nx + nu, A_all.shape[0])
-    model = LinearModel(np.zeros(nvar), A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality)
+    model = LinearModel(
+        np.zeros(nvar), A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality
+    )
     sol = backend.solve(model, max(budget.remaining(), 1e-3))
     if sol.status == "optimal" and sol.x is not None:
         z = sol.x[nb:]

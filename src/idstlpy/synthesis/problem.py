@@ -19,6 +19,7 @@ __all__ = ["Problem"]
 
 logger = logging.getLogger(__name__)
 
+
 class Problem:
     """A PrSTL synthesis problem (paper Section IV-E).
 

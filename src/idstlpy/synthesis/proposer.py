@@ -254,7 +254,9 @@ class BMCProposer:
         witness = extract_witness(self.formula, claims[:, :length], self.abs.index, prefer_late=True)
         if witness is None:  # cannot happen for a model of the encoding; block it and go on
             logger.warning("BMC model does not satisfy the formula; blocking it")
-            clause: list[SymLit] = [("p", int(i), int(k), False) for i, k in zip(*np.nonzero(claims[:, :length]))]
+            clause: list[SymLit] = [
+                ("p", int(i), int(k), False) for i, k in zip(*np.nonzero(claims[:, :length]), strict=True)
+            ]
             self.soft.append(clause)
             self._add(clause, soft=True)
             return None

@@ -90,7 +90,9 @@ class SolveStats:
 
     def as_dict(self) -> dict[str, Any]:
         """Plain-data copy (for JSON result files)."""
-        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), list) else v) for f in fields(self)}
+        return {
+            f.name: (list(v) if isinstance(v := getattr(self, f.name), list) else v) for f in fields(self)
+        }
 
     to_dict = as_dict
 
@@ -175,7 +177,9 @@ class SolveResult:
         """
         if not isinstance(data, dict) or data.get("schema") != RESULT_SCHEMA:
             got = data.get("schema") if isinstance(data, dict) else type(data).__name__
-            raise InvalidArgumentError(f"not an idstlpy result: expected schema {RESULT_SCHEMA!r}, got {got!r}")
+            raise InvalidArgumentError(
+                f"not an idstlpy result: expected schema {RESULT_SCHEMA!r}, got {got!r}"
+            )
         status = data.get("status")
         if status not in STATUSES:
             raise InvalidArgumentError(f"result status must be one of {STATUSES}, got {status!r}")

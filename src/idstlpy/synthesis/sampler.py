@@ -485,7 +485,8 @@ class SamplerTeacher:
             stats.caps_hit.append("rrt_timeout")
         if out.actions is None or out.controls is None:
             why = (
-                f"sampler: rrt_timeout ({self.options.rrt_timeout:g} s) reached after {out.iterations} iterations"
+                f"sampler: rrt_timeout ({self.options.rrt_timeout:g} s) reached after "
+                f"{out.iterations} iterations"
                 if out.capped
                 else f"sampler: no plan within its budget of {budget_iters} iterations"
             )
@@ -520,7 +521,8 @@ class SamplerTeacher:
             modes = np.concatenate([[-1], acts]).astype(int)
             means, covs = traj.get_mean(), traj.get_cov()
             truth = np.stack(
-                [self.abs.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)], axis=1
+                [self.abs.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
+                axis=1,
             )
             witness = extract_witness(formula, truth, self.abs.index, prefer_late=False)
             if witness is None:

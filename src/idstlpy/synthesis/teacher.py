@@ -176,9 +176,11 @@ def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
     ns = len(rows.requirements)
     ncol = rows.nx + rows.nu
     R = rows.face_H.shape[0]
-    slack = csr_matrix(
-        (-np.ones(R), (np.arange(R), rows.face_owner)), shape=(R, ns)
-    ) if R else csr_matrix((0, ns))
+    slack = (
+        csr_matrix((-np.ones(R), (np.arange(R), rows.face_owner)), shape=(R, ns))
+        if R
+        else csr_matrix((0, ns))
+    )
     A = vstack(
         [
             hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], ns))]),
@@ -223,7 +225,7 @@ def _margin_phase(
     ub = np.concatenate([np.full(ncol, np.inf), [t_max]])
     if anchor is not None and np.isfinite(trust):
         ref = (np.asarray(anchor)[1 : rows.K + 1] / dx).ravel()
-        width = (trust / np.tile(dx, rows.K))
+        width = trust / np.tile(dx, rows.K)
         lb[: rows.nx] = ref - width
         ub[: rows.nx] = ref + width
     sol = backend.solve(LinearModel(c, A, lo, hi, lb, ub), limit)
@@ -323,7 +325,13 @@ class LPTeacher:
         return Unknown("the plan LP is only a relaxation under state-dependent noise", out.means)
 
     def _fixed_point(
-        self, plan: DiscretePlan, actions: np.ndarray, out: LPOutcome, margin: float, budget: Budget, stats: SolveStats
+        self,
+        plan: DiscretePlan,
+        actions: np.ndarray,
+        out: LPOutcome,
+        margin: float,
+        budget: Budget,
+        stats: SolveStats,
     ) -> Found | None:
         """Under state-dependent noise, re-solve the LP on the exact covariances of its own plan.
 
