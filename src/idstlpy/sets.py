@@ -13,9 +13,10 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linprog
+from scipy.sparse import csr_matrix
 
 from ._checks import as_covariance, as_matrix, as_vector
+from .backends import BackendSolution, HighsBackend, LinearModel
 from .chance import quantile, std_terms
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from .expressions import (
@@ -37,8 +38,18 @@ __all__ = [
 _INTERIOR_TOL = 1e-9
 
 
-def _lp(cost: np.ndarray, A_ub: np.ndarray, b_ub: np.ndarray, bounds: Any = (None, None)):
-    return linprog(cost, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+def _lp(
+    cost: np.ndarray, A_ub: np.ndarray, b_ub: np.ndarray, upper_last: float | None = None
+) -> BackendSolution:
+    """``min cost'x`` s.t. ``A_ub x <= b_ub`` (free variables; ``upper_last`` bounds the last one)."""
+    nvar = cost.shape[0]
+    ub = np.full(nvar, np.inf)
+    if upper_last is not None:
+        ub[-1] = upper_last
+    model = LinearModel(
+        cost, csr_matrix(A_ub), np.full(b_ub.shape[0], -np.inf), b_ub, np.full(nvar, -np.inf), ub
+    )
+    return HighsBackend().solve(model, 60.0)
 
 
 class Polytope:
@@ -111,8 +122,8 @@ class Polytope:
         norms = np.linalg.norm(self.H, axis=1)
         # Variables (x, r): maximise r s.t. H x + r |h| <= -c; r <= 1e6 keeps unbounded sets finite.
         A = np.hstack([self.H, norms[:, None]])
-        res = _lp(np.r_[np.zeros(n), -1.0], A, -self.c, bounds=[(None, None)] * n + [(None, 1e6)])
-        if res.status != 0:
+        res = _lp(np.r_[np.zeros(n), -1.0], A, -self.c, upper_last=1e6)
+        if res.status != "optimal" or res.x is None:
             return None, -np.inf
         return res.x[:n], float(res.x[n])
 
@@ -148,11 +159,11 @@ class Polytope:
         """``max_{x in P} d' x`` (``inf`` when unbounded, ``-inf`` when empty)."""
         d = as_vector(direction, "direction", self.dim)
         res = _lp(-d, self.H, -self.c)
-        if res.status == 2:
+        if res.status == "infeasible":
             return -np.inf
-        if res.status == 3:
+        if res.status == "unbounded":
             return np.inf
-        return float(-res.fun)
+        return float(-res.objective)
 
     def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
         """Tight axis-aligned bounds ``(low, high)``, each shape (n,); infinite where unbounded."""
@@ -186,7 +197,7 @@ class Polytope:
             pts = []
             for d in ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, -1), (1, -1), (-1, 1)):
                 res = _lp(-np.asarray(d, dtype=float), self.H, -self.c)
-                if res.status == 0:
+                if res.status == "optimal" and res.x is not None:
                     pts.append(res.x)
             pts_arr = np.array(pts)
             dist = np.linalg.norm(pts_arr[:, None, :] - pts_arr[None, :, :], axis=2)

@@ -16,7 +16,7 @@ from scipy.sparse import csr_matrix
 from ..chance import slack
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
-from .backends import Backend, HighsBackend, LinearModel
+from ..backends import Backend, HighsBackend, LinearModel
 from .interfaces import Budget
 
 __all__ = ["Abstraction", "PruningReport"]

@@ -32,7 +32,7 @@ from ..belief import rollout
 from ..monitor import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .backends import get_backend
+from ..backends import get_backend
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp
 from .options import SolverOptions

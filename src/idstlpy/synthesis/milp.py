@@ -36,7 +36,7 @@ from scipy.sparse import coo_matrix, csr_matrix, hstack, vstack
 from ..chance import std_terms
 from ..formulas import STLAnd, STLAtomicProposition, STLRelease
 from .abstraction import Abstraction
-from .backends import Backend, LinearModel
+from ..backends import Backend, LinearModel
 from .bmc import BMCEncoder
 from .interfaces import Budget
 from .plan_lp import Scaling, build_plan_rows

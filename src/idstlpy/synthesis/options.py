@@ -96,7 +96,7 @@ class SolverOptions:
     sat_backend : str
         python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
     lp_backend, milp_backend : str
-        Registered linear back-ends (see :mod:`idstlpy.synthesis.backends`); ``"highs"`` is
+        Registered linear back-ends (see :mod:`idstlpy.backends`); ``"highs"`` is
         always available.
     """
 

@@ -116,10 +116,10 @@ class Scaling:
         du = np.array([_magnitude(np.array([low[j], high[j]])) for j in range(m)])
         if np.any(du == 0):
             # Unbounded or degenerate input axes: the unit that moves the state by one of its units.
-            for j in np.nonzero(du == 0)[0]:
-                gains = [np.max(np.abs(mode.B[:, j]) / dx) for mode in system.system_modes]
+            for col in np.nonzero(du == 0)[0].tolist():
+                gains = [np.max(np.abs(mode.B[:, col]) / dx) for mode in system.system_modes]
                 g = max(gains)
-                du[j] = 1.0 / g if g > 0 else 1.0
+                du[col] = 1.0 / g if g > 0 else 1.0
         return cls(dx, du)
 
 

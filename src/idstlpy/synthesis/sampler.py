@@ -329,7 +329,7 @@ class BeliefSampler:
                         break
             goal = goal_cache[pid]
             aim_goal = goal is not None and rng.random() < opt.goal_bias
-            s = self._sample_in_atom(goal) if aim_goal else None
+            s = self._sample_in_atom(goal) if aim_goal and goal is not None else None
             if s is None:
                 aim_goal = False
                 s = rng.uniform(*self.workspace)

@@ -17,13 +17,13 @@ import os
 import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import ClassVar, Literal, Protocol
+from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 from scipy.optimize import Bounds, LinearConstraint, linprog, milp
 from scipy.sparse import csr_matrix, vstack
 
-from ..errors import InvalidArgumentError
+from .errors import InvalidArgumentError
 
 __all__ = [
     "Backend",
@@ -228,7 +228,7 @@ class HighsBackend:
         return BackendSolution(status, res.x, fun, duals, str(res.message))
 
 
-_REGISTRY: dict[str, type] = {}
+_REGISTRY: dict[str, Any] = {}
 
 
 def register_backend(cls: type) -> type:
