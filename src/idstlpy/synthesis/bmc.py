@@ -29,24 +29,17 @@ import threading
 from collections.abc import Iterable, Sequence
 
 import numpy as np
-from pysat.solvers import Solver, SolverNames
+from pysat.solvers import NoSuchSolverError, Solver
 
 from ..errors import InvalidArgumentError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from .interfaces import Budget, BudgetExceeded
 
-__all__ = ["BMCEncoder", "sat_backends"]
+__all__ = ["BMCEncoder"]
 
 logger = logging.getLogger(__name__)
 
 _CHECK_EVERY = 1 << 15  # variables between two looks at the wall-clock cap while encoding
-
-
-def sat_backends() -> list[str]:
-    """Names python-sat accepts for its solvers (``SolverOptions.sat_backend``)."""
-    return sorted(
-        {name for names in vars(SolverNames).values() if isinstance(names, tuple) for name in names}
-    )
 
 
 class BMCEncoder:
@@ -119,11 +112,8 @@ class BMCEncoder:
         self.selector = self._new()  # assumed true while abandoned candidates are set aside
         try:
             self.solver = Solver(name=sat_backend, bootstrap_with=self.clauses)
-        except (ValueError, NotImplementedError) as exc:
-            raise InvalidArgumentError(
-                f"sat_backend {sat_backend!r} is not a python-sat solver ({exc}); "
-                f"try one of {', '.join(sat_backends())}"
-            ) from None
+        except (NoSuchSolverError, ValueError, NotImplementedError) as exc:
+            raise InvalidArgumentError(f"sat_backend {sat_backend!r} cannot be used: {exc}") from None
         self.learnt: list[list[int]] = []
         self.sat_calls = 0
         logger.debug("BMC encoding: %d variables, %d clauses, horizon %d", self._nvars, len(self.clauses), H)

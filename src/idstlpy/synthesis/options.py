@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .._checks import as_float, as_int
+from ..backends import available_backends
 from ..errors import InvalidArgumentError, InvalidTypeError, OutOfRangeError
 
 __all__ = ["ITERATIONS_PER_SECOND", "SolverOptions"]
@@ -29,6 +30,13 @@ not the clock, ends a candidate's search: see BENCHMARKS.md.
 """
 
 _MAX_SEED = 2**63 - 1
+
+
+def sat_backends() -> list[str]:
+    """Names python-sat accepts for its solvers (``SolverOptions.sat_backend``)."""
+    from pysat.solvers import SolverNames
+
+    return sorted({n for names in vars(SolverNames).values() if isinstance(names, tuple) for n in names})
 
 
 def _seed(value: Any) -> int | None:
@@ -49,7 +57,7 @@ def _name(value: Any, name: str, choices: tuple[str, ...] | None = None) -> str:
     if not isinstance(value, str) or not value:
         raise InvalidTypeError(f"{name} must be a non-empty string, got {value!r}")
     if choices is not None and value not in choices:
-        raise InvalidArgumentError(f"{name} must be one of {', '.join(choices)}; got {value!r}")
+        raise InvalidArgumentError(f"{name} must be one of {', '.join(choices)} (installed here); got {value!r}")
     return value
 
 
@@ -142,8 +150,9 @@ class SolverOptions:
         put(self, "max_pruning_lps", as_int(self.max_pruning_lps, "max_pruning_lps", minimum=0))
         put(self, "polish_rounds", as_int(self.polish_rounds, "polish_rounds", minimum=0))
         put(self, "shortcut_checks", as_int(self.shortcut_checks, "shortcut_checks", minimum=0))
-        for key in ("sat_backend", "lp_backend", "milp_backend"):
-            put(self, key, _name(getattr(self, key), key))
+        put(self, "sat_backend", _name(self.sat_backend, "sat_backend", tuple(sat_backends())))
+        put(self, "lp_backend", _name(self.lp_backend, "lp_backend", tuple(available_backends())))
+        put(self, "milp_backend", _name(self.milp_backend, "milp_backend", tuple(available_backends(integer=True))))
 
     @classmethod
     def make(cls, **kw: Any) -> SolverOptions:

@@ -1,0 +1,302 @@
+"""The synthesis core's contracts: honest statuses, re-checkable proofs, reproducibility, budgets."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import idstlpy as stl
+from idstlpy.backends import LinearModel, available_backends, get_backend, register_backend
+from idstlpy.errors import IdstlpyError, InvalidArgumentError
+from idstlpy.scenarios import light_dark
+from idstlpy.synthesis import cegis
+from idstlpy.synthesis.abstraction import Abstraction
+from idstlpy.synthesis.interfaces import Refuted
+from idstlpy.synthesis.plan import DiscretePlan
+from idstlpy.synthesis.proposer import min_plan_length
+from idstlpy.synthesis.teacher import LPTeacher, solve_plan_lp
+
+P = stl.prob
+LISTING = dict(
+    rrt_timeout=60, delta_near=2, delta_drain=0.5, goal_bias=0.25, min_num_of_steps=3, max_num_of_steps=15
+)
+
+
+def _integrator(formula_of, *, V=None, domain_of=None, prior=(0.0, 0.0), A=1.0, B=1.0):
+    x = stl.mk_variable(1)
+    u = stl.mk_variable(1, name="u")
+    mode = stl.mk_lbs([[A]], [[B]], [[0.0]], C=None if V is None else [[1.0]], V=V)
+    domain = domain_of(u) if domain_of is not None else stl.logical_and(u[0] >= -1, u[0] <= 1).region
+    belief = stl.to_belief([prior[0]], [[prior[1]]])
+    return stl.Problem(stl.mk_switched_sys([mode]), domain, belief, formula_of(x))
+
+
+def _reach_avoid(T: int) -> stl.Problem:
+    """Double integrator in the plane, one obstacle between start and goal (LP-exact)."""
+    return stl.scenarios.reach_avoid(T)
+
+
+# -- proofs -------------------------------------------------------------------------------------------
+class _Recorder(LPTeacher):
+    """The LP teacher, keeping every refutation it emits."""
+
+    refutations: list = []
+
+    def teach(self, plan, budget, stats):
+        verdict = super().teach(plan, budget, stats)
+        if isinstance(verdict, Refuted):
+            type(self).refutations.append((self.problem, plan, verdict.conflict))
+        return verdict
+
+
+@pytest.mark.parametrize("make", [lambda: _reach_avoid(25), light_dark])
+def test_every_refutation_is_infeasible_on_its_own(monkeypatch, make):
+    _Recorder.refutations = []
+    monkeypatch.setattr(cegis, "LPTeacher", _Recorder)
+    problem = make()
+    result = problem.solve_result(**LISTING, seed=0, lazy_candidates=1000)
+    assert result.status == "found"
+    assert _Recorder.refutations, "the problem should need at least one refutation"
+    for prob, plan, conflict in _Recorder.refutations:
+        abstraction = Abstraction(prob.stl_formula, prob.switched_system.n)
+        L = max(k for k, _ in conflict.requirements) + 1
+        required = np.zeros((abstraction.num_atoms, L), dtype=bool)
+        for k, i in conflict.requirements:
+            required[i, k] = True
+        only = DiscretePlan(required, plan.modes[:L].copy(), L)
+        init = prob.initial_state
+        again = solve_plan_lp(
+            prob.switched_system, prob.control_domain, init.mean, init.cov, abstraction, only
+        )
+        assert again.status == "infeasible", conflict
+
+
+def test_zero_slack_unbounded_and_flat_domains_are_found():
+    # u = 1 reaches x = 1 exactly: margin 0 is a plan, not a refutation.
+    edge = _integrator(lambda x: stl.eventually(1, 1, stl.logical_and(P(x[0] >= 1) >= 0.9)))
+    assert edge.solve_result(seed=0).status == "found"
+    # An input bounded on one side only; the eager MILP cannot bound it, the lazy loop can.
+    far = _integrator(
+        lambda x: stl.eventually(0, 20, stl.logical_and(P(x[0] >= 12) >= 0.9)),
+        B=-1.0,
+        domain_of=lambda u: (u[0] >= -1).region,
+    )
+    result = far.solve_result(seed=0)
+    assert result.status == "found" and result.trajectory.num_of_steps == 12
+    # A flat (lower-dimensional) control domain in two inputs.
+    x = stl.mk_variable(1)
+    u = stl.mk_variable(2, name="u")
+    flat = stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= 0, u[1] <= 0).region
+    mode = stl.mk_lbs([[1.0]], [[1.0, 1.0]], [[0.0]])
+    goal = stl.logical_and(P(x[0] >= 3) >= 0.9, name="goal")
+    problem = stl.Problem(
+        stl.mk_switched_sys([mode]), flat, stl.to_belief([0.0], [[0.0]]), stl.eventually(0, 6, goal)
+    )
+    result = problem.solve_result(seed=0, lazy_candidates=0)
+    assert result.status == "found"
+
+
+@pytest.mark.parametrize("scale", [1e-6, 1.0, 1e6])
+def test_units_do_not_change_the_answer(scale):
+    x = stl.mk_variable(2)
+    u = stl.mk_variable(2, name="u")
+    mode = stl.mk_lbs(np.eye(2), 0.25 * np.eye(2), np.zeros((2, 2)), C=np.eye(2), V=0.1 * scale * np.eye(2))
+    s = scale
+    domain = stl.logical_and(u[0] >= -s, u[0] <= s, u[1] >= -s, u[1] <= s).region
+    goal = stl.logical_and(
+        P(x[0] >= 1.0 * s) >= 0.9,
+        P(x[0] <= 1.5 * s) >= 0.9,
+        P(x[1] >= 0.5 * s) >= 0.9,
+        P(x[1] <= 1.0 * s) >= 0.9,
+        name="goal",
+    )
+    problem = stl.Problem(
+        stl.mk_switched_sys([mode]),
+        domain,
+        stl.to_belief([0.0, 0.0], (0.01 * s) ** 2 * np.eye(2)),
+        stl.eventually(0, 12, stl.always(0, 2, goal)),
+    )
+    result = problem.solve_result(seed=0)
+    assert result.status == "found", result.reason
+    assert stl.satisfies(result.trajectory, problem.stl_formula)
+
+
+def test_noise_floor_with_a_sampler_that_gives_up_is_not_a_proof():
+    # State-dependent noise and a sampler allowed one iteration: whatever it abandons is not a proof.
+    problem = light_dark()
+    result = problem.solve_result(**LISTING, seed=0, sampler_iterations=1, max_candidates=3)
+    assert result.status in ("found", "budget_exhausted")
+    if result.status == "budget_exhausted":
+        assert "abandoned" in result.reason
+
+
+def test_a_formula_that_needs_more_steps_than_allowed_is_budget_exhausted():
+    problem = _integrator(lambda x: stl.always(0, 10**9, stl.logical_and(P(x[0] <= 1) >= 0.9)))
+    t0 = time.perf_counter()
+    result = problem.solve_result(seed=0, time_limit=5)
+    assert result.status == "budget_exhausted"
+    assert "max_plan_length" in result.reason
+    assert time.perf_counter() - t0 < 5
+
+
+def test_min_plan_length_reads_the_strong_semantics():
+    x = stl.mk_variable(1)
+    a = stl.logical_and(P(x[0] <= 1) >= 0.9, name="a")
+    assert min_plan_length(stl.always(0, 40, a)) == 41
+    assert min_plan_length(stl.eventually(3, 9, a)) == 4
+    assert min_plan_length(stl.until(a, 0, 240, stl.always(0, 40, a))) == 41
+
+
+# -- budgets ------------------------------------------------------------------------------------------
+def test_huge_interval_with_a_near_goal_unrolls_lazily():
+    problem = _integrator(lambda x: stl.eventually(0, 10**9, stl.logical_and(P(x[0] >= 2.5) >= 0.9)))
+    result = problem.solve_result(seed=0, time_limit=30)
+    assert result.status == "found"
+    assert result.trajectory.num_of_steps == 3
+    assert result.stats.encoded_depth < 100  # the encoding followed the plan, not the formula's bound
+
+
+@pytest.mark.parametrize(
+    "formula_of",
+    [
+        lambda x: stl.until(
+            stl.logical_and(P(x[0] >= -100) >= 0.9), 0, 10**6, stl.logical_and(P(x[0] >= 1e7) >= 0.9)
+        ),
+        lambda x: stl.always(0, 10**4, stl.eventually(0, 10**4, stl.logical_and(P(x[0] >= 2.5) >= 0.9))),
+    ],
+)
+def test_time_limit_holds_on_huge_horizons(formula_of):
+    problem = _integrator(formula_of)
+    t0 = time.perf_counter()
+    result = problem.solve_result(seed=0, time_limit=2)
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 2 + 10  # generous slack: a cap, not a speed claim
+    if result.status == "budget_exhausted":
+        assert "time limit" in result.reason and "time_limit" in result.stats.caps_hit
+
+
+# -- reproducibility ----------------------------------------------------------------------------------
+_TWIN = """
+import hashlib, json, sys
+import idstlpy as stl
+from idstlpy.scenarios import light_dark
+r = light_dark().solve_result(rrt_timeout=60, delta_near=2, delta_drain=0.5, goal_bias=0.25,
+                              min_num_of_steps=3, max_num_of_steps=15, seed=4, sampler_iterations=3)
+t = r.trajectory
+print(json.dumps([r.status, r.stats.candidates, r.stats.abandoned,
+                  None if t is None else hashlib.sha256(t.get_control().tobytes()).hexdigest()]))
+"""
+
+
+def test_same_seed_same_plan_with_abandoned_candidates_in_and_across_processes():
+    def here():
+        r = light_dark().solve_result(**LISTING, seed=4, sampler_iterations=3)
+        import hashlib
+
+        t = r.trajectory
+        return [
+            r.status,
+            r.stats.candidates,
+            r.stats.abandoned,
+            None if t is None else hashlib.sha256(t.get_control().tobytes()).hexdigest(),
+        ]
+
+    first, second = here(), here()
+    assert first == second
+    assert first[2] > 0, "the budget is meant to make the sampler give up on some candidates"
+    out = subprocess.run([sys.executable, "-c", _TWIN], capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == first
+
+
+def test_seed_accepts_a_generator_and_rejects_negatives():
+    problem = _integrator(lambda x: stl.eventually(0, 5, stl.logical_and(P(x[0] >= 2) >= 0.9)))
+    assert problem.solve_result(seed=np.random.default_rng(3)).status == "found"
+    with pytest.raises(IdstlpyError, match="seed"):
+        problem.solve_result(seed=-1)
+    with pytest.raises(IdstlpyError, match="seed"):
+        problem.solve_result(seed=1.5)
+
+
+# -- options and back-ends ----------------------------------------------------------------------------
+def test_solver_options_are_validated_and_accepted_by_solve():
+    with pytest.raises(InvalidArgumentError, match="unknown solver option"):
+        stl.SolverOptions.make(rrt_timeot=1)
+    with pytest.raises(IdstlpyError, match="lazy_candidates"):
+        stl.SolverOptions(lazy_candidates=-1)
+    opts = stl.SolverOptions(rrt_timeout=5, seed=0)
+    problem = _integrator(lambda x: stl.eventually(0, 5, stl.logical_and(P(x[0] >= 2) >= 0.9)))
+    a = problem.solve_result(options=opts)
+    b = problem.solve_result(options=opts, max_candidates=50)
+    assert a.status == b.status == "found"
+    with pytest.raises(InvalidArgumentError, match="unknown solver option"):
+        problem.solve(bogus=1)
+    with pytest.raises(InvalidArgumentError, match="sat_backend"):
+        problem.solve_result(seed=0, sat_backend="nope")
+    with pytest.raises(InvalidArgumentError, match="lp_backend"):
+        problem.solve_result(seed=0, lp_backend="nope")
+
+
+def test_backend_registry_and_highs_duals():
+    assert "highs" in available_backends() and "highs" in available_backends(integer=True)
+    with pytest.raises(InvalidArgumentError, match="unknown"):
+        get_backend("nope")
+
+    from scipy.sparse import csr_matrix
+
+    # min x s.t. x >= 2: the row is active, its dual is the objective's sensitivity (1).
+    model = LinearModel(
+        np.array([1.0]),
+        csr_matrix([[1.0]]),
+        np.array([2.0]),
+        np.array([np.inf]),
+        np.array([-np.inf]),
+        np.array([np.inf]),
+    )
+    sol = get_backend("highs").solve(model, 10)
+    assert sol.status == "optimal" and sol.x[0] == pytest.approx(2.0)
+    assert sol.row_duals[0] == pytest.approx(1.0)
+    infeasible = LinearModel(
+        np.array([0.0]),
+        csr_matrix([[1.0], [1.0]]),
+        np.array([2.0, -np.inf]),
+        np.array([np.inf, 1.0]),
+        np.array([-np.inf]),
+        np.array([np.inf]),
+    )
+    assert get_backend("highs").solve(infeasible, 10).status == "infeasible"
+
+    class Fake:
+        name = "fake-test"
+        supports_integer = False
+
+        @classmethod
+        def is_available(cls):
+            return False
+
+    register_backend(Fake)
+    assert "fake-test" not in available_backends()
+    with pytest.raises(InvalidArgumentError, match="not installed"):
+        get_backend("fake-test")
+
+
+def test_result_round_trips_through_json(tmp_path):
+    problem = light_dark()
+    result = problem.solve_result(**LISTING, seed=0)
+    path = result.save(tmp_path / "r.json")
+    back = stl.load_result(path)
+    assert back.status == "found" and back.formula == str(problem.stl_formula)
+    assert stl.satisfies(back.trajectory, problem.stl_formula)
+    assert back.stats.candidates == result.stats.candidates
+    none = _integrator(lambda x: stl.eventually(0, 2, stl.logical_and(P(x[0] >= 5) >= 0.9))).solve_result(
+        seed=0
+    )
+    assert none.status == "infeasible"
+    text = json.dumps(none.to_dict(), allow_nan=False)
+    assert json.loads(text)["margin"] is None
+    with pytest.raises(InvalidArgumentError, match="schema"):
+        stl.SolveResult.from_dict({"status": "found"})
