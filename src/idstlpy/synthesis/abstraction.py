@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import csr_matrix
 
+from ..backends import Backend, HighsBackend, LinearModel
 from ..chance import slack
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
-from ..backends import Backend, HighsBackend, LinearModel
 from .interfaces import Budget
 
 __all__ = ["Abstraction", "PruningReport"]

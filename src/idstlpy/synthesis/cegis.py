@@ -28,11 +28,11 @@ from typing import Any
 
 import numpy as np
 
+from ..backends import get_backend
 from ..belief import rollout
 from ..monitor import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from ..backends import get_backend
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp
 from .options import SolverOptions

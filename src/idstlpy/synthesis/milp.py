@@ -33,10 +33,10 @@ from typing import Any, Literal
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, hstack, vstack
 
+from ..backends import Backend, LinearModel
 from ..chance import std_terms
 from ..formulas import STLAnd, STLAtomicProposition, STLRelease
 from .abstraction import Abstraction
-from ..backends import Backend, LinearModel
 from .bmc import BMCEncoder
 from .interfaces import Budget
 from .plan_lp import Scaling, build_plan_rows

@@ -57,7 +57,9 @@ def _name(value: Any, name: str, choices: tuple[str, ...] | None = None) -> str:
     if not isinstance(value, str) or not value:
         raise InvalidTypeError(f"{name} must be a non-empty string, got {value!r}")
     if choices is not None and value not in choices:
-        raise InvalidArgumentError(f"{name} must be one of {', '.join(choices)} (installed here); got {value!r}")
+        raise InvalidArgumentError(
+            f"{name} must be one of {', '.join(choices)} (installed here); got {value!r}"
+        )
     return value
 
 
@@ -152,7 +154,11 @@ class SolverOptions:
         put(self, "shortcut_checks", as_int(self.shortcut_checks, "shortcut_checks", minimum=0))
         put(self, "sat_backend", _name(self.sat_backend, "sat_backend", tuple(sat_backends())))
         put(self, "lp_backend", _name(self.lp_backend, "lp_backend", tuple(available_backends())))
-        put(self, "milp_backend", _name(self.milp_backend, "milp_backend", tuple(available_backends(integer=True))))
+        put(
+            self,
+            "milp_backend",
+            _name(self.milp_backend, "milp_backend", tuple(available_backends(integer=True))),
+        )
 
     @classmethod
     def make(cls, **kw: Any) -> SolverOptions:

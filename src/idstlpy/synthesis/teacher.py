@@ -24,10 +24,10 @@ from typing import Any, Literal
 import numpy as np
 from scipy.sparse import csr_matrix, hstack, vstack
 
+from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
 from ..monitor import robustness
 from .abstraction import Abstraction
-from ..backends import Backend, HighsBackend, LinearModel
 from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan
 from .plan_lp import PlanRows, Scaling, build_plan_rows, covariance_schedule, plan_requirements
