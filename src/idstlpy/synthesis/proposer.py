@@ -1,7 +1,7 @@
 """The BMC proposer: discrete plans from a SAT encoding that is unrolled lazily.
 
 The encoding (:class:`~.bmc.BMCEncoder`) is built for plans of at most ``bound + 1`` steps and
-rebuilt with a doubled bound when no plan that short is left, so cost and memory follow the
+rebuilt with a fourfold bound when no plan that short is left, so cost and memory follow the
 plan lengths actually searched, not the formula's interval bounds (``F[0, 10**9] goal`` with the
 goal three steps away unrolls a few dozen steps). Every clause the proposer learns is kept in a
 symbolic form (proposition or mode, step, sign) and carried over to each rebuilt encoding.
@@ -216,10 +216,11 @@ class BMCProposer:
             return self._dry()
 
     def grow(self) -> bool:
-        """Unroll the encoding further (double the bound, up to the cap); False when at the cap."""
+        """Unroll the encoding further (four times the bound, up to the cap); False when at the cap."""
         if self.enc is None or self.bound >= self.cap:
             return False
-        self.bound = min(self.cap, max(2 * self.bound, self.bound + 1))
+        # x4: the encoding costs O(N log N), so overshooting is cheaper than rebuilding often.
+        self.bound = min(self.cap, max(4 * self.bound, self.bound + 1))
         self._build()
         return True
 

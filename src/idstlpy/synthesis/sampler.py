@@ -132,13 +132,18 @@ class BeliefSampler:
         U = problem.control_domain
         self.UH, self.Uc = U.H, U.c
         self.u_center = U.chebyshev_center()[0]
-        self.B_pinv = [np.linalg.pinv(mode.B) for mode in self.system.system_modes]
+        self._gains = [
+            self._steering_gains(mode, options.max_num_of_steps) for mode in self.system.system_modes
+        ]
+        self._index = [
+            self._controllability_index(mode, options.max_num_of_steps) for mode in self.system.system_modes
+        ]
         self._regions = [abstraction.region(i) for i in range(abstraction.num_atoms)]
         self._boxes = []
         self._centers = []
-        for r in self._regions:
+        for idx, r in enumerate(self._regions):
             if r.H.shape[0] and not r.is_empty():
-                low, high = r.bounding_box()
+                low, high = abstraction.bounds(idx)
                 center = r.chebyshev_center()[0]
             else:
                 low, high, center = (
@@ -150,6 +155,56 @@ class BeliefSampler:
             self._centers.append(center)
         self.workspace = self._workspace_box()
         self._floors: dict[int, float] = {}
+        self._sensing = self._sensing_points()
+
+    @staticmethod
+    def _steering_gains(mode: Any, horizon: int) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per ``h = 1..horizon``: ``(A^h, G_h)`` where ``G_h`` maps ``target - A^h x`` to the first
+        input of the least-norm ``h``-step input sequence reaching ``target`` (pseudo-inverse of
+        the ``h``-step controllability matrix): steering that respects any linear dynamics.
+        """
+        A, B = mode.A, mode.B
+        m = B.shape[1]
+        out = []
+        blocks: list[np.ndarray] = []  # [A^{h-1} B, ..., A B, B] built up one power at a time
+        Ah = np.eye(A.shape[0])
+        for _ in range(horizon):
+            blocks = [A @ blk for blk in blocks] + [B]
+            Ah = A @ Ah
+            ctrl = np.hstack(blocks)
+            out.append((Ah.copy(), np.linalg.pinv(ctrl)[:m]))
+        return out
+
+    @staticmethod
+    def _controllability_index(mode: Any, horizon: int) -> int:
+        """Fewest steps in which the mode's inputs can move the mean anywhere (``horizon`` if never)."""
+        n = mode.A.shape[0]
+        blocks = [mode.B]
+        for h in range(1, horizon + 1):
+            if np.linalg.matrix_rank(np.hstack(blocks)) >= n:
+                return h
+            blocks.append(mode.A @ blocks[-1])
+        return horizon
+
+    def _sensing_points(self) -> np.ndarray:
+        """Where some mode senses best: the best tenth of a fixed quasi-random set of points in the
+        workspace box grown by its own size on every side (empty without state-dependent noise).
+
+        The formula's regions need not contain the light (a formula without a free-space
+        proposition, say), so samples drawn only inside their bounding box may never find it.
+        """
+        noisy = [m for m in self.system.system_modes if m.has_state_dependent_noise]
+        if not noisy:
+            return np.zeros((0, self.system.n))
+        low, high = self.workspace
+        width = high - low
+        pts = (low - width) + 3.0 * width * _halton(256, self.system.n)
+        quality = np.full(pts.shape[0], np.inf)
+        for mode in noisy:
+            for j, x in enumerate(pts):
+                quality[j] = min(quality[j], float(np.trace(mode.noise_cov(x))))
+        keep = np.argsort(quality, kind="stable")[: max(1, pts.shape[0] // 10)]
+        return np.asarray(pts[keep])
 
     def _workspace_box(self) -> tuple[np.ndarray, np.ndarray]:
         mean0 = self.problem.initial_state.mean
@@ -196,9 +251,11 @@ class BeliefSampler:
         return self.rng.uniform(*self.workspace)
 
     # -- steering ---------------------------------------------------------------------------------
-    def _steer(self, q: int, mean: np.ndarray, target: np.ndarray) -> np.ndarray:
-        mode = self.system.system_modes[q]
-        u = self.B_pinv[q] @ (target - mode.A @ mean)
+    def _steer(self, q: int, mean: np.ndarray, target: np.ndarray, remaining: int = 1) -> np.ndarray:
+        """Input toward ``target``, to be reached in ``remaining`` steps, pulled into the domain."""
+        gains = self._gains[q]
+        Ah, G = gains[min(max(remaining, 1), len(gains)) - 1]
+        u = G @ (target - Ah @ mean)
         slack = self.UH @ u + self.Uc
         if np.all(slack <= 0):
             return u
@@ -249,9 +306,10 @@ class BeliefSampler:
         init = self.problem.initial_state
         checks = 0
         i = 0
+        means, covs = rollout_arrays(modes, init.mean, init.cov, actions, controls)
+        truth = self._labels(means, covs, actions, 0)
         while checks < max_checks:
             N = actions.shape[0]
-            means, covs = rollout_arrays(modes, init.mean, init.cov, actions, controls)
             if i >= N - 2:
                 break
             improved = False
@@ -261,8 +319,8 @@ class BeliefSampler:
                 q = int(actions[i])
                 mean, target = means[i], means[j]
                 cut_u = []
-                for _ in range(j - i - 1):
-                    u = self._steer(q, mean, target)
+                for t in range(j - i - 1):
+                    u = self._steer(q, mean, target, min(j - i - 1 - t, self._index[q]))
                     cut_u.append(u)
                     mean = modes[q].A @ mean + modes[q].B @ u
                     if np.linalg.norm(mean - target) <= 1e-9 * (1.0 + np.linalg.norm(target)):
@@ -272,20 +330,26 @@ class BeliefSampler:
                 new_actions = np.concatenate([actions[:i], np.full(len(cut_u), q), actions[j:]])
                 new_controls = np.vstack([controls[:i], np.array(cut_u), controls[j:]])
                 checks += 1
-                m2, c2 = rollout_arrays(modes, init.mean, init.cov, new_actions, new_controls)
-                truth = np.array(
-                    [
-                        self.abs.truth(m2[k], c2[k], int(new_actions[k - 1]) if k else -1)
-                        for k in range(len(m2))
-                    ]
-                ).T
-                if evaluate_bool(self.formula, truth, self.abs.index)[id(self.formula)][0]:
-                    actions, controls = new_actions, new_controls
+                # The prefix up to step i is unchanged: roll and label only the tail.
+                tail_m, tail_c = rollout_arrays(modes, means[i], covs[i], new_actions[i:], new_controls[i:])
+                m2 = np.vstack([means[:i], tail_m])
+                c2 = np.concatenate([covs[:i], tail_c])
+                t2 = np.hstack([truth[:, : i + 1], self._labels(m2, c2, new_actions, i + 1)])
+                if evaluate_bool(self.formula, t2, self.abs.index)[id(self.formula)][0]:
+                    actions, controls, means, covs, truth = new_actions, new_controls, m2, c2, t2
                     improved = True
                     break
             if not improved:
                 i += max(1, (actions.shape[0] - i) // 8)
         return actions, controls
+
+    def _labels(self, means: np.ndarray, covs: np.ndarray, actions: np.ndarray, start: int) -> np.ndarray:
+        """Labels of steps ``start..`` of a roll-out, shape (n_atoms, L - start)."""
+        cols = [
+            self.abs.truth(means[k], covs[k], int(actions[k - 1]) if k else -1)
+            for k in range(start, len(means))
+        ]
+        return np.array(cols).T if cols else np.zeros((self.abs.num_atoms, 0), dtype=bool)
 
     # -- main loop --------------------------------------------------------------------------------
     def run(
@@ -332,7 +396,13 @@ class BeliefSampler:
             s = self._sample_in_atom(goal) if aim_goal and goal is not None else None
             if s is None:
                 aim_goal = False
-                s = rng.uniform(*self.workspace)
+                if self._sensing.shape[0] and rng.random() < 0.5 * opt.goal_bias:
+                    width = self.workspace[1] - self.workspace[0]
+                    s = self._sensing[int(rng.integers(self._sensing.shape[0]))] + 0.05 * width * (
+                        rng.random(sys.n) - 0.5
+                    )
+                else:
+                    s = rng.uniform(*self.workspace)
             pool = act
             if goal is not None and not aim_goal:
                 # Nodes already at the goal are only extended toward the goal: an exploration
@@ -342,7 +412,7 @@ class BeliefSampler:
             node = self._select(tree, pool, s, goal)
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             cur = node
-            for _ in range(steps):
+            for j in range(steps):
                 k = int(tree.k[cur]) + 1
                 if k > H:
                     break
@@ -351,7 +421,8 @@ class BeliefSampler:
                 if not allowed:
                     break
                 q = allowed[0] if len(allowed) == 1 else int(rng.choice(allowed))
-                u = self._steer(q, tree.mean[cur], s)
+                # Dead-beat toward the sample: as fast as the dynamics allow, clipped to the domain.
+                u = self._steer(q, tree.mean[cur], s, min(steps - j, self._index[q]))
                 mean, cov = belief_step(modes[q], tree.mean[cur], tree.cov[cur], u)
                 truth = abs_.truth(mean, cov, q)
                 pid = int(tree.plan[cur])
@@ -424,6 +495,26 @@ class BeliefSampler:
             return  # dominated: the new node stays as an interior node only
         tree.active[close] = False
         tree.active[leaf] = True
+
+
+def _halton(count: int, dim: int) -> np.ndarray:
+    """The first ``count`` points (from index 1) of the ``dim``-dimensional Halton sequence in [0, 1)."""
+    primes: list[int] = []
+    c = 2
+    while len(primes) < dim:
+        if all(c % p for p in primes):
+            primes.append(c)
+        c += 1
+    out = np.zeros((count, dim))
+    for d, base in enumerate(primes):
+        for i in range(count):
+            f, r, k = 1.0, 0.0, i + 1
+            while k:
+                f /= base
+                r += f * (k % base)
+                k //= base
+            out[i, d] = r
+    return out
 
 
 def _bucket(run: np.ndarray | int) -> np.ndarray:
