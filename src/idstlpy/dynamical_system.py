@@ -89,6 +89,16 @@ class LCS(DynamicalSystem):
         nx = self.noise(x)
         return nx @ nx.T
 
+    @property
+    def noise_floor(self) -> np.ndarray:
+        """A matrix ``F`` (p, p) with ``R(x) >= F`` (Loewner order) for every state ``x``.
+
+        Exact for constant noise; for state-dependent noise the declared ``V_floor`` (zero when
+        none was declared). Sound lower bounds on the covariance (proofs that a confidence is out
+        of reach) are computed with it.
+        """
+        return np.zeros((self.p, self.p))
+
     def step(self, x: Any, u: Any) -> np.ndarray:
         """Noise-free successor ``A x + B u``."""
         return self.A @ x + self.B @ u
@@ -155,6 +165,10 @@ class POLBSWithLinNoise(POLBS):
     def noise_cov(self, x: Any) -> np.ndarray:
         return self._R
 
+    @property
+    def noise_floor(self) -> np.ndarray:
+        return self._R
+
 
 class POLBSWithNonLinNoise(POLBS):
     """POLBS whose noise matrix is a function of the state, ``n(x)`` of shape (p, r).
@@ -163,12 +177,28 @@ class POLBSWithNonLinNoise(POLBS):
     return raises :class:`~idstlpy.errors.NoiseFunctionError` naming ``V``.
     """
 
-    def __init__(self, A: Any, B: Any, W: Any, C: Any, V: Callable[[np.ndarray], Any]) -> None:
+    def __init__(
+        self, A: Any, B: Any, W: Any, C: Any, V: Callable[[np.ndarray], Any], V_floor: Any = None
+    ) -> None:
         super().__init__(A, B, W, C)
         if not callable(V):
             raise InvalidTypeError(f"V must be a matrix or a callable, got {type(V).__name__}")
         self.V = V
         self._cols: int | None = None
+        self._floor = _as_floor(V_floor, self.p)
+
+    @property
+    def noise_floor(self) -> np.ndarray:
+        return self._floor
+
+    def noise_cov(self, x: Any) -> np.ndarray:
+        nx = self.noise(x)
+        R = nx @ nx.T
+        if self._floor.any() and np.linalg.eigvalsh(R - self._floor).min() < -1e-9 * (1 + np.abs(R).max()):
+            raise NoiseFunctionError(
+                f"noise function V returned R(x) = n(x) n(x)' below its declared V_floor at x={x}"
+            )
+        return R
 
     @property
     def has_state_dependent_noise(self) -> bool:
@@ -292,7 +322,24 @@ def mk_lcs(A: Any, B: Any) -> LCS:
     return LCS(A, B)
 
 
-def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None) -> LBS:
+def _as_floor(value: Any, p: int) -> np.ndarray:
+    """A declared lower bound on ``R(x)``: ``None`` (zero), ``s`` (``s^2 I``) or a (p, p) PSD matrix."""
+    if value is None:
+        return np.zeros((p, p))
+    if isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool):
+        s = float(value)
+        if not np.isfinite(s) or s < 0:
+            raise InvalidArgumentError(
+                f"V_floor must be a non-negative number or a (p, p) matrix, got {value!r}"
+            )
+        return s * s * np.eye(p)
+    F = as_matrix(value, "V_floor", (p, p))
+    if not np.allclose(F, F.T) or np.linalg.eigvalsh(0.5 * (F + F.T)).min() < -1e-12:
+        raise InvalidArgumentError("V_floor must be symmetric positive semi-definite")
+    return 0.5 * (F + F.T)
+
+
+def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None, V_floor: Any = None) -> LBS:
     """Linear belief system, observed when ``C`` is given.
 
     Parameters
@@ -306,11 +353,18 @@ def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None) -> LBS:
     V : array_like of shape (p, r), or callable x -> (p, r) array, optional
         Observation noise matrix ``n(x)``; constant gives :class:`POLBSWithLinNoise`, a
         function gives :class:`POLBSWithNonLinNoise`. ``None`` with ``C`` means a noise-free sensor.
+    V_floor : float or array_like of shape (p, p), optional
+        For a callable ``V``: a declared lower bound on ``R(x) = n(x) n(x)'`` over every state (a
+        number ``s`` means ``s^2 I``). It lets the solver prove that a confidence is out of reach
+        (``infeasible`` instead of a search to the time limit); every evaluation of ``V`` is
+        checked against it.
 
     Returns
     -------
     LBS, POLBSWithLinNoise or POLBSWithNonLinNoise
     """
+    if V_floor is not None and not callable(V):
+        raise InvalidArgumentError("V_floor is only for a state-dependent (callable) V")
     if C is None:
         if V is not None:
             raise InvalidArgumentError("V (observation noise) was given without C (output matrix)")
@@ -319,7 +373,7 @@ def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None) -> LBS:
         C_arr = as_matrix(C, "C")
         return POLBSWithLinNoise(A, B, W, C_arr, np.zeros((C_arr.shape[0], C_arr.shape[0])))
     if callable(V):
-        return POLBSWithNonLinNoise(A, B, W, C, V)
+        return POLBSWithNonLinNoise(A, B, W, C, V, V_floor)
     return POLBSWithLinNoise(A, B, W, C, V)
 
 
