@@ -300,3 +300,27 @@ def test_result_round_trips_through_json(tmp_path):
     assert json.loads(text)["margin"] is None
     with pytest.raises(InvalidArgumentError, match="schema"):
         stl.SolveResult.from_dict({"status": "found"})
+
+
+def test_a_declared_noise_floor_proves_an_unreachable_confidence_quickly():
+    p = light_dark()
+
+    def make(floor):
+        mode = stl.dynamical_system.mk_lbs(
+            A=np.eye(2),
+            B=0.25 * np.eye(2),
+            W=0.1 * np.eye(2),
+            C=np.eye(2),
+            V=lambda s: (0.1 * (5 - s[0]) ** 2 + 0.5) * np.eye(2),
+            V_floor=floor,
+        )
+        return stl.Problem(stl.mk_switched_sys([mode]), p.control_domain, p.initial_state, p.stl_formula)
+
+    # Steady state under the best sensing (R >= 0.25 I, W W' = 0.01 I): variance 0.046, std 0.21,
+    # above the 0.152 the target's 95% faces leave: no plan exists.
+    result = make(0.5).solve_result(rrt_timeout=5, seed=0)
+    assert result.status == "infeasible" and "target" in result.reason
+    assert result.stats.time_total < 5
+    # A floor the function breaks is caught where V is evaluated.
+    with pytest.raises(stl.NoiseFunctionError, match="V_floor"):
+        make(0.9).switched_system.system_modes[0].noise_cov(np.array([5.0, 0.0]))

@@ -8,13 +8,13 @@ non-negative), so a step that no mean can make is impossible for every belief.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.sparse import csr_matrix
 
 from ..backends import Backend, HighsBackend, LinearModel
-from ..chance import slack
+from ..chance import slack, std_terms
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
 from .interfaces import Budget
@@ -39,12 +39,16 @@ class PruningReport:
         (``q = -1``: of any mode).
     initial_false : list of int
         Propositions the initial belief does not satisfy.
+    out_of_reach : dict of int to str
+        Propositions no belief can satisfy at any step ``>= 1`` (their confidence needs less
+        covariance than a sound lower bound allows), with the proof in words.
     """
 
     empty_atoms: list[int]
     disjoint_pairs: list[tuple[int, int]]
     impossible_steps: list[tuple[int, int, int]]
     initial_false: list[int]
+    out_of_reach: dict[int, str] = field(default_factory=dict)
 
 
 class Abstraction:
@@ -130,6 +134,54 @@ class Abstraction:
             r = self.region(i)
             cache[i] = np.inf if not r.H.shape[0] or r.is_empty() else r.chebyshev_center()[1]
         return cache[i]
+
+    def out_of_reach(
+        self,
+        system,
+        initial_cov: np.ndarray,
+        horizon: int,
+        budget: Budget | None = None,
+        max_steps: int = 5000,
+    ) -> dict[int, str]:
+        """Propositions whose confidence no reachable belief meets at any step ``1..horizon``.
+
+        For a single-mode system the covariance schedule does not depend on the plan's inputs;
+        with state-dependent noise, the update with the noise's floor (``mode.noise_floor``)
+        bounds it from below (the Riccati update is monotone in ``R`` and in the prior). A
+        proposition whose region, shrunk by the *smallest* standard-deviation terms over the
+        horizon, is empty cannot hold at any step. The schedule is rolled until it settles
+        (or the horizon); a schedule still shrinking at ``max_steps`` proves nothing.
+        """
+        if system.num_modes != 1 or not self.num_atoms:
+            return {}
+        from .plan_lp import covariance_schedule
+
+        steps = min(horizon, max_steps)
+        covs, _ = covariance_schedule(system.system_modes, initial_cov, np.zeros(steps, dtype=int), budget)
+        tail = covs[1:]
+        if steps < horizon:
+            last, prev = tail[-1], tail[-2] if steps > 1 else initial_cov
+            if np.abs(last - prev).max() > 1e-12 * (1.0 + np.abs(last).max()):
+                return {}  # still changing: later steps could do better
+        out: dict[int, str] = {}
+        for i, ap in enumerate(self.atoms):
+            if not ap.predicates:
+                continue
+            cone = ap.cone
+            terms = std_terms(cone.H, cone.z, tail)  # (K, F)
+            best = terms.min(axis=0)
+            if not np.all(np.isfinite(best)):
+                out[i] = f"{self.names()[i]} needs zero variance (eps = 0) but every step has some"
+                continue
+            region = Polytope(cone.H, cone.c + best)
+            if region.is_empty():
+                sd = float(np.sqrt(np.trace(tail[-1]) / tail.shape[1]))
+                out[i] = (
+                    f"the confidence of {self.names()[i]} is out of reach: even the smallest covariance "
+                    f"a belief can have (a sound lower bound; rms std {sd:.3g} at the last step checked) "
+                    f"leaves no mean inside it"
+                )
+        return out
 
     # -- pruning ------------------------------------------------------------------------------------
     def prune(

@@ -119,7 +119,15 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
             lp_backend,
             (scaling.dx, scaling.du),
         )
-    stats.pruned_letters = len(report.empty_atoms) + len(report.disjoint_pairs) + len(report.initial_false)
+        report.out_of_reach = abstraction.out_of_reach(
+            system, init.cov, min(formula.horizon, options.max_plan_length), budget
+        )
+    stats.pruned_letters = (
+        len(report.empty_atoms)
+        + len(report.disjoint_pairs)
+        + len(report.initial_false)
+        + len(report.out_of_reach)
+    )
     stats.pruned_steps = len(report.impossible_steps)
     proposer = BMCProposer(formula, abstraction, system.num_modes, report, options, budget, stats)
     try:

@@ -55,7 +55,8 @@ def covariance_schedule(
     covs : ndarray, shape (K + 1, n, n)
     exact : bool
         False when some step uses a mode with state-dependent noise (its covariance is then the
-        zero-observation-noise lower bound).
+        lower bound obtained with the noise's floor, ``R = mode.noise_floor``: the update is
+        monotone in ``R``).
     """
     K = actions.shape[0]
     n = cov0.shape[0]
@@ -71,8 +72,8 @@ def covariance_schedule(
         if mode.p == 0:
             covs[k + 1] = P
         elif mode.has_state_dependent_noise:
-            exact = False
-            covs[k + 1] = kalman_update(mode, zero_mean, P, R=np.zeros((mode.p, mode.p)))[1]
+            exact = False  # the declared floor of R(x) (zero if none) gives a lower bound
+            covs[k + 1] = kalman_update(mode, zero_mean, P, R=mode.noise_floor)[1]
         else:
             covs[k + 1] = kalman_update(mode, zero_mean, P)[1]
     return covs, exact

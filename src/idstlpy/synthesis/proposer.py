@@ -159,6 +159,9 @@ class BMCProposer:
                 enc.add_clause(clause)
         for i in rep.initial_false:
             enc.add_clause([-int(enc.p[i, 0])])
+        for i in rep.out_of_reach:
+            for k in range(1, H + 1):
+                enc.add_clause([-int(enc.p[i, k])])
 
     def _enc(self) -> BMCEncoder:
         if self.enc is None:  # only when the formula needs longer plans than allowed
@@ -292,6 +295,10 @@ class BMCProposer:
             names = self.abs.names()
             bad = ", ".join(names[i] for i in self.report.initial_false)
             return f"the initial belief does not satisfy what the formula requires at step 0 ({bad})"
+        for i in self.report.out_of_reach:
+            truth[i, 1:] = False
+        if self.report.out_of_reach and extract_witness(self.formula, truth, self.abs.index) is None:
+            return "; ".join(self.report.out_of_reach.values())
         return "LP pruning (disjoint regions, impossible one-step moves) excludes every discrete plan"
 
     def block(self, conflict: Conflict) -> None:
