@@ -44,6 +44,9 @@ from .teacher import execution_margin, solve_plan_lp
 
 __all__ = ["BeliefSampler", "SamplerOutcome", "SamplerTeacher"]
 
+_FOCUS = 0.75
+"""Probability that an iteration extends only the most advanced lineages (see ``_events``)."""
+
 logger = logging.getLogger(__name__)
 
 
@@ -85,9 +88,10 @@ class _Tree:
         self.truth = grow(g(self, "truth", None), (self.a,), bool)
         self.run = grow(g(self, "run", None), (), np.int64)
         self.plan = grow(g(self, "plan", None), (), np.int64)
+        self.stage = grow(g(self, "stage", None), (), np.int64)
         self.cap = cap
 
-    def add(self, mean, cov, k, parent, action, control, truth, plan) -> int:
+    def add(self, mean, cov, k, parent, action, control, truth, plan, stage=0) -> int:
         if self.size == self.cap:
             self._alloc(2 * self.cap)
         i = self.size
@@ -100,6 +104,7 @@ class _Tree:
         same = parent >= 0 and np.array_equal(self.truth[parent], truth)
         self.run[i] = self.run[parent] + 1 if same else 0
         self.plan[i] = plan
+        self.stage[i] = stage
         self.active[i] = False
         self.size += 1
         return i
@@ -138,6 +143,9 @@ class BeliefSampler:
         self._index = [
             self._controllability_index(mode, options.max_num_of_steps) for mode in self.system.system_modes
         ]
+        self._full_rank = [
+            np.linalg.matrix_rank(mode.B) >= self.system.n for mode in self.system.system_modes
+        ]
         self._regions = [abstraction.region(i) for i in range(abstraction.num_atoms)]
         self._boxes = []
         self._centers = []
@@ -159,12 +167,11 @@ class BeliefSampler:
 
     @staticmethod
     def _steering_gains(mode: Any, horizon: int) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per ``h = 1..horizon``: ``(A^h, G_h)`` where ``G_h`` maps ``target - A^h x`` to the first
-        input of the least-norm ``h``-step input sequence reaching ``target`` (pseudo-inverse of
-        the ``h``-step controllability matrix): steering that respects any linear dynamics.
+        """Per ``h = 1..horizon``: ``(A^h, G_h)`` where ``G_h`` maps ``target - A^h x`` to the
+        least-norm ``h``-step input sequence reaching ``target`` (pseudo-inverse of the ``h``-step
+        controllability matrix, shape (h m, n)): steering that respects any linear dynamics.
         """
         A, B = mode.A, mode.B
-        m = B.shape[1]
         out = []
         blocks: list[np.ndarray] = []  # [A^{h-1} B, ..., A B, B] built up one power at a time
         Ah = np.eye(A.shape[0])
@@ -172,7 +179,7 @@ class BeliefSampler:
             blocks = [A @ blk for blk in blocks] + [B]
             Ah = A @ Ah
             ctrl = np.hstack(blocks)
-            out.append((Ah.copy(), np.linalg.pinv(ctrl)[:m]))
+            out.append((Ah.copy(), np.linalg.pinv(ctrl)))
         return out
 
     @staticmethod
@@ -218,6 +225,25 @@ class BeliefSampler:
         return low - pad, high + pad
 
     # -- sampling ---------------------------------------------------------------------------------
+    def _events(self, plan: DiscretePlan) -> tuple[np.ndarray, np.ndarray]:
+        """The plan's key events: ``(steps, atoms)``, sorted, where a region becomes required.
+
+        A node follows a plan consistent with its realised prefix, and re-timing defers what it
+        has not achieved, so the number of events at or before a node's step counts the goals
+        it has really reached in order: its *stage*.
+        """
+        req = plan.required
+        steps, atoms = [], []
+        for i in range(req.shape[0]):
+            if not self.abs.atoms[i].predicates:
+                continue
+            row = req[i]
+            starts = np.nonzero(row[1:] & ~row[:-1])[0] + 1
+            steps.extend(starts.tolist())
+            atoms.extend([i] * starts.size)
+        order = np.lexsort((np.asarray(atoms, dtype=int), np.asarray(steps, dtype=int)))
+        return np.asarray(steps, dtype=int)[order], np.asarray(atoms, dtype=int)[order]
+
     def _goal_atoms(self, plan: DiscretePlan) -> list[int]:
         """Atoms of the plan ordered by the step they are first required (excluding step 0)."""
         firsts = []
@@ -252,10 +278,28 @@ class BeliefSampler:
 
     # -- steering ---------------------------------------------------------------------------------
     def _steer(self, q: int, mean: np.ndarray, target: np.ndarray, remaining: int = 1) -> np.ndarray:
-        """Input toward ``target``, to be reached in ``remaining`` steps, pulled into the domain."""
+        """Input toward ``target`` within ``remaining`` steps, pulled into the control domain.
+
+        The fastest least-norm input sequence whose inputs all lie in the domain (the smallest
+        feasible ``h`` from the controllability index up to ``remaining``); when none does, a
+        fully actuated mode pushes as hard as it can (clipped dead-beat) and an under-actuated
+        one spreads the effort over ``remaining`` steps, so that it can still brake.
+        """
         gains = self._gains[q]
-        Ah, G = gains[min(max(remaining, 1), len(gains)) - 1]
-        u = G @ (target - Ah @ mean)
+        m = self.system.m
+        lo = min(self._index[q], len(gains))
+        hi = min(max(remaining, lo), len(gains))
+        u = None
+        for h in range(lo, hi + 1):
+            Ah, G = gains[h - 1]
+            seq = (G @ (target - Ah @ mean)).reshape(h, m)
+            if np.all(seq @ self.UH.T + self.Uc <= 1e-12):
+                return np.asarray(seq[0])
+            if h == lo and self._full_rank[q]:
+                u = seq[0]
+        if u is None:
+            Ah, G = gains[hi - 1]
+            u = (G @ (target - Ah @ mean))[:m]
         slack = self.UH @ u + self.Uc
         if np.all(slack <= 0):
             return u
@@ -320,7 +364,7 @@ class BeliefSampler:
                 mean, target = means[i], means[j]
                 cut_u = []
                 for t in range(j - i - 1):
-                    u = self._steer(q, mean, target, min(j - i - 1 - t, self._index[q]))
+                    u = self._steer(q, mean, target, j - i - 1 - t)
                     cut_u.append(u)
                     mean = modes[q].A @ mean + modes[q].B @ u
                     if np.linalg.norm(mean - target) <= 1e-9 * (1.0 + np.linalg.norm(target)):
@@ -370,7 +414,7 @@ class BeliefSampler:
         root = tree.add(init.mean, init.cov, 0, -1, -1, None, abs_.truth(init.mean, init.cov, -1), 0)
         tree.active[root] = True
         H = self.proposer.cap
-        goal_cache: dict[int, int | None] = {}
+        events = [self._events(plan)]
         iters = 0
         capped = False
         while iters < iterations:
@@ -381,17 +425,15 @@ class BeliefSampler:
             act = np.nonzero(tree.active[: tree.size])[0]
             if act.size == 0:
                 break
-            # Goal: the first atom, in plan order, that no active node satisfies yet (else the last).
-            pid = int(tree.plan[act[int(np.argmin(tree.unc[act]))]])
-            if pid not in goal_cache:
-                goal_cache[pid] = None
-                order = self._goal_atoms(plans[pid])
-                goal_cache[pid] = order[-1] if order else None
-                for i in order:
-                    if not np.any(tree.truth[act, i]):
-                        goal_cache[pid] = i
-                        break
-            goal = goal_cache[pid]
+            # Mostly extend the lineages that have reached the most goals, in order, toward their
+            # next one; sometimes the whole tree (exploration, e.g. a sensing detour).
+            if rng.random() < _FOCUS:
+                stages = tree.stage[act]
+                act = act[stages == stages.max()]
+            ref = int(act[int(np.argmin(tree.unc[act]))])
+            ev_steps, ev_atoms = events[int(tree.plan[ref])]
+            st = int(tree.stage[ref])
+            goal: int | None = int(ev_atoms[min(st, ev_atoms.size - 1)]) if ev_atoms.size else None
             aim_goal = goal is not None and rng.random() < opt.goal_bias
             s = self._sample_in_atom(goal) if aim_goal and goal is not None else None
             if s is None:
@@ -421,8 +463,7 @@ class BeliefSampler:
                 if not allowed:
                     break
                 q = allowed[0] if len(allowed) == 1 else int(rng.choice(allowed))
-                # Dead-beat toward the sample: as fast as the dynamics allow, clipped to the domain.
-                u = self._steer(q, tree.mean[cur], s, min(steps - j, self._index[q]))
+                u = self._steer(q, tree.mean[cur], s, steps - j)
                 mean, cov = belief_step(modes[q], tree.mean[cur], tree.cov[cur], u)
                 truth = abs_.truth(mean, cov, q)
                 pid = int(tree.plan[cur])
@@ -431,8 +472,10 @@ class BeliefSampler:
                     if new is None:
                         break
                     plans.append(new)
+                    events.append(self._events(new))
                     pid = len(plans) - 1
-                cur = tree.add(mean, cov, k, cur, q, u, truth, pid)
+                stage = int(np.searchsorted(events[pid][0], k, side="right"))
+                cur = tree.add(mean, cov, k, cur, q, u, truth, pid, stage)
             if cur == node:
                 continue
             leaf = cur
@@ -449,6 +492,15 @@ class BeliefSampler:
             iters,
             tree.size,
         )
+        if logger.isEnabledFor(logging.DEBUG):
+            names = abs_.names()
+            held = tree.truth[: tree.size]
+            logger.debug(
+                "sampler tree: nodes per proposition %s; deepest step %d; plans %d",
+                {names[i]: int(held[:, i].sum()) for i in range(abs_.num_atoms)},
+                int(tree.k[: tree.size].max()),
+                len(plans),
+            )
         return SamplerOutcome(None, None, tree.size, iters, capped)
 
     def _select(self, tree: _Tree, pool: np.ndarray, s: np.ndarray, goal: int | None) -> int:
