@@ -280,26 +280,26 @@ class BeliefSampler:
     def _steer(self, q: int, mean: np.ndarray, target: np.ndarray, remaining: int = 1) -> np.ndarray:
         """Input toward ``target`` within ``remaining`` steps, pulled into the control domain.
 
-        The fastest least-norm input sequence whose inputs all lie in the domain (the smallest
-        feasible ``h`` from the controllability index up to ``remaining``); when none does, a
-        fully actuated mode pushes as hard as it can (clipped dead-beat) and an under-actuated
-        one spreads the effort over ``remaining`` steps, so that it can still brake.
+        A fully actuated mode pushes as hard as it can (the one-step least-norm input, clipped:
+        the fastest). An under-actuated one takes the fastest least-norm input sequence whose
+        inputs all lie in the domain (the smallest feasible ``h`` from the controllability index
+        up to ``remaining``), else spreads the effort over ``remaining`` steps, so that it can
+        still brake (clipped dead-beat sends a double integrator out of its workspace).
         """
         gains = self._gains[q]
         m = self.system.m
         lo = min(self._index[q], len(gains))
-        hi = min(max(remaining, lo), len(gains))
+        hi = min(max(remaining, lo), len(gains)) if not self._full_rank[q] else lo
         u = None
         for h in range(lo, hi + 1):
             Ah, G = gains[h - 1]
             seq = (G @ (target - Ah @ mean)).reshape(h, m)
             if np.all(seq @ self.UH.T + self.Uc <= 1e-12):
                 return np.asarray(seq[0])
-            if h == lo and self._full_rank[q]:
+            if h == hi:
                 u = seq[0]
-        if u is None:
-            Ah, G = gains[hi - 1]
-            u = (G @ (target - Ah @ mean))[:m]
+        if u is None:  # pragma: no cover - the loop always runs at least once
+            u = np.zeros(m)
         slack = self.UH @ u + self.Uc
         if np.all(slack <= 0):
             return u
