@@ -95,6 +95,9 @@ class BackendSolution:
         LP duals of the rows, sign convention ``d objective / d row bound`` (``<= 0`` on an
         active upper bound of a minimisation).
     message : str
+    bound : float
+        For a MILP, the best proven lower bound on the objective (``nan`` when unknown); equal
+        to ``objective`` at a proven optimum.
     """
 
     status: SolutionStatus
@@ -102,6 +105,7 @@ class BackendSolution:
     objective: float = float("nan")
     row_duals: np.ndarray | None = None
     message: str = ""
+    bound: float = float("nan")
 
 
 class Backend(Protocol):
@@ -179,7 +183,9 @@ class HighsBackend:
         else:
             status = "error"
         fun = float(res.fun) if res.fun is not None else float("nan")
-        return BackendSolution(status, res.x, fun, None, str(res.message))
+        bound = getattr(res, "mip_dual_bound", None)
+        bound = float(bound) if bound is not None else (fun if status == "optimal" else float("nan"))
+        return BackendSolution(status, res.x, fun, None, str(res.message), bound)
 
     @staticmethod
     def _lp(model: LinearModel, limit: float) -> BackendSolution:
