@@ -63,6 +63,10 @@ class MILPOutcome:
     controls : ndarray, shape (H, m), or None
     claims : ndarray of bool, shape (n_atoms, H + 1), or None
     why : str
+    value, bound : float
+        The objective's value and the solver's proven bound (``nan`` without an objective).
+    proven : bool
+        True when the MILP proved its solution optimal (within the bound it was built for).
     """
 
     def __init__(
@@ -78,6 +82,9 @@ class MILPOutcome:
         self.controls = controls
         self.claims = claims
         self.why = why
+        self.value = float("nan")
+        self.bound = float("nan")
+        self.proven = False
 
 
 def _support_points(U: Any) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
@@ -154,6 +161,8 @@ def solve_milp(
     scaling: Scaling,
     backend: Backend,
     budget: Budget,
+    objective: str | None = None,
+    effort_weights: np.ndarray | None = None,
 ) -> MILPOutcome:
     """Solve the bounded synthesis problem as one MILP (single mode, mean-independent covariance).
 
@@ -170,10 +179,17 @@ def solve_milp(
     backend : Backend
         A MILP-capable back-end.
     budget : Budget
+    objective : {None, "effort", "margin", "time"}
+        ``None``: any feasible plan. ``"effort"``: least ``sum_k sum_j w_j |u_kj|``;
+        ``"margin"``: largest robustness (smallest raw slack of the claimed faces);
+        ``"time"``: fewest steps (the trace length is free instead of the whole bound).
+    effort_weights : ndarray, shape (m,), optional
+        Per-input weights of ``"effort"`` (default ones).
 
     Returns
     -------
     MILPOutcome
+        With ``value`` and ``bound`` of the objective when one is given.
     """
     H = enc.H
     n, m = system.n, system.m
@@ -189,7 +205,10 @@ def solve_milp(
     covs = rows.covs
     nb = enc.num_vars
     nx, nu = H * n, H * m
-    nvar = nb + nx + nu
+    nt = 1 if objective == "margin" else 0
+    na = nu if objective == "effort" else 0
+    tcol, acol = nb + nx + nu, nb + nx + nu + nt
+    nvar = nb + nx + nu + nt + na
 
     blocks, lo, hi = [], [], []
 
@@ -210,12 +229,22 @@ def solve_milp(
         hi.append(np.full(len(clauses), np.inf))
 
     # Dynamics and control domain (scaled, as in the plan LP).
-    blocks.append(hstack([csr_matrix((rows.A_eq.shape[0], nb)), rows.A_eq]).tocsr())
-    lo.append(rows.b_eq)
-    hi.append(rows.b_eq)
-    blocks.append(hstack([csr_matrix((rows.A_U.shape[0], nb)), rows.A_U]).tocsr())
-    lo.append(np.full(rows.A_U.shape[0], -np.inf))
-    hi.append(rows.b_U)
+    for part in (rows.A_eq, rows.A_U):
+        blocks.append(
+            hstack([csr_matrix((part.shape[0], nb)), part, csr_matrix((part.shape[0], nt + na))]).tocsr()
+        )
+    lo += [rows.b_eq, np.full(rows.A_U.shape[0], -np.inf)]
+    hi += [rows.b_eq, rows.b_U]
+    if na:
+        # a_kj >= +-u_kj in problem units (u = du * u~).
+        du = np.tile(scaling.du, H)
+        idx = np.arange(na)
+        pos = csr_matrix((du, (idx, nb + nx + idx)), shape=(na, nvar))
+        neg = csr_matrix((-du, (idx, nb + nx + idx)), shape=(na, nvar))
+        aux = csr_matrix((-np.ones(na), (idx, acol + idx)), shape=(na, nvar))
+        blocks += [(pos + aux).tocsr(), (neg + aux).tocsr()]
+        lo.append(np.full(2 * na, -np.inf))
+        hi.append(np.zeros(2 * na))
 
     # Big-M implications p[i, k] -> faces of proposition i at step k (normalised rows).
     F = abstraction.H
@@ -238,6 +267,9 @@ def solve_milp(
         G = F * dx[None, :]
         g = np.linalg.norm(G, axis=1)
         g = np.where(g > 0, g, 1.0)
+        # The margin t (raw slack, the monitor's units) is capped at t_cap; an optimum at the cap
+        # is reported as not proven.
+        t_cap = 10.0 * float(np.max(dx)) * float(np.max(np.linalg.norm(F, axis=1))) if nt else 0.0
         r_idx, c_idx, vals, ub = [], [], [], []
         row = 0
         for k in range(1, H + 1):
@@ -249,7 +281,7 @@ def solve_milp(
                 box_max = np.where(F > 0, F * inv_high[k], F * inv_low[k])
             box_max = np.where(F == 0, 0.0, box_max).sum(axis=1)
             with np.errstate(invalid="ignore"):
-                big = np.maximum(np.minimum(reach_max[k], box_max) - bound, 0.0) / g
+                big = np.maximum(np.minimum(reach_max[k], box_max) + t_cap - bound, 0.0) / g
             p_cols = enc.p[abstraction.owner, k] - 1
             for f in range(F.shape[0]):
                 if not np.isfinite(bound[f]):
@@ -268,6 +300,10 @@ def solve_milp(
                 r_idx.extend([row] * (n + 1))
                 c_idx.extend(list(range(nb + (k - 1) * n, nb + k * n)) + [int(p_cols[f])])
                 vals.extend(list(G[f] / g[f]) + [float(big[f]) / (1.0 - _INT_TOL)])
+                if nt:
+                    r_idx.append(row)
+                    c_idx.append(tcol)
+                    vals.append(1.0 / g[f])
                 ub.append(bound[f] / g[f] + big[f])
                 row += 1
         if row:
@@ -276,11 +312,21 @@ def solve_milp(
             hi.append(np.array(ub))
 
     A_all = vstack(blocks).tocsr()
-    lower = np.concatenate([np.zeros(nb), np.full(nx + nu, -np.inf)])
-    upper = np.concatenate([np.ones(nb), np.full(nx + nu, np.inf)])
-    # The trace is the whole bound: every step exists (a shorter plan extends to it).
+    lower = np.concatenate([np.zeros(nb), np.full(nx + nu, -np.inf), np.zeros(nt + na)])
+    upper = np.concatenate([np.ones(nb), np.full(nx + nu, np.inf), np.full(nt + na, np.inf)])
+    if nt:
+        upper[tcol] = t_cap if F.shape[0] else 0.0
     alive = np.asarray(enc.alive[: H + 1]) - 1
-    lower[alive] = 1.0
+    cost = np.zeros(nvar)
+    if objective == "time":
+        cost[alive[1:]] = 1.0  # the trace length is free: count the steps that exist
+    else:
+        lower[alive] = 1.0  # the trace is the whole bound: a shorter plan extends to it
+    if nt:
+        cost[tcol] = -1.0
+    if na:
+        w = np.ones(m) if effort_weights is None else np.asarray(effort_weights, dtype=float)
+        cost[acol:] = np.tile(w, H)
     upper[enc.alive[H + 1] - 1] = 0.0
     upper[enc.selector - 1] = 0.0  # abandoned candidates are not proofs: their clauses are off
     # Only the letters branch: every gate is a full Tseitin equivalence of its inputs, so it is
@@ -289,15 +335,21 @@ def solve_milp(
     for letters in (np.asarray(enc.alive), enc.p.ravel(), enc.m.ravel()):
         integrality[np.asarray(letters, dtype=np.int64) - 1] = 1
     logger.info("MILP: %d binaries, %d continuous, %d rows", int(integrality.sum()), nx + nu, A_all.shape[0])
-    model = LinearModel(
-        np.zeros(nvar), A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality
-    )
+    model = LinearModel(cost, A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality)
     sol = backend.solve(model, max(budget.remaining(), 1e-3))
-    if sol.status == "optimal" and sol.x is not None:
-        z = sol.x[nb:]
-        controls = z[nx:].reshape(H, m) * scaling.du
+    if sol.status in ("optimal", "time_limit") and sol.x is not None:
+        controls = sol.x[nb + nx : nb + nx + nu].reshape(H, m) * scaling.du
         claims = np.round(sol.x[enc.p - 1]).astype(bool) if enc.p.size else np.zeros((0, H + 1), bool)
-        return MILPOutcome("found", actions, controls, claims)
+        out = MILPOutcome("found", actions, controls, claims)
+        out.proven = sol.status == "optimal"
+        if objective == "margin":
+            out.value, out.bound = float(sol.x[tcol]), -float(sol.bound)
+            out.proven = out.proven and out.value < t_cap * (1 - 1e-9)
+        elif objective == "effort":
+            out.value, out.bound = float(sol.objective), float(sol.bound)
+        elif objective == "time":
+            out.value, out.bound = float(sol.objective), float(sol.bound)
+        return out
     if sol.status == "infeasible":
         return MILPOutcome("infeasible", why="the MILP is infeasible")
     logger.info("MILP stopped: %s", sol.message)

@@ -139,7 +139,10 @@ class PlanRows:
         One row per required face, normalised: ``face_H z + face_off <= 0`` is the face.
     face_off : ndarray, shape (R,)
     face_norm : ndarray, shape (R,)
-        ``||h|| / ||h * dx||`` per face: converts a margin in state units to scaled rows.
+        ``||h|| / ||h * dx||`` per face: converts a distance in state units to scaled rows.
+    face_unit : ndarray, shape (R,)
+        ``1 / ||h * dx||`` per face: converts a raw slack ``-(h'x + c + ...)`` (the monitor's
+        robustness units) to scaled rows.
     face_owner : ndarray, shape (R,)
         Index into ``requirements`` of each face row.
     requirements : list of (step, atom)
@@ -159,6 +162,7 @@ class PlanRows:
     face_H: csr_matrix
     face_off: np.ndarray
     face_norm: np.ndarray
+    face_unit: np.ndarray
     face_owner: np.ndarray
     requirements: list[tuple[int, int]]
     impossible: list[tuple[int, int]]
@@ -254,7 +258,7 @@ def build_plan_rows(
     b_U = np.tile(-Uc, K)
 
     # Required faces.
-    rows, cols, vals, off, norms, owner = [], [], [], [], [], []
+    rows, cols, vals, off, norms, units, owner = [], [], [], [], [], [], []
     impossible: list[tuple[int, int]] = []
     r = 0
     for idx, (k, i) in enumerate(requirements):
@@ -275,6 +279,7 @@ def build_plan_rows(
             vals.append(G[f] / g[f])
             off.append((cone.c[f] + terms[f]) / g[f])
             norms.append(np.linalg.norm(cone.H[f]) / g[f])
+            units.append(1.0 / g[f])
             owner.append(idx)
             r += 1
     face_H = _sparse(rows, cols, vals, r, ncol)
@@ -289,6 +294,7 @@ def build_plan_rows(
         face_H,
         np.asarray(off, dtype=float),
         np.asarray(norms, dtype=float),
+        np.asarray(units, dtype=float),
         np.asarray(owner, dtype=int),
         list(requirements),
         impossible,

@@ -95,6 +95,8 @@ def solve_plan_lp(
     backend: Backend | None = None,
     time_limit: float = np.inf,
     budget: Budget | None = None,
+    objective: str | None = None,
+    effort_weights: np.ndarray | None = None,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -123,6 +125,12 @@ def solve_plan_lp(
         Wall-clock cap in seconds for each LP.
     budget : Budget, optional
         Overall wall-clock cap, checked while the rows are built.
+    objective : {None, "effort", "margin"}
+        After feasibility: ``"effort"`` minimises ``sum_k sum_j w_j |u_kj|`` while keeping the
+        execution margin; ``"margin"`` maximises the smallest slack of the required faces (the
+        monitor's robustness over this plan's requirements); ``None`` keeps the margin phase.
+    effort_weights : ndarray, shape (m,), optional
+        Per-input weights ``w`` of the effort objective (default ones).
 
     Returns
     -------
@@ -155,7 +163,7 @@ def solve_plan_lp(
     means, controls = rows.unscale(z, mean0)
     excess = float(sol.objective)
     if excess <= FEASIBLE_TOL * max(1, ns):
-        z2 = _margin_phase(rows, backend, limit, margin, anchor, trust)
+        z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights)
         if z2 is not None:
             means, controls = rows.unscale(z2, mean0)
         return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
@@ -170,6 +178,54 @@ def solve_plan_lp(
         involved = [r for r in range(ns) if slack[r] > FEASIBLE_TOL]
     conflict = [reqs[r] for r in involved]
     return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs)
+
+
+def _optimise(
+    rows: PlanRows,
+    backend: Backend,
+    limit: float,
+    margin: float,
+    anchor: np.ndarray | None,
+    trust: float,
+    objective: str | None,
+    effort_weights: np.ndarray | None,
+) -> np.ndarray | None:
+    """The phases after feasibility: the execution margin, then the objective (if any)."""
+    if rows.face_H.shape[0] == 0 and objective != "effort":
+        return None
+    dx = rows.scaling.dx
+    if objective == "margin":
+        # The monitor's robustness: the smallest raw slack, as large as the plan allows.
+        big = 1e6 * float(np.max(dx))
+        out = _phase(
+            rows, backend, limit, t_lo=0.0, t_hi=big, coef=rows.face_unit, anchor=anchor, trust=trust
+        )
+        return None if out is None else out[0]
+    t_max = max(float(margin), 1e-6 * float(np.min(dx)))
+    first = None
+    if rows.face_H.shape[0]:
+        first = _phase(
+            rows, backend, limit, t_lo=0.0, t_hi=t_max, coef=rows.face_norm, anchor=anchor, trust=trust
+        )
+    if objective != "effort":
+        return None if first is None else first[0]
+    # Keep the execution margin the first phase reached, then spend as little input as possible.
+    keep = 0.0 if first is None else max(0.0, first[1] * (1.0 - 1e-6))
+    weights = np.ones(rows.m) if effort_weights is None else np.asarray(effort_weights, dtype=float)
+    second = _phase(
+        rows,
+        backend,
+        limit,
+        t_lo=keep,
+        t_hi=max(keep, t_max),
+        coef=rows.face_norm,
+        effort=weights,
+        anchor=anchor,
+        trust=trust,
+    )
+    if second is not None:
+        return second[0]
+    return None if first is None else first[0]
 
 
 def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
@@ -196,42 +252,64 @@ def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
     return LinearModel(c, A, lo, hi, lb, ub), ns
 
 
-def _margin_phase(
+def _phase(
     rows: PlanRows,
     backend: Backend,
     limit: float,
-    margin: float,
-    anchor: np.ndarray | None,
-    trust: float,
-) -> np.ndarray | None:
-    """Maximise a uniform margin ``t`` (state units) inside every required face."""
+    *,
+    t_lo: float,
+    t_hi: float,
+    coef: np.ndarray,
+    effort: np.ndarray | None = None,
+    anchor: np.ndarray | None = None,
+    trust: float = np.inf,
+) -> tuple[np.ndarray, float] | None:
+    """One optimisation over the plan rows with a uniform margin ``t`` in ``[t_lo, t_hi]``.
+
+    Each required face reads ``face_H z + coef * t <= -face_off``. Without ``effort`` the LP
+    maximises ``t``; with per-input weights ``effort`` (shape (m,)) it minimises
+    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. Returns the
+    scaled columns and ``t``, or ``None`` when the LP has no optimum.
+    """
     R = rows.face_H.shape[0]
-    if R == 0:
-        return None
     ncol = rows.nx + rows.nu
-    dx = rows.scaling.dx
-    t_max = max(float(margin), 1e-6 * float(np.min(dx)))
-    A = vstack(
-        [
-            hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], 1))]),
-            hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], 1))]),
-            hstack([rows.face_H, csr_matrix(rows.face_norm[:, None])]),
-        ]
-    ).tocsr()
-    lo = np.concatenate([rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)])
-    hi = np.concatenate([rows.b_eq, rows.b_U, -rows.face_off])
-    c = np.concatenate([np.zeros(ncol), [-1.0]])
-    lb = np.concatenate([np.full(ncol, -np.inf), [0.0]])
-    ub = np.concatenate([np.full(ncol, np.inf), [t_max]])
+    K, m = rows.K, rows.m
+    na = K * m if effort is not None else 0
+    blocks = [
+        hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], 1 + na))]),
+        hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], 1 + na))]),
+        hstack([rows.face_H, csr_matrix(coef[:, None]), csr_matrix((R, na))]),
+    ]
+    lo = [rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)]
+    hi = [rows.b_eq, rows.b_U, -rows.face_off]
+    if effort is not None:
+        # a_kj >= +-u_kj (problem units): du_j u~_kj - a_kj <= 0 and -du_j u~_kj - a_kj <= 0.
+        du = np.tile(rows.scaling.du, K)
+        idx = np.arange(na)
+        pos = csr_matrix((du, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
+        neg = csr_matrix((-du, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
+        aux = csr_matrix((-np.ones(na), (idx, ncol + 1 + idx)), shape=(na, ncol + 1 + na))
+        blocks += [pos + aux, neg + aux]
+        lo.append(np.full(2 * na, -np.inf))
+        hi.append(np.zeros(2 * na))
+    A = vstack(blocks).tocsr()
+    c = np.zeros(ncol + 1 + na)
+    if effort is None:
+        c[ncol] = -1.0
+    else:
+        c[ncol + 1 :] = np.tile(effort, K)
+    lb = np.concatenate([np.full(ncol, -np.inf), [t_lo], np.zeros(na)])
+    ub = np.concatenate([np.full(ncol, np.inf), [t_hi], np.full(na, np.inf)])
     if anchor is not None and np.isfinite(trust):
-        ref = (np.asarray(anchor)[1 : rows.K + 1] / dx).ravel()
-        width = trust / np.tile(dx, rows.K)
+        dx = rows.scaling.dx
+        ref = (np.asarray(anchor)[1 : K + 1] / dx).ravel()
+        width = trust / np.tile(dx, K)
         lb[: rows.nx] = ref - width
         ub[: rows.nx] = ref + width
-    sol = backend.solve(LinearModel(c, A, lo, hi, lb, ub), limit)
+    sol = backend.solve(LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub), limit)
     if sol.status != "optimal" or sol.x is None:
         return None
-    return sol.x[:ncol]
+    return sol.x[:ncol], float(sol.x[ncol])
 
 
 def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: DiscretePlan) -> float:
