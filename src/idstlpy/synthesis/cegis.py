@@ -35,6 +35,7 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp
+from .objectives import better, objective_value, refine
 from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness
 from .plan_lp import Scaling
@@ -57,6 +58,7 @@ class _Run:
         self.budget = Budget(options.total_time_cap, start)
         self.stats = SolveStats()
         self.formula = problem.stl_formula
+        self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
 
     def done(
         self,
@@ -132,7 +134,10 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
     proposer = BMCProposer(formula, abstraction, system.num_modes, report, options, budget, stats)
     try:
         seeds = np.random.SeedSequence(options.seed)
-        teachers: list[Teacher] = [LPTeacher(problem, abstraction, scaling, lp_backend)]
+        weights = None if options.effort_weights is None else np.asarray(options.effort_weights, dtype=float)
+        teachers: list[Teacher] = [
+            LPTeacher(problem, abstraction, scaling, lp_backend, 3, options.objective, weights)
+        ]
         sampler = SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
         if sampler.applies(problem):
             teachers.append(sampler)
@@ -147,7 +152,7 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
             if eager and stats.candidates >= options.lazy_candidates:
                 result = _eager(run, proposer, abstraction, scaling)
                 if result is not None:
-                    return result
+                    return _optimise(run, result, proposer, abstraction, scaling, "milp")
                 eager = False  # the model could not be bounded soundly: stay lazy
             proposal = proposer.propose()
             if isinstance(proposal, ProposerDry):
@@ -173,9 +178,11 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 checked = _verify(problem, verdict.actions, verdict.controls)
                 if checked is not None:
                     traj, margin = checked
-                    return run.done(
+                    found = run.done(
                         "found", f"{verdict.how} met the plan and the monitor agrees", traj, margin
                     )
+                    path = "lp" if verdict.exact else "sampler"
+                    return _optimise(run, found, proposer, abstraction, scaling, path)
                 why = "the plan failed the monitor's exact re-check"
             else:
                 why = verdict.why if verdict is not None else "no teacher applies"
@@ -185,6 +192,154 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
     finally:
         stats.sat_calls = proposer.sat_calls
         proposer.close()
+
+
+def _optimise(
+    run: _Run,
+    found: SolveResult,
+    proposer: BMCProposer,
+    abstraction: Abstraction,
+    scaling: Scaling,
+    path: str,
+) -> SolveResult:
+    """Optimise a verified plan for the objective (anytime: the best verified plan is kept).
+
+    ``path`` says where the plan came from: ``"lp"`` (the plan LP, exact for its discrete
+    plan), ``"milp"`` (the eager MILP, optimal within its bound) or ``"sampler"``.
+    """
+    options, stats, problem = run.options, run.stats, run.problem
+    name = options.objective
+    if name is None or found.trajectory is None:
+        return found
+    formula = problem.stl_formula
+    weights = None if options.effort_weights is None else np.asarray(options.effort_weights, dtype=float)
+    traj = found.trajectory
+    value = objective_value(name, traj, formula, weights)
+    stats.improvements.append((run.budget.elapsed(), value))
+    optimal, scope, bound = False, "", float("nan")
+    how = found.reason
+    try:
+        if path == "milp":
+            optimal, scope, bound = run.milp_proof
+        elif path == "lp":
+            if name == "time":
+                optimal = stats.abandoned == 0
+                scope, bound = ("shortest first", value) if optimal else ("", float("nan"))
+            else:
+                optimal, scope = True, "discrete plan"
+                eligible = problem.switched_system.num_modes == 1
+                if eligible:
+                    better_run = _global(run, proposer, abstraction, scaling, name, weights)
+                    if better_run is not None:
+                        new_traj, proven, new_bound, horizon = better_run
+                        new_value = objective_value(name, new_traj, formula, weights)
+                        if better(name, new_value, value):
+                            traj, value = new_traj, new_value
+                            stats.improvements.append((run.budget.elapsed(), value))
+                            how = "the eager MILP chose the plan, the LP timed it, the monitor agrees"
+                        if proven and horizon:
+                            optimal, scope, bound = True, "horizon", new_bound
+        else:
+            traj = refine(
+                problem,
+                abstraction,
+                scaling,
+                traj,
+                name,
+                weights,
+                max(options.polish_rounds, 4) * 2,
+                stats,
+                run.budget.elapsed,
+            )
+            value = objective_value(name, traj, formula, weights)
+    except BudgetExceeded:
+        stats.caps_hit.append("time_limit")
+        how += " (the time limit stopped the optimisation: the best plan so far)"
+    result = run.done("found", how, traj, robustness(traj, formula))
+    result.objective = name
+    result.objective_value = value
+    result.objective_bound = bound
+    result.optimal = optimal
+    result.optimal_scope = scope
+    return result
+
+
+def _global(
+    run: _Run,
+    proposer: BMCProposer,
+    abstraction: Abstraction,
+    scaling: Scaling,
+    name: str,
+    weights: np.ndarray | None,
+) -> tuple[ProbabilisticTSTrajectory, bool, float, bool] | None:
+    """The eager MILP's optimum over every plan up to the horizon (or ``max_plan_length``).
+
+    Returns ``(plan, proven, bound, whole_horizon)`` or ``None`` when the MILP cannot be built
+    soundly or finds nothing.
+    """
+    problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
+    init, system = problem.initial_state, problem.switched_system
+    while proposer.grow():
+        pass
+    with stats.clock("time_lp"):
+        out = solve_milp(
+            proposer.export(),
+            abstraction,
+            system,
+            problem.control_domain,
+            init.mean,
+            init.cov,
+            scaling,
+            get_backend(options.milp_backend, integer=True),
+            budget,
+            name,
+            weights,
+        )
+    stats.milp_calls += 1
+    if out.status != "found" or out.claims is None or out.controls is None:
+        return None
+    checked = _retime(run, abstraction, scaling, out.claims, out.controls, name, weights)
+    if checked is None:
+        return None
+    return checked[0], out.proven, out.bound, proposer.bound >= proposer.H
+
+
+def _retime(
+    run: _Run,
+    abstraction: Abstraction,
+    scaling: Scaling,
+    claims: np.ndarray,
+    controls: np.ndarray,
+    objective: str | None,
+    weights: np.ndarray | None,
+) -> tuple[ProbabilisticTSTrajectory, float] | None:
+    """Verify a MILP's plan, first re-solved by the plan LP on its witness (exact re-timing)."""
+    problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
+    init, system = problem.initial_state, problem.switched_system
+    actions = np.zeros(controls.shape[0], dtype=int)
+    witness = extract_witness(problem.stl_formula, claims, abstraction.index, prefer_late=objective != "time")
+    if witness is not None:
+        required, L = witness
+        plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
+        with stats.clock("time_lp"):
+            lp = solve_plan_lp(
+                system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                abstraction,
+                plan,
+                execution_margin(system, init, abstraction, plan),
+                scaling=scaling,
+                backend=get_backend(options.lp_backend),
+                time_limit=max(budget.remaining(), 1e-3),
+                objective=objective if objective in ("effort", "margin") else None,
+                effort_weights=weights,
+            )
+        stats.lp_calls += 1
+        if lp.feasible and lp.controls is not None:
+            actions, controls = np.zeros(L - 1, dtype=int), lp.controls
+    return _verify(problem, actions, controls)
 
 
 def _guide(proposer: BMCProposer, abstraction: Abstraction, teacher: LPTeacher, plan: DiscretePlan) -> None:
@@ -210,6 +365,10 @@ def _eager(
     problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
     init, system = problem.initial_state, problem.switched_system
     backend = get_backend(options.milp_backend, integer=True)
+    weights = None if options.effort_weights is None else np.asarray(options.effort_weights, dtype=float)
+    if options.objective in ("effort", "margin"):
+        while proposer.grow():  # the optimum over the whole horizon, not the first bound
+            pass
     while True:
         logger.info(
             "%d candidates tried: the eager MILP takes over at %d steps", stats.candidates, proposer.bound + 1
@@ -225,6 +384,8 @@ def _eager(
                 scaling,
                 backend,
                 budget,
+                options.objective,
+                weights,
             )
         stats.milp_calls += 1
         if out.status == "unsupported":
@@ -251,34 +412,16 @@ def _eager(
     claims, controls = out.claims, out.controls
     if claims is None or controls is None:
         return None
-    actions = np.zeros(controls.shape[0], dtype=int)
-    witness = extract_witness(problem.stl_formula, claims, abstraction.index, prefer_late=True)
-    if witness is not None:
-        required, L = witness
-        plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
-        with stats.clock("time_lp"):
-            lp = solve_plan_lp(
-                system,
-                problem.control_domain,
-                init.mean,
-                init.cov,
-                abstraction,
-                plan,
-                execution_margin(system, init, abstraction, plan),
-                scaling=scaling,
-                backend=get_backend(options.lp_backend),
-                time_limit=max(budget.remaining(), 1e-3),
-            )
-        stats.lp_calls += 1
-        if lp.feasible and lp.controls is not None:
-            actions, controls = np.zeros(L - 1, dtype=int), lp.controls
-    checked = _verify(problem, actions, controls)
-    if checked is not None:
-        traj, margin = checked
-        return run.done(
-            "found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin
-        )
-    return None
+    checked = _retime(run, abstraction, scaling, claims, controls, options.objective, weights)
+    if checked is None:
+        return None
+    traj, margin = checked
+    whole = proposer.bound >= proposer.H or options.objective == "time"  # shorter plans are all inside
+    scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
+    run.milp_proof = (out.proven, scope, out.bound)
+    return run.done(
+        "found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin
+    )
 
 
 def _verify(

@@ -109,6 +109,8 @@ class Found:
     actions: np.ndarray
     controls: np.ndarray
     how: str
+    exact: bool = False
+    """True when the teacher's path is exact (the plan LP without state-dependent noise)."""
 
 
 @dataclass

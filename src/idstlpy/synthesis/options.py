@@ -103,6 +103,12 @@ class SolverOptions:
         Rounds of the margin LP that moves a sampled plan away from the boundaries it grazes.
     shortcut_checks : int
         Full re-checks the sampler's plan shortcutting may spend.
+    objective : {None, "effort", "time", "margin"}
+        ``None``: the first verified plan. ``"effort"``: least ``sum_k sum_j w_j |u_kj|``;
+        ``"time"``: fewest steps; ``"margin"``: largest robustness (see
+        :mod:`idstlpy.synthesis.objectives`).
+    effort_weights : sequence of float, optional
+        Per-input weights ``w`` of ``"effort"`` (default ones), length ``m``.
     sat_backend : str
         python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
     lp_backend, milp_backend : str
@@ -125,6 +131,8 @@ class SolverOptions:
     max_pruning_lps: int = 400
     polish_rounds: int = 4
     shortcut_checks: int = 24
+    objective: str | None = None
+    effort_weights: tuple[float, ...] | None = None
     sat_backend: str = "cadical195"
     lp_backend: str = "highs"
     milp_backend: str = "highs"
@@ -152,6 +160,18 @@ class SolverOptions:
         put(self, "max_pruning_lps", as_int(self.max_pruning_lps, "max_pruning_lps", minimum=0))
         put(self, "polish_rounds", as_int(self.polish_rounds, "polish_rounds", minimum=0))
         put(self, "shortcut_checks", as_int(self.shortcut_checks, "shortcut_checks", minimum=0))
+        if self.objective is not None:
+            put(self, "objective", _name(self.objective, "objective", ("effort", "time", "margin")))
+        if self.effort_weights is not None:
+            try:
+                w = tuple(float(v) for v in np.asarray(self.effort_weights, dtype=float).reshape(-1))
+            except (TypeError, ValueError):
+                raise InvalidTypeError(
+                    f"effort_weights must be numbers, got {self.effort_weights!r}"
+                ) from None
+            if not w or not all(math.isfinite(v) and v >= 0 for v in w):
+                raise InvalidArgumentError(f"effort_weights must be finite and >= 0, got {list(w)}")
+            put(self, "effort_weights", w)
         put(self, "sat_backend", _name(self.sat_backend, "sat_backend", tuple(sat_backends())))
         put(self, "lp_backend", _name(self.lp_backend, "lp_backend", tuple(available_backends())))
         put(

@@ -58,6 +58,9 @@ class SolveStats:
     caps_hit : list of str
         Wall-clock safety caps that were hit (``"time_limit"``, ``"rrt_timeout"``): when not
         empty, the same seed may give a different answer on another machine.
+    improvements : list of (float, float)
+        ``(seconds since the start, objective value)`` each time a better verified plan was
+        found (empty without an objective).
     """
 
     candidates: int = 0
@@ -78,6 +81,7 @@ class SolveStats:
     time_lp: float = 0.0
     time_sampling: float = 0.0
     caps_hit: list[str] = field(default_factory=list)
+    improvements: list[tuple[float, float]] = field(default_factory=list)
 
     @contextmanager
     def clock(self, name: str) -> Iterator[None]:
@@ -100,7 +104,10 @@ class SolveStats:
     def from_dict(cls, data: dict[str, Any]) -> SolveStats:
         """Inverse of :meth:`to_dict` (unknown keys are ignored, missing ones take defaults)."""
         known = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in known})
+        kw = {k: v for k, v in data.items() if k in known}
+        if "improvements" in kw:
+            kw["improvements"] = [(float(a), float(b)) for a, b in kw["improvements"]]
+        return cls(**kw)
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -127,6 +134,20 @@ class SolveResult:
     stats : SolveStats
     formula : str
         The formula's text (``str(formula)``), for result files.
+    objective : str or None
+        The objective asked for (``"effort"``, ``"time"``, ``"margin"``) or ``None``.
+    objective_value : float
+        Its value on the returned plan (``nan`` without a plan or an objective).
+    objective_bound : float
+        The best proven bound on the optimum, where known (``nan`` otherwise): a lower bound
+        for effort and time, an upper bound for margin.
+    optimal : bool
+        True when the plan is proven optimal within ``optimal_scope``.
+    optimal_scope : str
+        ``"horizon"`` (every plan within the formula's horizon, from the eager MILP),
+        ``"discrete plan"`` (the best controls for the discrete plan the solver settled on, from
+        the plan LP), ``"shortest first"`` (time: every shorter candidate was refuted by a proof)
+        or ``""``.
     """
 
     status: Status
@@ -135,6 +156,19 @@ class SolveResult:
     margin: float = float("nan")
     stats: SolveStats = field(default_factory=SolveStats)
     formula: str = ""
+    objective: str | None = None
+    objective_value: float = float("nan")
+    objective_bound: float = float("nan")
+    optimal: bool = False
+    optimal_scope: str = ""
+
+    @property
+    def gap(self) -> float:
+        """Relative gap between ``objective_value`` and ``objective_bound`` (``nan`` if unknown)."""
+        v, b = self.objective_value, self.objective_bound
+        if not (math.isfinite(v) and math.isfinite(b)):
+            return float("nan")
+        return abs(v - b) / max(1.0, abs(v))
 
     @property
     def found(self) -> bool:
@@ -148,8 +182,11 @@ class SolveResult:
 
     def __repr__(self) -> str:
         steps = "" if self.trajectory is None else f", steps={self.trajectory.num_of_steps}"
+        obj = ""
+        if self.objective is not None:
+            obj = f", {self.objective}={self.objective_value:.4g}" + (" (optimal)" if self.optimal else "")
         return (
-            f"SolveResult(status={self.status!r}{steps}, margin={self.margin:.3g}, "
+            f"SolveResult(status={self.status!r}{steps}, margin={self.margin:.3g}{obj}, "
             f"time={self.stats.time_total:.3g} s, reason={self.reason!r})"
         )
 
@@ -162,6 +199,11 @@ class SolveResult:
             "reason": self.reason,
             "margin": _finite_or_none(self.margin),
             "formula": self.formula,
+            "objective": self.objective,
+            "objective_value": _finite_or_none(self.objective_value),
+            "objective_bound": _finite_or_none(self.objective_bound),
+            "optimal": self.optimal,
+            "optimal_scope": self.optimal_scope,
             "stats": self.stats.to_dict(),
             "plan": None if traj is None else _trajectory_to_dict(traj),
         }
@@ -185,14 +227,23 @@ class SolveResult:
             raise InvalidArgumentError(f"result status must be one of {STATUSES}, got {status!r}")
         plan = data.get("plan")
         traj = None if plan is None else _trajectory_from_dict(plan)
-        margin = data.get("margin")
+
+        def num(key: str) -> float:
+            v = data.get(key)
+            return float("nan") if v is None else float(v)
+
         return cls(
             status,  # type: ignore[arg-type]
             traj,
             str(data.get("reason", "")),
-            float("nan") if margin is None else float(margin),
+            num("margin"),
             SolveStats.from_dict(data.get("stats", {})),
             str(data.get("formula", "")),
+            data.get("objective"),
+            num("objective_value"),
+            num("objective_bound"),
+            bool(data.get("optimal", False)),
+            str(data.get("optimal_scope", "")),
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:

@@ -344,18 +344,31 @@ class LPTeacher:
     backend : Backend
     rounds : int
         Fixed-point rounds on re-rolled covariances under state-dependent noise.
+    objective : {None, "effort", "margin", "time"}
+        The LP optimises ``effort`` and ``margin`` for each discrete plan (``time`` is the
+        proposer's: shortest first).
+    effort_weights : ndarray, shape (m,), optional
     """
 
     name = "lp"
 
     def __init__(
-        self, problem: Any, abstraction: Abstraction, scaling: Scaling, backend: Backend, rounds: int = 3
+        self,
+        problem: Any,
+        abstraction: Abstraction,
+        scaling: Scaling,
+        backend: Backend,
+        rounds: int = 3,
+        objective: str | None = None,
+        effort_weights: np.ndarray | None = None,
     ) -> None:
         self.problem = problem
         self.abs = abstraction
         self.scaling = scaling
         self.backend = backend
         self.rounds = rounds
+        self.objective = objective if objective in ("effort", "margin") else None
+        self.effort_weights = effort_weights
         self.last: LPOutcome | None = None
 
     def applies(self, problem: Any) -> bool:
@@ -384,6 +397,8 @@ class LPTeacher:
                 backend=self.backend,
                 time_limit=max(budget.remaining(), 1e-3),
                 budget=budget,
+                objective=self.objective,
+                effort_weights=self.effort_weights,
             )
         stats.lp_calls += 1
         self.last = out
@@ -396,7 +411,7 @@ class LPTeacher:
             return Unknown(out.why, out.means)
         actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
         if out.exact and out.controls is not None:
-            return Found(actions, out.controls, "the plan LP")
+            return Found(actions, out.controls, "the plan LP", exact=True)
         found = self._fixed_point(plan, actions, out, margin, budget, stats)
         if found is not None:
             return found

@@ -1,0 +1,144 @@
+"""What "a good plan" means: the objectives a solve can optimise, and the anytime refiner.
+
+- ``"effort"``: ``sum_k sum_j w_j |u_kj|`` (lower is better; per-input weights ``w``);
+- ``"time"``: the plan's number of steps (its transitions; lower is better): a plan of ``N``
+  transitions decides the formula true by step ``N``;
+- ``"margin"``: the monitor's robustness (higher is better), stlpy's robustness mode for PrSTL.
+
+On the LP and MILP paths the optimum is exact (see :mod:`.teacher` and :mod:`.milp`). On the
+sampler path the plan is refined by sequential convex programming: freeze the exact covariances
+of the current plan, solve the plan LP for the objective with the means kept within a trust
+region, re-roll the exact belief dynamics, keep the result only if the monitor still accepts it
+and the objective improved; the trust region halves after a round that did not help. The
+rounds are a work budget (``SolverOptions.polish_rounds``), so the result is reproducible.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import numpy as np
+
+from ..belief import rollout
+from ..monitor import robustness
+from ..trajectory import ProbabilisticTSTrajectory
+from .abstraction import Abstraction
+from .plan import DiscretePlan, extract_witness
+from .plan_lp import Scaling
+from .results import SolveStats
+from .teacher import execution_margin, solve_plan_lp
+
+__all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
+
+logger = logging.getLogger(__name__)
+
+OBJECTIVES: tuple[str, ...] = ("effort", "time", "margin")
+
+
+def objective_value(
+    name: str, traj: ProbabilisticTSTrajectory, formula: Any, weights: np.ndarray | None = None
+) -> float:
+    """The value of objective ``name`` on a plan (see the module docstring)."""
+    if name == "effort":
+        w = np.ones(traj.get_control().shape[1]) if weights is None else np.asarray(weights, dtype=float)
+        return float(np.sum(np.abs(traj.get_control()) @ w))
+    if name == "time":
+        return float(traj.num_of_steps)
+    if name == "margin":
+        return float(robustness(traj, formula))
+    raise ValueError(f"unknown objective {name!r}")
+
+
+def better(name: str, a: float, b: float) -> bool:
+    """Whether value ``a`` improves on ``b`` (by more than a relative 1e-9)."""
+    tol = 1e-9 * max(1.0, abs(b))
+    return a > b + tol if name == "margin" else a < b - tol
+
+
+def refine(
+    problem: Any,
+    abstraction: Abstraction,
+    scaling: Scaling,
+    traj: ProbabilisticTSTrajectory,
+    name: str,
+    weights: np.ndarray | None,
+    rounds: int,
+    stats: SolveStats,
+    elapsed: Any,
+) -> ProbabilisticTSTrajectory:
+    """Improve a verified plan for objective ``name`` by trust-region SCP (module docstring).
+
+    Parameters
+    ----------
+    problem : Problem
+    abstraction : Abstraction
+    scaling : Scaling
+    traj : ProbabilisticTSTrajectory
+        A plan the monitor accepts.
+    name : {"effort", "margin"}
+    weights : ndarray, shape (m,), optional
+    rounds : int
+        Work budget: LP rounds.
+    stats : SolveStats
+        ``lp_calls`` and ``improvements`` are recorded here.
+    elapsed : callable
+        Seconds since the solve started (for the improvement history).
+
+    Returns
+    -------
+    ProbabilisticTSTrajectory
+        A plan the monitor accepts, at least as good as ``traj``.
+    """
+    if name not in ("effort", "margin"):
+        return traj
+    system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
+    best = objective_value(name, traj, formula, weights)
+    base_margin = robustness(traj, formula)
+    trust = None
+    for _ in range(rounds):
+        acts = traj.get_action()
+        modes = np.concatenate([[-1], acts]).astype(int)
+        means, covs = traj.get_mean(), traj.get_cov()
+        truth = np.stack(
+            [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
+            axis=1,
+        )
+        witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
+        if witness is None:
+            break
+        required, L = witness
+        plan = DiscretePlan(required[:, :L], modes[:L], L)
+        keep = min(execution_margin(system, init, abstraction, plan), max(base_margin, 0.0))
+        if trust is None:
+            # Start wide (a quarter of the plan's extent) and halve after every failed round.
+            extent = float(np.max(means.max(axis=0) - means.min(axis=0)))
+            trust = max(0.25 * extent, 2.0 * keep, 1e-3 * float(np.max(scaling.dx)))
+        lp = solve_plan_lp(
+            system,
+            problem.control_domain,
+            init.mean,
+            init.cov,
+            abstraction,
+            plan,
+            keep,
+            covs=covs[:L],
+            anchor=means[:L],
+            trust=trust,
+            scaling=scaling,
+            objective=name,
+            effort_weights=weights,
+        )
+        stats.lp_calls += 1
+        if lp.feasible and lp.controls is not None:
+            moved = rollout(system, init, acts[: L - 1], lp.controls)
+            margin = robustness(moved, formula)
+            value = objective_value(name, moved, formula, weights)
+            # Effort must not buy itself with the margin the execution needs.
+            if margin >= min(keep, base_margin) * 0.999 and margin >= 0 and better(name, value, best):
+                logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, best, value, trust)
+                traj, best = moved, value
+                stats.improvements.append((float(elapsed()), value))
+                continue
+        trust *= 0.5
+    return traj
