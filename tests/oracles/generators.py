@@ -477,8 +477,12 @@ class _FormulaBuilder:
             return self.free()
         if depth <= 0 or (not top and rng.random() < 0.25):
             return self.atom(S)
+        # At the top the formula is temporal (one about the prior alone is a test of its own).
         ops = ["and", "or", "F", "G", "U", "R"]
-        op = str(rng.choice(ops, p=[0.1, 0.1, 0.2, 0.2, 0.2, 0.2] if top else None))
+        if top and depth == 1:
+            op = str(rng.choice(ops[2:]))
+        else:
+            op = str(rng.choice(ops, p=[0.1, 0.1, 0.2, 0.2, 0.2, 0.2] if top else None))
         hi_S = max(S)
         room = self.last - hi_S
         # At the top, conjunctions and disjunctions are of temporal formulas (not of prior facts).
@@ -608,7 +612,8 @@ def _wrap(rng: np.random.Generator, depth: int, extra: Callable[[], Any]) -> tup
     if depth <= 0:
         return (lambda g: g), 0
     inner, D = _wrap(rng, depth - 1, extra)
-    op = str(rng.choice(["F", "U", "G", "R", "and", "or"]))
+    # The innermost operator is temporal, so every wrapped formula looks past step 0.
+    op = str(rng.choice(["F", "U", "G", "R"] if depth == 1 else ["F", "U", "G", "R", "and", "or"]))
     a = int(rng.integers(0, 3))
     b = a + int(rng.integers(0, 6))
     if op == "F":
@@ -846,8 +851,10 @@ def _infeasible_contradiction(rng: np.random.Generator, s: float, names: _Names)
     gap = float(rng.choice([1e-6, 1e-3, 0.1, 1.0])) * s
     up = _face(x, -h, t, _level(rng))  # h'x >= t
     down = _face(x, h, -(t - gap), _level(rng))  # h'x <= t - gap
+    depth = int(rng.integers(0, 3))
     if rng.random() < 0.35:
         core = stl.logical_and(up, down, name=names("empty"))
+        depth = max(depth, 1)
     else:
         a = int(rng.integers(0, 4))
         b = a + int(rng.integers(0, 5))
@@ -856,7 +863,7 @@ def _infeasible_contradiction(rng: np.random.Generator, s: float, names: _Names)
         A_ = stl.logical_and(down, name=names("below"))
         B_ = stl.logical_and(up, name=names("above"))
         core = stl.logical_and(stl.always(a, b, A_), stl.eventually(a2, b2, B_))
-    ctx, _ = _wrap(rng, int(rng.integers(0, 3)), _extra_atoms(rng, x, names, mean0, s))
+    ctx, _ = _wrap(rng, depth, _extra_atoms(rng, x, names, mean0, s))
     why = f"h'x >= {t:.6g} and h'x <= {t - gap:.6g} at one step, h = {h.tolist()}"
     return system, mean0, cov0, ctx(core), why
 
