@@ -324,3 +324,96 @@ def test_a_declared_noise_floor_proves_an_unreachable_confidence_quickly():
     # A floor the function breaks is caught where V is evaluated.
     with pytest.raises(stl.NoiseFunctionError, match="V_floor"):
         make(0.9).switched_system.system_modes[0].noise_cov(np.array([5.0, 0.0]))
+
+
+# -- objectives ---------------------------------------------------------------------------------------
+def _either_or():
+    """x' = x + u, |u| <= 1, x0 = 0, F[0,4] (x >= 3) | F[0,4] (x <= -1.5): optima by hand.
+
+    Effort: reach -1.5 with |u| summing to 1.5. Time: two steps (x = -2 after two full pushes;
+    x >= 3 needs three). Margin (the monitor's robustness): x_4 = -4 gives -1.5 - (-4) = 2.5.
+    """
+    return _integrator(
+        lambda x: stl.logical_or(
+            stl.eventually(0, 4, stl.logical_and(P(x[0] >= 3) >= 0.9, name="A")),
+            stl.eventually(0, 4, stl.logical_and(P(x[0] <= -1.5) >= 0.9, name="B")),
+        )
+    )
+
+
+@pytest.mark.parametrize(("objective", "optimum"), [("effort", 1.5), ("time", 2.0), ("margin", 2.5)])
+def test_objectives_reach_the_hand_computed_optimum(objective, optimum):
+    result = _either_or().solve_result(seed=0, objective=objective)
+    assert result.status == "found" and result.objective == objective
+    assert result.optimal and result.optimal_scope in ("horizon", "shortest first")
+    assert result.objective_value == pytest.approx(optimum, abs=1e-6)
+    if objective == "effort":
+        assert np.abs(result.trajectory.get_control()).sum() == pytest.approx(optimum, abs=1e-6)
+    if objective == "margin":
+        assert stl.robustness(result.trajectory, _either_or().stl_formula) == pytest.approx(optimum, abs=1e-6)
+    assert result.stats.improvements and result.stats.improvements[-1][1] == pytest.approx(
+        result.objective_value
+    )
+
+
+def test_effort_optimum_matches_an_independent_enumeration():
+    """Brute force: every discrete choice (which disjunct, at which step) is one LP built here."""
+    from scipy.optimize import linprog
+
+    best = np.inf
+    for target_low, sign in ((3.0, 1.0), (-1.5, -1.0)):  # A: x >= 3, B: -x >= 1.5
+        for L in range(1, 5):
+            # variables u_0..u_{L-1}, a_0..a_{L-1} >= |u|; x_L = sum(u)
+            c = np.r_[np.zeros(L), np.ones(L)]
+            A_ub = [np.r_[-sign * np.ones(L), np.zeros(L)]]
+            b_ub = [-sign * target_low]
+            for j in range(L):
+                e = np.zeros(2 * L)
+                e[j], e[L + j] = 1, -1
+                A_ub.append(e.copy())
+                e[j] = -1
+                A_ub.append(e)
+                b_ub += [0, 0]
+            res = linprog(c, A_ub=np.array(A_ub), b_ub=b_ub, bounds=[(-1, 1)] * L + [(0, None)] * L)
+            if res.status == 0:
+                best = min(best, res.fun)
+    result = _either_or().solve_result(seed=0, objective="effort")
+    assert result.objective_value == pytest.approx(best, abs=1e-6)
+
+
+def test_covariance_jacobian_matches_finite_differences():
+    from idstlpy.synthesis.plan_lp import covariance_jacobian
+
+    problem = light_dark()
+    plan = problem.solve(**LISTING, seed=0)
+    modes = problem.switched_system.system_modes
+    actions, means, covs = plan.get_action()[:12], plan.get_mean()[:13], plan.get_cov()[:13]
+    S = covariance_jacobian(modes, actions, means, covs, np.ones(2))
+
+    def covs_of(ms):
+        out = [covs[0]]
+        for k in range(1, ms.shape[0]):
+            mode = modes[int(actions[k - 1])]
+            P_ = mode.A @ out[-1] @ mode.A.T + mode.process_cov
+            R = mode.noise_cov(ms[k])
+            K = P_ @ mode.C.T @ np.linalg.inv(mode.C @ P_ @ mode.C.T + R)
+            out.append((np.eye(2) - K @ mode.C) @ P_)
+        return np.array(out)
+
+    for j, i in ((1, 0), (5, 0), (5, 1), (12, 0)):
+        h = 1e-6
+        up, down = means.copy(), means.copy()
+        up[j, i] += h
+        down[j, i] -= h
+        numeric = (covs_of(up) - covs_of(down)) / (2 * h)
+        for k in range(j, 13):
+            np.testing.assert_allclose(S[k][j - 1, i], numeric[k], rtol=1e-3, atol=1e-7)
+
+
+def test_effort_on_the_light_dark_listing_keeps_the_margin_and_saves_effort():
+    base = light_dark().solve_result(**LISTING, seed=1)
+    lean = light_dark().solve_result(**LISTING, seed=1, objective="effort")
+    assert lean.status == "found" and not lean.optimal
+    assert lean.margin >= 0.999 * min(base.margin, 0.125)
+    e0, e1 = np.abs(base.trajectory.get_control()).sum(), np.abs(lean.trajectory.get_control()).sum()
+    assert e1 < 0.8 * e0

@@ -128,6 +128,7 @@ def refine(
             scaling=scaling,
             objective=name,
             effort_weights=weights,
+            linearise=True,
         )
         stats.lp_calls += 1
         if lp.feasible and lp.controls is not None:

@@ -32,7 +32,7 @@ from .abstraction import Abstraction
 from .interfaces import Budget
 from .plan import DiscretePlan
 
-__all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_schedule"]
+__all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_jacobian", "covariance_schedule"]
 
 _TINY = 1e-300
 
@@ -199,11 +199,15 @@ def build_plan_rows(
     scaling: Scaling,
     covs: np.ndarray | None = None,
     budget: Budget | None = None,
+    linearisation: tuple[list[np.ndarray], np.ndarray] | None = None,
 ) -> PlanRows:
     """Rows of the plan LP for a mode sequence ``actions`` (K,) and ``requirements``.
 
     ``covs`` (K + 1, n, n) replaces the covariance schedule of the modes (e.g. the exact
-    covariances of a sampled trajectory); the rows are then not exact.
+    covariances of a sampled trajectory); the rows are then not exact. ``linearisation``
+    ``(S, ref)`` adds, to each face's standard-deviation term, its first-order dependence on
+    the means around the reference means ``ref`` (K + 1, n): ``S[k]`` (k, n, n, n) holds
+    ``d covs[k] / d mean_j[i]`` for ``j = 1..k`` (from :func:`covariance_jacobian`).
     """
     K = int(actions.shape[0])
     n, m = mean0.shape[0], scaling.du.shape[0]
@@ -269,17 +273,43 @@ def build_plan_rows(
             continue
         G = cone.H * dx[None, :]
         g = np.linalg.norm(G, axis=1)
+        slope = None
+        if linearisation is not None and k >= 1:
+            S, ref = linearisation
+            sd = np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", cone.H, covs[k], cone.H), 0.0))
+            # d (z sd) / d mean_j[i] = z h' (dP_k / d mean_j[i]) h / (2 sd), for j = 1..k.
+            dvar = np.einsum("fa,jiab,fb->fji", cone.H, S[k], cone.H)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                slope = np.where(
+                    sd[:, None, None] > 0, cone.z[:, None, None] * dvar / (2 * sd[:, None, None]), 0.0
+                )
+            slope = np.where(np.isfinite(slope), slope, 0.0)
         for f in range(cone.num_faces):
-            if g[f] == 0:
+            if g[f] == 0 and slope is None:
                 if cone.c[f] + terms[f] > 0:
                     impossible.append((k, i))
                 continue
-            rows.append(np.full(n, r))
-            cols.append((k - 1) * n + np.arange(n))
-            vals.append(G[f] / g[f])
-            off.append((cone.c[f] + terms[f]) / g[f])
-            norms.append(np.linalg.norm(cone.H[f]) / g[f])
-            units.append(1.0 / g[f])
+            coef = np.zeros((k, n))
+            coef[k - 1] = cone.H[f]
+            base = cone.c[f] + terms[f]
+            if slope is not None:
+                coef += slope[f]
+                base -= float(np.sum(slope[f] * linearisation[1][1 : k + 1]))  # type: ignore[index]
+            scaled = coef * dx[None, :]
+            gf = float(np.linalg.norm(scaled[k - 1])) if g[f] > 0 else float(np.linalg.norm(scaled))
+            if gf == 0:
+                if base > 0:
+                    impossible.append((k, i))
+                continue
+            nz = np.nonzero(np.any(scaled != 0, axis=1))[0] if slope is not None else np.array([k - 1])
+            rows.append(np.full(nz.size * n, r))
+            cols.append((nz[:, None] * n + np.arange(n)[None, :]).ravel())
+            vals.append((scaled[nz] / gf).ravel())
+            off.append(base / gf)
+            g = g.copy()
+            g[f] = gf
+            norms.append(np.linalg.norm(cone.H[f]) / gf)
+            units.append(1.0 / gf)
             owner.append(idx)
             r += 1
     face_H = _sparse(rows, cols, vals, r, ncol)
@@ -302,6 +332,60 @@ def build_plan_rows(
         exact,
         scaling,
     )
+
+
+def covariance_jacobian(
+    modes: Sequence[Any], actions: np.ndarray, means: np.ndarray, covs: np.ndarray, dx: np.ndarray
+) -> list[np.ndarray]:
+    """How the MLO covariances depend on the means: ``S[k][j - 1, i] = d covs[k] / d means[j][i]``.
+
+    The covariance depends on the means only through the observation noise ``R(mean_k)`` of
+    each update. With the Kalman gain ``K_k`` at the optimum, ``d P_k = K_k dR K_k'`` at step
+    ``k``, and a change of the predicted covariance propagates as ``M dP M'`` with
+    ``M = (I - K C) A``. ``dR / d mean`` is a central difference with step ``1e-5 dx``.
+
+    Parameters
+    ----------
+    modes : sequence of LCS
+    actions : ndarray of int, shape (K,)
+    means : ndarray, shape (K + 1, n)
+    covs : ndarray, shape (K + 1, n, n)
+        The exact roll-out being linearised.
+    dx : ndarray, shape (n,)
+        State units (for the difference steps).
+
+    Returns
+    -------
+    list of ndarray
+        ``S[k]`` has shape (k, n, n, n).
+    """
+    K = actions.shape[0]
+    n = means.shape[1]
+    eye = np.eye(n)
+    S: list[np.ndarray] = [np.zeros((0, n, n, n))]
+    for k in range(1, K + 1):
+        mode = modes[int(actions[k - 1])]
+        A = mode.A
+        P = A @ covs[k - 1] @ A.T + mode.process_cov
+        if mode.p == 0:
+            M, gain = A, None
+        else:
+            C = mode.C
+            R = mode.noise_cov(means[k])
+            gain = np.linalg.solve((C @ P @ C.T + R).T, (P @ C.T).T).T
+            M = (eye - gain @ C) @ A
+        prev = np.einsum("ab,jibc,dc->jiad", M, S[k - 1], M) if k > 1 else np.zeros((0, n, n, n))
+        new = np.zeros((1, n, n, n))
+        if gain is not None and mode.has_state_dependent_noise:
+            for i in range(n):
+                h = 1e-5 * dx[i]
+                up, down = means[k].copy(), means[k].copy()
+                up[i] += h
+                down[i] -= h
+                dR = (mode.noise_cov(up) - mode.noise_cov(down)) / (2 * h)
+                new[0, i] = gain @ dR @ gain.T
+        S.append(np.concatenate([prev, new]))
+    return S
 
 
 def _sparse(rows: list[Any], cols: list[Any], vals: list[Any], nrow: int, ncol: int) -> csr_matrix:

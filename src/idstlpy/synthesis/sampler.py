@@ -688,6 +688,7 @@ class SamplerTeacher:
                 anchor=means[:L],
                 trust=trust,
                 scaling=self.scaling,
+                linearise=True,
             )
             stats.lp_calls += 1
             if lp.feasible and lp.controls is not None:

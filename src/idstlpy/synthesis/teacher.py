@@ -30,7 +30,14 @@ from ..monitor import robustness
 from .abstraction import Abstraction
 from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan
-from .plan_lp import PlanRows, Scaling, build_plan_rows, covariance_schedule, plan_requirements
+from .plan_lp import (
+    PlanRows,
+    Scaling,
+    build_plan_rows,
+    covariance_jacobian,
+    covariance_schedule,
+    plan_requirements,
+)
 from .results import SolveStats
 
 __all__ = ["LPOutcome", "LPTeacher", "covariance_schedule", "execution_margin", "solve_plan_lp"]
@@ -42,6 +49,9 @@ FEASIBLE_TOL = 1e-9
 REFUTE_TOL = 1e-6
 """Elastic optimum above which infeasibility is claimed (10x HiGHS' primal tolerance)."""
 _DUAL_TOL = 1e-9
+TIGHTEN = 2e-7
+"""Room (relative to the state's units) a plan keeps inside its faces when it can: twice HiGHS'
+primal tolerance on the normalised rows, so the monitor's exact re-check passes."""
 
 
 @dataclass
@@ -97,6 +107,7 @@ def solve_plan_lp(
     budget: Budget | None = None,
     objective: str | None = None,
     effort_weights: np.ndarray | None = None,
+    linearise: bool = False,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -131,6 +142,10 @@ def solve_plan_lp(
         monitor's robustness over this plan's requirements); ``None`` keeps the margin phase.
     effort_weights : ndarray, shape (m,), optional
         Per-input weights ``w`` of the effort objective (default ones).
+    linearise : bool
+        With ``covs`` and ``anchor`` (a roll-out): add each standard-deviation term's
+        first-order dependence on the means (:func:`~.plan_lp.covariance_jacobian`), the step of
+        a sequential convex programme in belief space; ``trust`` should then be finite.
 
     Returns
     -------
@@ -147,8 +162,22 @@ def solve_plan_lp(
         covs0 = cov0[None, :, :] if covs is None else covs
         exact = covs is None and True
         return LPOutcome("feasible", exact, np.zeros((0, system.m)), mean0[None, :].copy(), [], covs0)
+    lin = None
+    if linearise and covs is not None and anchor is not None:
+        ref = np.asarray(anchor)[: K + 1]
+        lin = (covariance_jacobian(modes, actions, ref, covs[: K + 1], scaling.dx), ref)
     rows = build_plan_rows(
-        modes, control_domain, mean0, cov0, abstraction, reqs, actions, scaling, covs, budget=budget
+        modes,
+        control_domain,
+        mean0,
+        cov0,
+        abstraction,
+        reqs,
+        actions,
+        scaling,
+        covs,
+        budget=budget,
+        linearisation=lin,
     )
     if rows.impossible:
         return LPOutcome("infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs)
@@ -201,7 +230,7 @@ def _optimise(
             rows, backend, limit, t_lo=0.0, t_hi=big, coef=rows.face_unit, anchor=anchor, trust=trust
         )
         return None if out is None else out[0]
-    t_max = max(float(margin), 1e-6 * float(np.min(dx)))
+    t_max = max(float(margin), TIGHTEN * float(np.min(dx)))
     first = None
     if rows.face_H.shape[0]:
         first = _phase(
