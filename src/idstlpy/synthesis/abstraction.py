@@ -152,7 +152,7 @@ class Abstraction:
         horizon, is empty cannot hold at any step. The schedule is rolled until it settles
         (or the horizon); a schedule still shrinking at ``max_steps`` proves nothing.
         """
-        if system.num_modes != 1 or not self.num_atoms:
+        if system.num_modes != 1 or not self.num_atoms or horizon < 1:
             return {}
         from .plan_lp import covariance_schedule
 
@@ -169,6 +169,8 @@ class Abstraction:
                 continue
             cone = ap.cone
             terms = std_terms(cone.H, cone.z, tail)  # (K, F)
+            if np.any(np.isnan(terms)):
+                continue  # no sound claim from a degenerate bound
             best = terms.min(axis=0)
             if not np.all(np.isfinite(best)):
                 out[i] = f"{self.names()[i]} needs zero variance (eps = 0) but every step has some"

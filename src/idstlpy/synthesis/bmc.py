@@ -110,6 +110,8 @@ class BMCEncoder:
         self.root = self.lit(formula, 0)
         self.clauses.append([self.root])
         self.selector = self._new()  # assumed true while abandoned candidates are set aside
+        # python-sat cannot interrupt CaDiCaL: its calls are checked against the cap between calls.
+        self._interruptible = not sat_backend.startswith("cadical")
         try:
             self.solver = Solver(name=sat_backend, bootstrap_with=self.clauses)
         except (NoSuchSolverError, ValueError, NotImplementedError) as exc:
@@ -263,7 +265,9 @@ class BMCEncoder:
         if depth is not None and depth < self.H:
             assume.append(-self.alive[depth + 1])
         self.sat_calls += 1
-        if self.budget is None:
+        if self.budget is None or not self._interruptible:
+            if self.budget is not None:
+                self.budget.check("SAT search")
             return bool(self.solver.solve(assumptions=assume))
         self.budget.check("SAT search")
         timer = threading.Timer(max(self.budget.remaining(), 0.0), self.solver.interrupt)

@@ -73,10 +73,28 @@ def covariance_schedule(
             covs[k + 1] = P
         elif mode.has_state_dependent_noise:
             exact = False  # the declared floor of R(x) (zero if none) gives a lower bound
-            covs[k + 1] = kalman_update(mode, zero_mean, P, R=mode.noise_floor)[1]
+            covs[k + 1] = _lower_update(mode, P)
         else:
             covs[k + 1] = kalman_update(mode, zero_mean, P)[1]
     return covs, exact
+
+
+def _lower_update(mode: Any, P: np.ndarray) -> np.ndarray:
+    """The measurement update with the noise's floor ``F <= R(x)``: a lower bound on the posterior.
+
+    ``P - P C' (C P C' + F)^+ C P`` with a pseudo-inverse, which stays exact when ``F`` is zero
+    and ``C P C'`` singular (a perfect sensor, or a direction the prior already knows). Should
+    rounding leave it indefinite or not finite, zero, the trivial lower bound, is used.
+    """
+    C, F = mode.C, mode.noise_floor
+    PCt = P @ C.T
+    S = C @ PCt + F
+    post = P - PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True) @ PCt.T
+    post = 0.5 * (post + post.T)
+    if not np.all(np.isfinite(post)):
+        return np.zeros_like(P)
+    w, v = np.linalg.eigh(post)
+    return np.asarray((v * np.maximum(w, 0.0)) @ v.T)
 
 
 def _magnitude(values: np.ndarray) -> float:
