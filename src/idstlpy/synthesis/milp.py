@@ -151,6 +151,54 @@ def _invariant_box(formula: Any, abstraction: Abstraction, n: int, H: int) -> tu
     return low, high
 
 
+def _hard_steps(formula: Any, abstraction: Abstraction, H: int) -> np.ndarray:
+    """``hard[k, i]``: the invariants require proposition ``i`` at step ``k``; shape (H+1, n_atoms)."""
+    hard = np.zeros((H + 1, abstraction.num_atoms), dtype=bool)
+    for i, b in _invariants(formula, abstraction):
+        hard[: min(b, H) + 1, i] = True
+    return hard
+
+
+def _state_boxes(
+    A: np.ndarray,
+    B: np.ndarray,
+    points: tuple[np.ndarray | None, np.ndarray, np.ndarray],
+    mean0: np.ndarray,
+    inv_low: np.ndarray,
+    inv_high: np.ndarray,
+    H: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per step, a box holding every mean that meets the invariants up to it, shapes (H+1, n).
+
+    Interval propagation ``x_{k+1} in A box_k + B U``, intersected with the invariants' box at
+    every step: an over-approximation (sound for big-M), tighter than the invariants' box alone
+    where the dynamics cannot reach its far side. Infinite where nothing bounds a coordinate.
+    """
+    n = mean0.shape[0]
+    low, high = np.empty((H + 1, n)), np.empty((H + 1, n))
+    low[0] = high[0] = mean0
+    b_high = _support(points, B)
+    b_low = -_support(points, -B)
+    Ap, An = np.maximum(A, 0.0), np.minimum(A, 0.0)
+
+    def prod(M: np.ndarray, v: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            P = M * v[None, :]
+        return np.asarray(np.where(M == 0, 0.0, P).sum(axis=1))
+
+    for k in range(1, H + 1):
+        with np.errstate(invalid="ignore"):
+            lo_k = prod(Ap, low[k - 1]) + prod(An, high[k - 1]) + b_low
+            hi_k = prod(Ap, high[k - 1]) + prod(An, low[k - 1]) + b_high
+        lo_k = np.where(np.isnan(lo_k), -np.inf, lo_k)
+        hi_k = np.where(np.isnan(hi_k), np.inf, hi_k)
+        low[k] = np.maximum(lo_k, inv_low[k])
+        high[k] = np.minimum(hi_k, inv_high[k])
+        # An empty box means no plan meets the invariants (the hard rows say so); keep it ordered.
+        high[k] = np.maximum(high[k], low[k])
+    return low, high
+
+
 def solve_milp(
     enc: BMCEncoder,
     abstraction: Abstraction,
@@ -246,9 +294,13 @@ def solve_milp(
         lo.append(np.full(2 * na, -np.inf))
         hi.append(np.zeros(2 * na))
 
-    # Big-M implications p[i, k] -> faces of proposition i at step k (normalised rows).
+    # Big-M implications p[i, k] -> faces of proposition i at step k (normalised rows). The
+    # invariants (propositions the formula requires at every step 0..b) are hard rows instead,
+    # so the box they bound is a fact every other big-M may use.
     F = abstraction.H
-    inv_low, inv_high = _invariant_box(enc.formula, abstraction, n, H)
+    hard = _hard_steps(enc.formula, abstraction, H)
+    fixed_p: list[int] = []
+    never_p: list[int] = []
     if F.shape[0]:
         budget.check("building the MILP")
         powers = np.empty((H + 1, F.shape[0], n))
@@ -264,52 +316,77 @@ def solve_milp(
         reach_max = np.einsum("kfn,n->kf", powers, mean0)
         with np.errstate(invalid="ignore"):
             reach_max[1:] += np.cumsum(gain, axis=0)
+        inv_low, inv_high = _invariant_box(enc.formula, abstraction, n, H)
+        box_low, box_high = _state_boxes(A, B, points, mean0, inv_low, inv_high, H)
         G = F * dx[None, :]
         g = np.linalg.norm(G, axis=1)
         g = np.where(g > 0, g, 1.0)
+        Gn = G / g[:, None]
         # The margin t (raw slack, the monitor's units) is capped at t_cap; an optimum at the cap
         # is reported as not proven.
         t_cap = 10.0 * float(np.max(dx)) * float(np.max(np.linalg.norm(F, axis=1))) if nt else 0.0
-        r_idx, c_idx, vals, ub = [], [], [], []
-        row = 0
+        r_parts, c_parts, v_parts, ub_parts = [], [], [], []
+        h_parts, hc_parts, hv_parts, hub_parts = [], [], [], []
+        row = hrow = 0
         for k in range(1, H + 1):
             if not k % 64:
                 budget.check("building the MILP")
             terms = std_terms(F, abstraction.z, covs[k])
             bound = -(abstraction.c + terms)  # h' x_k <= bound when p holds
             with np.errstate(invalid="ignore"):
-                box_max = np.where(F > 0, F * inv_high[k], F * inv_low[k])
+                box_max = np.where(F > 0, F * box_high[k], F * box_low[k])
             box_max = np.where(F == 0, 0.0, box_max).sum(axis=1)
             with np.errstate(invalid="ignore"):
                 big = np.maximum(np.minimum(reach_max[k], box_max) + t_cap - bound, 0.0) / g
             p_cols = enc.p[abstraction.owner, k] - 1
-            for f in range(F.shape[0]):
-                if not np.isfinite(bound[f]):
-                    r_idx.append(row)  # eps = 0 with variance: the proposition cannot hold here
-                    c_idx.append(int(p_cols[f]))
-                    vals.append(1.0)
-                    ub.append(0.0)
-                    row += 1
+            is_hard = hard[k, abstraction.owner]
+            finite = np.isfinite(bound)
+            # eps = 0 with variance: the proposition cannot hold at k.
+            never_p.extend(int(c) for c in np.unique(p_cols[~finite]))
+            fixed_p.extend(int(c) for c in np.unique(p_cols[is_hard & finite]))
+            # A hard row is dropped only when the dynamics alone keep it (its own box is no reason).
+            with np.errstate(invalid="ignore"):
+                free = reach_max[k] - bound > 0
+            hsel = np.nonzero(is_hard & finite & free)[0]
+            sel = np.nonzero(~is_hard & finite & (big > 0))[0]  # big <= 0: every reachable mean is inside
+            if sel.size and (not np.all(np.isfinite(big[sel])) or np.max(big[sel]) > _MAX_BIG_M):
+                return MILPOutcome("unsupported", why="the reachable means are unbounded (no finite big-M)")
+            xcols = nb + (k - 1) * n + np.arange(n)
+            for faces, rr, cc, vv, uu, first in (
+                (hsel, h_parts, hc_parts, hv_parts, hub_parts, hrow),
+                (sel, r_parts, c_parts, v_parts, ub_parts, row),
+            ):
+                if not faces.size:
                     continue
-                if big[f] <= 0:
-                    continue  # every reachable mean satisfies the face
-                if not np.isfinite(big[f]) or big[f] > _MAX_BIG_M:
-                    return MILPOutcome(
-                        "unsupported", why="the reachable means are unbounded (no finite big-M)"
-                    )
-                r_idx.extend([row] * (n + 1))
-                c_idx.extend(list(range(nb + (k - 1) * n, nb + k * n)) + [int(p_cols[f])])
-                vals.extend(list(G[f] / g[f]) + [float(big[f]) / (1.0 - _INT_TOL)])
+                ids = first + np.arange(faces.size)
+                cols = [np.broadcast_to(xcols, (faces.size, n))]
+                coefs = [Gn[faces]]
+                if faces is sel:  # big-M: p = 1 (within the integrality tolerance) enforces the face
+                    cols.append(p_cols[faces][:, None])
+                    coefs.append((big[faces] / (1.0 - _INT_TOL))[:, None])
                 if nt:
-                    r_idx.append(row)
-                    c_idx.append(tcol)
-                    vals.append(1.0 / g[f])
-                ub.append(bound[f] / g[f] + big[f])
-                row += 1
-        if row:
-            blocks.append(coo_matrix((vals, (r_idx, c_idx)), shape=(row, nvar)).tocsr())
-            lo.append(np.full(row, -np.inf))
-            hi.append(np.array(ub))
+                    cols.append(np.full((faces.size, 1), tcol))
+                    coefs.append((1.0 / g[faces])[:, None])
+                cm, vm = np.hstack(cols), np.hstack(coefs)
+                rr.append(np.repeat(ids, cm.shape[1]))
+                cc.append(cm.ravel())
+                vv.append(vm.ravel())
+                uu.append(bound[faces] / g[faces] + (big[faces] if faces is sel else 0.0))
+            hrow += hsel.size
+            row += sel.size
+        for rr, cc, vv, uu, count in (
+            (h_parts, hc_parts, hv_parts, hub_parts, hrow),
+            (r_parts, c_parts, v_parts, ub_parts, row),
+        ):
+            if count:
+                blocks.append(
+                    coo_matrix(
+                        (np.concatenate(vv), (np.concatenate(rr), np.concatenate(cc))), shape=(count, nvar)
+                    ).tocsr()
+                )
+                lo.append(np.full(count, -np.inf))
+                hi.append(np.concatenate(uu))
+        logger.debug("MILP: %d hard face rows, %d big-M rows", hrow, row)
 
     A_all = vstack(blocks).tocsr()
     lower = np.concatenate([np.zeros(nb), np.full(nx + nu, -np.inf), np.zeros(nt + na)])
@@ -328,6 +405,8 @@ def solve_milp(
         w = np.ones(m) if effort_weights is None else np.asarray(effort_weights, dtype=float)
         cost[acol:] = np.tile(w, H)
     upper[enc.alive[H + 1] - 1] = 0.0
+    lower[sorted(set(fixed_p) - set(never_p))] = 1.0  # claims the invariants force (the clauses imply them)
+    upper[never_p] = 0.0
     upper[enc.selector - 1] = 0.0  # abandoned candidates are not proofs: their clauses are off
     # Only the letters branch: every gate is a full Tseitin equivalence of its inputs, so it is
     # integral whenever they are (a continuous gate in [0, 1] is exact and halves HiGHS' work).
