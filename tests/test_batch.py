@@ -259,3 +259,28 @@ def test_main_entry_point(tmp_path, capsys):
     from idstlpy import cli
     assert cli.main(["solve", str(UNSAT), "--out", str(tmp_path), "--quiet"]) == 0
     assert "infeasible" in capsys.readouterr().out
+
+
+def test_batch_is_a_package_without_cycles():
+    import ast
+
+    import idstlpy.batch as batch
+
+    package_dir = Path(batch.__file__).parent
+    graph: dict[str, set[str]] = {}
+    for path in package_dir.glob("*.py"):
+        deps: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                deps |= {node.module.split(".")[0]} if node.module else {a.name for a in node.names}
+        graph[path.stem] = deps - {path.stem, "__init__"}
+    assert {"jobs", "executors", "runner", "sweeps"} <= set(graph)
+    assert graph["executors"] == set() and "runner" not in graph["jobs"] | graph["sweeps"]
+
+    def visit(node: str, stack: tuple[str, ...]) -> None:
+        assert node not in stack, f"import cycle: {' -> '.join(stack + (node,))}"
+        for dep in graph.get(node, ()):
+            visit(dep, stack + (node,))
+
+    for node in graph:
+        visit(node, ())

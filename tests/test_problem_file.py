@@ -516,3 +516,54 @@ def _flatten(tree):
     if isinstance(tree, tuple):
         for part in tree:
             yield from _flatten(part)
+
+
+# ------------------------------------------------------------------------------------------------
+# layout
+# ------------------------------------------------------------------------------------------------
+
+
+def _local_imports(package_dir: Path, package: str) -> dict[str, set[str]]:
+    """Module -> modules of the same package it imports (lazy imports included)."""
+    import ast
+
+    graph: dict[str, set[str]] = {}
+    for path in package_dir.glob("*.py"):
+        name = path.stem
+        deps: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 1:
+                if node.module:
+                    deps.add(node.module.split(".")[0])
+                else:
+                    deps.update(a.name for a in node.names)
+        graph[name] = deps - {name}
+    return graph
+
+
+def assert_acyclic(graph: dict[str, set[str]]) -> None:
+    done: set[str] = set()
+
+    def visit(node: str, stack: tuple[str, ...]) -> None:
+        assert node not in stack, f"import cycle: {' -> '.join(stack + (node,))}"
+        if node in done:
+            return
+        for dep in graph.get(node, ()):
+            if dep != "__init__":
+                visit(dep, stack + (node,))
+        done.add(node)
+
+    for node in graph:
+        visit(node, ())
+
+
+def test_problem_file_is_a_package_without_cycles():
+    import idstlpy.problem_file as pf
+
+    assert stl.load_problem is pf.load_problem and stl.ProblemSpec is pf.ProblemSpec
+    assert stl.apply_overrides is pf.apply_overrides
+    graph = _local_imports(Path(pf.__file__).parent, "idstlpy.problem_file")
+    assert {"locations", "schema", "grammar", "builder", "spec", "overrides"} <= set(graph)
+    assert_acyclic({k: v for k, v in graph.items() if k != "__init__"})
+    # the lower modules never import the higher ones
+    assert graph["locations"] == set() and graph["schema"] <= {"locations"}
