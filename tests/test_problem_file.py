@@ -567,3 +567,63 @@ def test_problem_file_is_a_package_without_cycles():
     assert_acyclic({k: v for k, v in graph.items() if k != "__init__"})
     # the lower modules never import the higher ones
     assert graph["locations"] == set() and graph["schema"] <= {"locations"}
+
+
+# ------------------------------------------------------------------------------------------------
+# inputs: errors name the real culprit
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field", "line"),
+    [
+        ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25], [0.25]]", "modes[0].B", 5),
+        ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25, 0.0, 0.1], [0.0, 0.25, 0.1]]", "modes[0].B", 5),
+        ("[control_domain]",
+         "[[modes]]\nA = [[1.0, 0.0], [0.0, 1.0]]\nB = [[1.0], [1.0]]\n\n[control_domain]", "modes[1].B", 9),
+    ],
+)
+def test_wrong_B_shape_is_blamed_on_B(tmp_path, old, new, field, line):
+    path = _write(tmp_path, MINIMAL.replace(old, new, 1))
+    with pytest.raises(stl.ProblemFileError) as info:
+        load_problem(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}:{line}: {field}: must have shape (2, 2)"), msg
+    assert "control_domain" in msg  # says where the number of inputs comes from
+    assert info.value.field == field
+
+
+def test_wrong_B_shape_with_an_inequality_control_domain(tmp_path):
+    box = "low = [-1.0, -1.0]\nhigh = [1.0, 1.0]"
+    text = MINIMAL.replace(box, "A = [[1.0, 0.0], [0.0, 1.0]]\nb = [1.0, 1.0]")
+    path = _write(tmp_path, text.replace("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25], [0.25]]"))
+    match = r"modes\[0\]\.B: must have shape \(2, 2\).*control_domain\.A"
+    with pytest.raises(stl.ProblemFileError, match=match):
+        load_problem(path)
+
+
+def test_a_wrong_control_domain_is_still_blamed_on_it(tmp_path):
+    path = _write(tmp_path, MINIMAL.replace("high = [1.0, 1.0]", "high = [1.0, 1.0, 1.0]"))
+    with pytest.raises(stl.ProblemFileError) as info:
+        load_problem(path)
+    assert info.value.field == "control_domain.high" and "length 2" in str(info.value)
+
+
+def test_wrong_B_shape_of_the_real_system(tmp_path):
+    text = MINIMAL + "\n[[execution.real_system]]\nA = [[1.0, 0.0], [0.0, 1.0]]\nB = [[1.0], [1.0]]\n"
+    match = r"execution\.real_system\[0\]\.B: must have shape \(2, 2\)"
+    with pytest.raises(stl.ProblemFileError, match=match):
+        load_problem(_write(tmp_path, text))
+
+
+def test_cov_as_a_vector_of_variances():
+    text = MINIMAL.replace("cov = [[0.01, 0.0], [0.0, 0.01]]", "cov = [0.01, 0.04]")
+    np.testing.assert_array_equal(load_problem(text).build().problem.initial_state.cov, np.diag([0.01, 0.04]))
+    one_d = (
+        'formula = "F[0,5] goal"\n[[modes]]\nA = [[1.0]]\nB = [[1.0]]\n[control_domain]\nlow = [-1.0]\n'
+        'high = [1.0]\n[initial_belief]\nmean = [0.0]\ncov = [0.5]\n[propositions.goal]\nconfidence = 0.9\n'
+        'constraints = ["x[0] >= 1"]\n'
+    )
+    np.testing.assert_array_equal(load_problem(one_d).build().problem.initial_state.cov, [[0.5]])
+    with pytest.raises(stl.ProblemFileError, match=r"initial_belief\.cov: variances must be >= 0"):
+        load_problem(text.replace("cov = [0.01, 0.04]", "cov = [0.01, -0.04]"))
