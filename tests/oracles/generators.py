@@ -47,6 +47,7 @@ __all__ = [
     "Instance",
     "NoiseFunction",
     "feasible_instance",
+    "active_perception_instance",
     "infeasible_instance",
 ]
 
@@ -595,6 +596,99 @@ def feasible_instance(
     assert np.all(controls >= system.lo) and np.all(controls <= system.hi)
     assert sat(inst.formula, 0, inst.witness_trace)
     return inst
+
+
+def active_perception_instance(seed: int, *, scale: float | None = None) -> Instance:
+    """A light-dark problem built around a detour to the light: the sampler's kind of problem.
+
+    An integrator whose sensor is useless far from a light at ``x_0 = l`` (noise
+    ``a (x_0 - l)^2 + b``) starts uncertain at the origin. The witness drives to the light at full
+    speed, lingers, drives back and holds still; the target is a box around where it holds, as
+    tight as the witness's covariance there allows (plus a slack ``>= 0``, sometimes 0), and the
+    free space a band around its whole path: ``free U[0,T] G[0,h] target``.
+    """
+    rng = np.random.default_rng(seed)
+    s = float(scale) if scale is not None else float(rng.choice(SCALES, p=[0.2, 0.6, 0.2]))
+    n = int(rng.integers(1, 3))
+    g = float(rng.uniform(0.5, 1.0))
+    scale_input = bool(rng.random() < 0.5)
+    s_in = s if scale_input else 1.0
+    B = g * np.eye(n) * (1.0 if scale_input else s)
+    umax = rng.uniform(0.5, 1.0, size=n) * s_in
+    light = float(rng.uniform(2.5, 4.5))
+    V = NoiseFunction(
+        "quadratic", float(rng.uniform(0.05, 0.15)), float(rng.uniform(0.002, 0.02)), light, 0, np.eye(n), s
+    )
+    modes = [ModeSpec(np.eye(n), B, np.zeros((n, n)), np.eye(n), V, label="state_dependent light")]
+    mean0 = np.zeros(n)
+    cov0 = np.diag(rng.uniform(0.2, 0.4, size=n) ** 2) * s * s
+    # The witness: to the light (the last step lands on it), linger, back to the origin, hold.
+    step = float(B[0, 0] * umax[0])
+    controls: list[np.ndarray] = []
+    pos = 0.0
+    for target in (light * s, 0.0):
+        while abs(target - pos) > 1e-12 * s:
+            move = float(np.clip(target - pos, -step, step))
+            u = np.zeros(n)
+            u[0] = move / B[0, 0]
+            controls.append(u)
+            pos += move
+        if target != 0.0:
+            controls.extend(np.zeros(n) for _ in range(int(rng.integers(1, 4))))
+    K = len(controls)
+    h = int(rng.integers(1, 4))
+    controls.extend(np.zeros(n) for _ in range(h))
+    actions = np.zeros(len(controls), dtype=int)
+    U = np.array(controls)
+    trace = mlo_rollout(modes, mean0, cov0, actions, U)
+    x = stl.mk_variable(n, name="x")
+    zero_slack = False
+
+    def faces(steps: range, level: float, slack_max: float) -> list[Any]:
+        nonlocal zero_slack
+        states = [trace.states[j] for j in steps]
+        out = []
+        for j in range(n):
+            for sign in (-1.0, 1.0):
+                hvec = sign * np.eye(n)[j]
+                z = float(norm.ppf(level))
+                worst = max(
+                    float(hvec @ m) + z * float(np.sqrt(max(float(hvec @ S @ hvec), 0.0))) for m, S in states
+                )
+                slack = 0.0 if rng.random() < 0.25 else float(rng.uniform(0, slack_max))
+                zero_slack = zero_slack or slack == 0.0
+                out.append(_exact_face(x, hvec, -worst - slack, level, states))
+        return out
+
+    level = float(rng.uniform(0.8, 0.97))
+    sd_hold = float(np.sqrt(max(trace.states[K][1][0, 0], 0.0)))
+    target = stl.logical_and(*faces(range(K, K + h + 1), level, 0.5 * sd_hold), name="target")
+    free = stl.logical_and(*faces(range(0, K), 0.99, 0.5 * s), name="free_space")
+    extra = int(rng.choice([0, 5, 20]))
+    formula = stl.until(free, 0, K + extra, stl.always(0, h, target))
+    assert sat(formula, 0, trace), "generator bug: the witness does not satisfy the formula"
+    tags = {"active_perception", "state_dependent", "integrator"}
+    if zero_slack:
+        tags.add("zero_slack")
+    if s != 1.0:
+        tags.add("scaled")
+    lo, hi = -umax, umax.copy()
+    system = _System(modes, lo, hi, n, n, tags, s_in)
+    return Instance(
+        family="active_perception",
+        expect="feasible",
+        problem=system.build(mean0, cov0, formula),
+        modes=modes,
+        lo=lo,
+        hi=hi,
+        mean0=mean0,
+        cov0=cov0,
+        formula=formula,
+        scale=s,
+        tags=tags,
+        witness=(actions, U),
+        seed=seed,
+    )
 
 
 # ------------------------------------------------------------------------------------------------
