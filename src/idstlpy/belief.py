@@ -134,9 +134,14 @@ def kalman_update(
     S = C @ P @ C.T + R
     PCt = P @ C.T
     try:
-        K = np.linalg.solve(S.T, PCt.T).T
+        with np.errstate(all="ignore"):
+            K = np.linalg.solve(S.T, PCt.T).T
+        if not np.all(np.isfinite(K)):
+            raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
     except np.linalg.LinAlgError:
-        K = PCt @ np.linalg.pinv(S)
+        # A (near-)singular innovation covariance: a perfect sensor of a direction the prior
+        # already knows. The pseudo-inverse gives the exact limit.
+        K = PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True)
     IKC = np.eye(P.shape[0]) - K @ C
     cov = IKC @ P @ IKC.T + K @ R @ K.T
     cov = 0.5 * (cov + cov.T)
