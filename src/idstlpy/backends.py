@@ -53,6 +53,9 @@ class LinearModel:
     lb, ub : ndarray, shape (nvar,)
     integrality : ndarray of int, shape (nvar,), optional
         1 for integer variables (a MILP), 0 for continuous ones.
+    mip_rel_gap : float, optional
+        Relative optimality gap at which a MILP may stop; ``None``: 1e-7 when the objective is
+        not zero (an optimum is asked for), the back-end's default otherwise.
     """
 
     c: np.ndarray
@@ -62,6 +65,7 @@ class LinearModel:
     lb: np.ndarray
     ub: np.ndarray
     integrality: np.ndarray | None = None
+    mip_rel_gap: float | None = None
 
     @property
     def num_vars(self) -> int:
@@ -169,7 +173,7 @@ class HighsBackend:
                 integrality=model.integrality,
                 bounds=Bounds(model.lb, model.ub),
                 constraints=LinearConstraint(model.A, model.row_lo, model.row_hi),
-                options={"time_limit": limit, "disp": False},
+                options={"time_limit": limit, "disp": False, "mip_rel_gap": _gap(model)},
             )
         status: SolutionStatus
         if res.status == 0:
@@ -232,6 +236,12 @@ class HighsBackend:
                 duals[eq_idx] += np.asarray(res.eqlin.marginals)
         fun = float(res.fun) if res.fun is not None else float("nan")
         return BackendSolution(status, res.x, fun, duals, str(res.message))
+
+
+def _gap(model: LinearModel) -> float:
+    if model.mip_rel_gap is not None:
+        return float(model.mip_rel_gap)
+    return 1e-7 if np.any(model.c != 0) else 1e-4
 
 
 _REGISTRY: dict[str, Any] = {}
