@@ -143,13 +143,15 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
             teachers.append(sampler)
         lp_exact = teachers[0].exact(problem)
         eager = lp_exact and system.num_modes == 1
+        # An optimum over the horizon is the MILP's job: with an objective, go there at once.
+        lazy_budget = 0 if options.objective is not None else options.lazy_candidates
         while True:
             budget.check("the proposer / teacher loop")
             if options.max_candidates is not None and stats.candidates >= options.max_candidates:
                 return run.done(
                     "budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}"
                 )
-            if eager and stats.candidates >= options.lazy_candidates:
+            if eager and stats.candidates >= lazy_budget:
                 result = _eager(run, proposer, abstraction, scaling)
                 if result is not None:
                     return _optimise(run, result, proposer, abstraction, scaling, "milp")
