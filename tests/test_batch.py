@@ -3,9 +3,14 @@ backend (in-process, process pool, Dask LocalCluster)."""
 
 from __future__ import annotations
 
-import argparse
+import hashlib
 import json
+import os
 import pickle
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +18,7 @@ import pytest
 
 import idstlpy as stl
 from idstlpy.batch import (
+    DEFAULT_SEED,
     DaskExecutor,
     InProcessExecutor,
     Job,
@@ -58,25 +64,65 @@ def test_job_is_plain_data_with_a_stable_key():
 def test_run_job_record():
     record = run_job(Job.from_file(LIGHT_DARK, "solve", FAST, seed=1).as_dict())
     json.dumps(record, allow_nan=False)
+    assert record["schema"] == "idstlpy.result/1" and record["kind"] == "solve"
     assert record["status"] == "found" and record["error"] is None
-    assert record["job"]["seed"] == 1 and record["job"]["overrides"] == FAST
-    result = record["result"]
-    assert result["solver_kwargs"]["seed"] == 1 and result["solver_kwargs"]["rrt_timeout"] == 5
-    plan = result["plan"]
-    assert len(plan["actions"]) == plan["num_of_steps"] == len(plan["means"]) - 1
-    assert "time_total" not in result["stats"] and "time_total" in record["timing"]["solver"]
-    assert record["timing"]["wall_time"] > 0
-    # the plan is the one the Python API finds with the same seed
+    assert record["seed"] == 1 and record["seed_source"] == "job"
+    assert record["problem"]["overrides"] == FAST
+    assert record["problem"]["text"] == LIGHT_DARK.read_text()
+    assert record["problem"]["sha256"] == hashlib.sha256(LIGHT_DARK.read_bytes()).hexdigest()
+    assert record["formula"] == "(free_space U[0,240] G[0,40] target)"
+    assert record["solver_options"]["seed"] == 1 and record["solver_options"]["rrt_timeout"] == 5
+    plan = record["plan"]
+    assert len(plan["action"]) == len(plan["control"]) == len(plan["mean"]) - 1
+    assert "time_total" in record["timing"]["solver"] and record["timing"]["wall_time"] > 0
+    # the plan is the one the Python API finds with the same seed, and reads back as a result
     problem = stl.problem_file.load_problem(LIGHT_DARK).build().problem
     direct = problem.solve_result(rrt_timeout=5, time_limit=60, seed=1)
-    np.testing.assert_array_equal(direct.trajectory.get_control(), np.array(plan["controls"]))
+    np.testing.assert_array_equal(direct.trajectory.get_control(), np.array(plan["control"]))
+    again = stl.SolveResult.from_dict(record)
+    assert again.status == "found" and stl.satisfies(again.trajectory, problem.stl_formula)
+
+
+def test_a_file_without_seed_uses_the_default_seed():
+    text = LIGHT_DARK.read_text()
+    assert "seed" not in text.split("[solver]")[1].split("[execution]")[0]
+    a = run_job(Job("solve", text, "ld.toml", FAST))
+    b = run_job(Job("solve", text, "ld.toml", FAST))
+    assert a["seed"] == DEFAULT_SEED and a["seed_source"] == "default"
+    assert comparable(a) == comparable(b)  # the same plan on every run
+    seeded = run_job(Job("solve", text, "ld.toml", {**FAST, "solver.seed": 5}))
+    assert seeded["seed"] == 5 and seeded["seed_source"] == "file"
 
 
 def test_failing_job_is_a_record_not_an_exception():
     record = run_job(Job.from_file(LIGHT_DARK, "solve", {"solver.budget": 1}, seed=0))
-    assert record["status"] == "error" and record["result"] is None
+    assert record["status"] == "error" and record["plan"] is None
     assert record["error"]["type"] == "ProblemFileError"
     assert "solver.budget (override)" in record["error"]["message"]
+    json.dumps(record, allow_nan=False)
+
+
+def test_validate_a_saved_plan_without_solving(tmp_path):
+    solved = run_job(Job.from_file(LIGHT_DARK, "solve", FAST, seed=1))
+    job = Job.from_file(LIGHT_DARK, "validate", {**FAST, "validation.runs": 3}, seed=1, plan=solved)
+    record = run_job(job)
+    assert record["status"] == "found" and record["plan_source"] == "saved"
+    assert record["check"]["satisfies"] and record["check"]["same_problem"]
+    assert record["check"]["max_deviation"] < 1e-9
+    assert record["plan"] == solved["plan"] and record["validation"]["runs"] == 3
+    assert "solver" not in record["timing"]  # nothing was solved
+    # the same plan under a stricter problem is rejected, with a reason
+    strict = Job.from_file(LIGHT_DARK, "validate", {"propositions.target.confidence": 0.9999}, plan=solved)
+    rejected = run_job(strict)
+    assert rejected["status"] == "rejected" and not rejected["check"]["satisfies"]
+    assert "does not satisfy" in rejected["reason"] and rejected["validation"] is None
+    # a tampered plan does not re-roll to its own beliefs
+    tampered = json.loads(json.dumps(solved))
+    tampered["plan"]["mean"][3][0] += 0.5
+    bad = run_job(Job.from_file(LIGHT_DARK, "validate", FAST, plan=tampered))
+    assert bad["status"] == "rejected" and "differ" in bad["reason"]
+    with pytest.raises(stl.InvalidArgumentError):
+        Job.from_file(LIGHT_DARK, "solve", plan=solved)
 
 
 def test_sweep_file(tmp_path):
@@ -142,12 +188,34 @@ def test_results_are_written_and_resumed(tmp_path):
     assert fresh[0]["timing"]["cached"] is False
 
 
+def test_resume_checks_the_id_and_the_problem_of_each_record(tmp_path):
+    jobs = [Job.from_file(UNSAT, "solve", {}, seed=s) for s in (1, 2, 3, 4)]
+    first = run_jobs(jobs, tmp_path, "inprocess")
+    paths = [result_path(tmp_path, j) for j in jobs]
+    # a stub, another job's record, a record of another problem text, a record of an old schema
+    paths[0].write_text(json.dumps({"schema": "idstlpy.result/1", "id": jobs[0].key, "status": "infeasible"}))
+    paths[1].write_text(paths[2].read_text())
+    other = json.loads(paths[2].read_text())
+    other["problem"]["sha256"] = "0" * 64
+    paths[2].write_text(json.dumps(other))
+    old = json.loads(paths[3].read_text())
+    old["schema"] = "idstlpy.result/0"
+    paths[3].write_text(json.dumps(old))
+    again = run_jobs(jobs, tmp_path, "inprocess")
+    assert [r["timing"]["cached"] for r in again] == [False, False, False, False]
+    assert [comparable(r) for r in again] == [comparable(r) for r in first]
+    assert all(json.loads(p.read_text())["id"] == j.key for p, j in zip(paths, jobs, strict=True))
+    assert [r["timing"]["cached"] for r in run_jobs(jobs, tmp_path, "inprocess")] == [True] * 4
+
+
 def test_executors_by_name():
     assert isinstance(make_executor("inprocess"), InProcessExecutor)
     with pytest.raises(stl.InvalidArgumentError):
         make_executor("cluster")
     with pytest.raises(stl.InvalidArgumentError):
         make_executor("processes", workers=0)
+    with pytest.raises(stl.InvalidArgumentError, match="dask"):
+        make_executor("processes", scheduler="tcp://localhost:8786")
     future = InProcessExecutor().submit(divmod, 7, 2)
     assert future.result() == (3, 1)
     assert isinstance(InProcessExecutor().submit(divmod, 1, 0).exception(), ZeroDivisionError)
@@ -204,27 +272,28 @@ def test_sweep_seeds_give_identical_records_across_backends(tmp_path):
 
 
 def _cli(argv: list[str]) -> int:
-    from idstlpy.cli import files
+    from idstlpy.cli import main
 
-    parser = argparse.ArgumentParser(prog="idstlpy")
-    files.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(argv)
-    return args.func(args)
+    return main(argv)
 
 
 def test_cli_solve(tmp_path, capsys):
     code = _cli(["solve", str(UNSAT), "--out", str(tmp_path), "--seed", "3", "--set", "solver.rrt_timeout=2"])
     out, err = capsys.readouterr()
-    assert code == 0
+    assert code == 1  # ran, no plan
     assert "infeasible" in out and "total: 1 infeasible" in out
-    assert "1/1 jobs" in err
+    assert "solving" in err and "(seed 3)" in err  # the progress line of a single solve
     (path,) = tmp_path.glob("*.json")
     record = json.loads(path.read_text())
-    assert record["job"]["seed"] == 3 and record["job"]["overrides"] == {"solver.rrt_timeout": 2}
-    assert _cli(["solve", str(UNSAT), "--out", str(tmp_path), "--seed", "3", "--quiet",
-                 "--set", "solver.rrt_timeout=2"]) == 0
+    assert record["seed"] == 3 and record["problem"]["overrides"] == {"solver.rrt_timeout": 2}
+    assert f"result: {path}" in out
+    args = ["solve", str(UNSAT), "--out", str(tmp_path), "--seed", "3", "--quiet"]
+    args += ["--set", "solver.rrt_timeout=2"]
+    assert _cli(args) == 1
     out, err = capsys.readouterr()
-    assert err == "" and "infeasible" in out
+    assert "reused" in err and "infeasible" in out
+    assert _cli([*args, "--no-resume"]) == 1
+    assert capsys.readouterr().err == ""
 
 
 def test_cli_bad_file(tmp_path, capsys):
@@ -232,20 +301,24 @@ def test_cli_bad_file(tmp_path, capsys):
     bad.write_text(UNSAT.read_text().replace("rrt_timeout = 5", "rrt_timeout = 5\nbudget = 3"))
     assert _cli(["solve", str(bad), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert f"{bad}:" in err and "solver.budget" in err
+    assert f"{bad}:" in err and "solver.budget" in err and err.count("\n") == 1
     assert _cli(["solve", str(UNSAT), "--set", "solver.nope=1", "--out", str(tmp_path)]) == 2
+    assert not list(tmp_path.glob("*.json"))
 
 
 def test_cli_sweep(tmp_path, capsys):
     sweep_file = tmp_path / "sweep.toml"
     sweep_file.write_text(f'problem = "{UNSAT}"\nrepeats = 2\n[grid]\n"solver.rrt_timeout" = [1, 2]\n')
     out_dir = tmp_path / "out"
-    assert _cli(["sweep", str(sweep_file), "--out", str(out_dir), "--executor", "inprocess"]) == 0
+    assert _cli(["sweep", str(sweep_file), "--out", str(out_dir), "--executor", "inprocess"]) == 1
     out, err = capsys.readouterr()
     assert "total: 4 infeasible" in out and "4/4 jobs" in err
     assert len(list(out_dir.glob("*.json"))) == 4
-    assert _cli(["sweep", str(sweep_file), "--out", str(out_dir), "--executor", "inprocess"]) == 0
+    assert _cli(["sweep", str(sweep_file), "--out", str(out_dir), "--executor", "inprocess"]) == 1
     assert "4 cached" in capsys.readouterr().err
+    found = tmp_path / "found.toml"
+    found.write_text(f'problem = "{LIGHT_DARK}"\n[grid]\n"solver.rrt_timeout" = [5]\n')
+    assert _cli(["sweep", str(found), "--out", str(out_dir), "--executor", "inprocess", "--quiet"]) == 0
 
 
 def test_dask_by_name_with_worker_processes(tmp_path, reference_records):
@@ -257,8 +330,54 @@ def test_dask_by_name_with_worker_processes(tmp_path, reference_records):
 
 def test_main_entry_point(tmp_path, capsys):
     from idstlpy import cli
-    assert cli.main(["solve", str(UNSAT), "--out", str(tmp_path), "--quiet"]) == 0
+
+    assert cli.main(["solve", str(UNSAT), "--out", str(tmp_path), "--quiet"]) == 1
     assert "infeasible" in capsys.readouterr().out
+
+
+_ORPHAN_SCRIPT = """
+import os, sys, time
+from idstlpy.batch.executors import make_executor
+
+if __name__ == "__main__":
+    ex = make_executor("processes", workers=1)
+    print(ex.submit(os.getpid).result(), flush=True)
+    ex.submit(time.sleep, 120)
+    time.sleep(120)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    stat = Path(f"/proc/{pid}/stat")
+    if stat.exists():
+        try:
+            return stat.read_text().rsplit(")", 1)[1].split()[0] != "Z"  # a zombie is dead
+        except (OSError, IndexError):
+            return False
+    return True
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
+def test_pool_workers_stop_when_their_parent_dies(tmp_path):
+    script = tmp_path / "orphan.py"
+    script.write_text(_ORPHAN_SCRIPT)
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        worker = int(parent.stdout.readline())
+        assert _alive(worker)
+        parent.send_signal(signal.SIGKILL)  # no clean-up of any kind runs in the parent
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 15
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(worker), "the pool worker outlived its parent"
+    finally:
+        parent.kill()
+        parent.stdout.close()
 
 
 def test_batch_is_a_package_without_cycles():

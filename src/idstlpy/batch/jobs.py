@@ -1,15 +1,21 @@
 """Jobs: one unit of work as plain data, and :func:`run_job`, which turns it into a record.
 
-A :class:`Job` is the text of a problem file, overrides, a seed and a kind (``"solve"`` or
-``"validate"``); its record is plain JSON data. Nothing but the job and the record crosses
+A :class:`Job` is the text of a problem file, overrides, a seed, a kind (``"solve"`` or
+``"validate"``) and, for a validation of a saved plan, that plan; its record (see
+:mod:`idstlpy.batch.records`) is plain JSON data. Nothing but the job and the record crosses
 process boundaries, so every executor gives the same records for the same jobs.
+
+Seeds: a job's ``seed`` wins; otherwise the file's ``[solver] seed``; otherwise
+:data:`DEFAULT_SEED`, so that a file without a seed gives the same plan on every run (and
+``idstlpy solve`` and ``idstlpy validate`` check the same plan). The record says which one was
+used (``seed`` and ``seed_source``).
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
+import logging
 import os
 import platform
 import time
@@ -22,12 +28,38 @@ from typing import Any
 import numpy as np
 
 from ..errors import IdstlpyError, InvalidArgumentError, ProblemFileError
-from ..problem_file import apply_overrides, load_problem
+from ..problem_file import ExecutionSettings, ProblemSpec, apply_overrides, load_problem, text_sha256
+from .records import (
+    RESULT_SCHEMA,
+    jsonable,
+    plan_from_record,
+    problem_section,
+    result_to_dict,
+    software_section,
+)
 
-__all__ = ["JOB_KINDS", "RECORD_VERSION", "Job", "run_job", "comparable", "failure_record"]
+__all__ = [
+    "JOB_KINDS",
+    "DEFAULT_SEED",
+    "PLAN_TOLERANCE",
+    "Job",
+    "run_job",
+    "comparable",
+    "failure_record",
+    "derived_seed",
+    "new_record",
+]
+
+logger = logging.getLogger("idstlpy.batch")
 
 JOB_KINDS = ("solve", "validate")
-RECORD_VERSION = 1
+
+DEFAULT_SEED = 0
+"""The solver's seed when neither the job nor the problem file gives one."""
+
+PLAN_TOLERANCE = 1e-6
+"""Largest difference (relative to the belief's scale) between a saved plan's beliefs and their
+re-roll under the problem's dynamics before the saved plan is rejected."""
 
 
 @dataclass(frozen=True)
@@ -37,8 +69,9 @@ class Job:
     Attributes
     ----------
     kind : {"solve", "validate"}
-        ``solve``: load, build, ``solve_result``. ``validate``: the same, then execute the plan
-        on the real system (:func:`idstlpy.execution.validate.validate`).
+        ``solve``: load, build, ``solve_result``. ``validate``: the same (or, with ``plan``,
+        check the saved plan instead of solving), then execute the plan on the real system
+        (:func:`idstlpy.execution.validate.validate`).
     problem_text : str
         The problem file's text (shipped as is to workers: they need no shared filesystem).
     problem_name : str
@@ -47,7 +80,10 @@ class Job:
         Dotted paths to values (see :func:`~idstlpy.problem_file.apply_overrides`).
     seed : int or None
         Seed of the solver (and, through a spawned child, of the validation runs); None uses
-        the seeds written in the file.
+        the file's ``[solver] seed``, or :data:`DEFAULT_SEED`.
+    plan : dict or None
+        A saved result (``SolveResult.to_dict()`` or a record) whose plan a ``validate`` job
+        checks and executes instead of solving.
     """
 
     kind: str
@@ -55,6 +91,7 @@ class Job:
     problem_name: str = "<string>"
     overrides: dict[str, Any] = field(default_factory=dict)
     seed: int | None = None
+    plan: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in JOB_KINDS:
@@ -62,6 +99,11 @@ class Job:
         seed = self.seed
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
             raise InvalidArgumentError(f"job seed must be a non-negative int or None, got {self.seed!r}")
+        if self.plan is not None:
+            if self.kind != "validate":
+                raise InvalidArgumentError("a saved plan can only be given to a validate job")
+            if not isinstance(self.plan, dict) or not isinstance(self.plan.get("plan"), dict):
+                raise InvalidArgumentError("plan must be a saved result with a plan (its 'plan' field)")
 
     @classmethod
     def from_file(
@@ -70,72 +112,155 @@ class Job:
         kind: str = "solve",
         overrides: Mapping[str, Any] | None = None,
         seed: int | None = None,
+        plan: dict[str, Any] | None = None,
     ) -> Job:
-        """A job for the problem file at ``path`` (its text is read now)."""
+        """A job for the problem file at ``path`` (its text is read now).
+
+        Parameters
+        ----------
+        path : path
+            The problem file.
+        kind : {"solve", "validate"}
+        overrides : mapping, optional
+            Dotted paths to values.
+        seed : int, optional
+        plan : dict, optional
+            A saved result to validate instead of solving.
+
+        Returns
+        -------
+        Job
+        """
         try:
             text = Path(path).read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:
             raise ProblemFileError(f"{path}: cannot read the problem file: {exc}") from None
-        return cls(kind, text, str(path), dict(overrides or {}), seed)
+        return cls(kind, text, str(path), dict(overrides or {}), seed, plan)
 
     @property
     def key(self) -> str:
         """Hash of everything that determines the result (16 hex digits)."""
-        payload = json.dumps(
-            {
-                "version": RECORD_VERSION,
-                "kind": self.kind,
-                "problem": self.problem_text,
-                "overrides": _jsonable(self.overrides),
-                "seed": self.seed,
-            },
-            sort_keys=True,
-        )
-        return hashlib.sha256(payload.encode()).hexdigest()[:16]
+        payload = {
+            "schema": RESULT_SCHEMA,
+            "kind": self.kind,
+            "problem": self.problem_text,
+            "overrides": jsonable(self.overrides),
+            "seed": self.seed,
+        }
+        if self.plan is not None:
+            payload["plan"] = hashlib.sha256(_canonical(self.plan.get("plan")).encode()).hexdigest()
+        return hashlib.sha256(_canonical(payload).encode()).hexdigest()[:16]
+
+    @property
+    def problem_sha256(self) -> str:
+        """SHA-256 of :attr:`problem_text` (what result files record)."""
+        return text_sha256(self.problem_text)
 
     def as_dict(self) -> dict[str, Any]:
-        """Plain-data form (what executors ship to workers)."""
+        """Plain-data form (what executors ship to workers).
+
+        Returns
+        -------
+        dict
+        """
         return {
             "kind": self.kind,
             "problem_text": self.problem_text,
             "problem_name": self.problem_name,
             "overrides": dict(self.overrides),
             "seed": self.seed,
+            "plan": self.plan,
         }
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Job:
-        """Inverse of :meth:`as_dict`."""
+        """Inverse of :meth:`as_dict`.
+
+        Parameters
+        ----------
+        data : mapping
+
+        Returns
+        -------
+        Job
+        """
         return cls(
             data["kind"],
             data["problem_text"],
             data.get("problem_name", "<string>"),
             dict(data.get("overrides") or {}),
             data.get("seed"),
+            data.get("plan"),
         )
 
 
-def _jsonable(value: Any) -> Any:
-    """Plain JSON data: arrays to lists, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, np.generic):
-        return _jsonable(value.item())
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, bool | int | str) or value is None:
-        return value
-    if hasattr(value, "as_dict"):
-        return _jsonable(value.as_dict())
-    return str(value)
+def _canonical(value: Any) -> str:
+    return json.dumps(jsonable(value), sort_keys=True, allow_nan=False)
 
 
-def _derived_seed(seed: int, index: int) -> int:
+def derived_seed(seed: int, index: int) -> int:
+    """Child ``index`` of ``seed`` (``numpy.random.SeedSequence(seed, spawn_key=(index,))``).
+
+    Parameters
+    ----------
+    seed : int
+    index : int
+
+    Returns
+    -------
+    int
+        A 64-bit seed.
+    """
     return int(np.random.SeedSequence(seed, spawn_key=(index,)).generate_state(1, np.uint64)[0])
+
+
+def _seed(job: Job, spec: ProblemSpec) -> tuple[int, str]:
+    if job.seed is not None:
+        return job.seed, "job"
+    if spec.seed is not None:
+        return spec.seed, "file"
+    logger.warning("%s sets no [solver] seed: using the default seed %d", job.problem_name, DEFAULT_SEED)
+    return DEFAULT_SEED, "default"
+
+
+def new_record(job: Job) -> dict[str, Any]:
+    """A record of ``job`` before it runs (``status = "error"`` until a result fills it).
+
+    Parameters
+    ----------
+    job : Job
+
+    Returns
+    -------
+    dict
+    """
+    return {
+        "schema": RESULT_SCHEMA,
+        "id": job.key,
+        "kind": job.kind,
+        "status": "error",
+        "reason": "",
+        "margin": None,
+        "formula": None,
+        "stats": None,
+        "plan": None,
+        "problem": {
+            "name": job.problem_name,
+            "title": Path(job.problem_name).stem,
+            "sha256": job.problem_sha256,
+            "text": job.problem_text,
+            "overrides": jsonable(job.overrides),
+        },
+        "seed": job.seed,
+        "seed_source": "job" if job.seed is not None else None,
+        "solver_options": None,
+        "plan_source": None,
+        "check": None,
+        "validation": None,
+        "error": None,
+        "software": software_section(),
+        "timing": {"host": platform.node(), "pid": os.getpid()},
+    }
 
 
 def run_job(job: Job | Mapping[str, Any]) -> dict[str, Any]:
@@ -149,49 +274,37 @@ def run_job(job: Job | Mapping[str, Any]) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``version``, ``id`` (the job key), ``job`` (kind, problem name, overrides, seed),
-        ``status`` (the solver status, or ``"error"``), ``result`` (reason, margin, statistics
-        without times, the plan), ``validation`` (the validation report, for validate jobs),
-        ``error`` (type, message, traceback) and ``timing`` (everything that varies from run
-        to run: wall time, solver times, host).
+        A record of schema :data:`~idstlpy.batch.records.RESULT_SCHEMA`
+        (``docs/results-schema.md``): the result's fields, the job's ``id`` and ``kind``, the
+        ``problem`` (name, title, SHA-256, text, overrides), the ``seed`` used and its
+        ``seed_source``, the ``solver_options``, the ``check`` of a saved plan, the
+        ``validation`` report, the ``error`` of a failed job, and ``timing`` (everything that
+        varies from run to run: wall time, solver times, host).
     """
     if not isinstance(job, Job):
         job = Job.from_dict(job)
     t0 = time.perf_counter()
-    record: dict[str, Any] = {
-        "version": RECORD_VERSION,
-        "id": job.key,
-        "job": {
-            "kind": job.kind,
-            "problem": job.problem_name,
-            "overrides": _jsonable(job.overrides),
-            "seed": job.seed,
-        },
-        "status": "error",
-        "result": None,
-        "validation": None,
-        "error": None,
-        "timing": {"host": platform.node(), "pid": os.getpid()},
-    }
+    record = new_record(job)
     try:
         spec = apply_overrides(load_problem(job.problem_text, name=job.problem_name), job.overrides)
+        record["problem"] = problem_section(spec)
         problem, solver_kwargs, execution = spec.build()
-        if job.seed is not None:
-            solver_kwargs["seed"] = job.seed
-        result = problem.solve_result(**solver_kwargs)
-        stats = result.stats.as_dict()
-        record["status"] = result.status
-        record["result"] = {
-            "status": result.status,
-            "reason": result.reason,
-            "margin": result.margin,
-            "stats": {k: v for k, v in stats.items() if not k.startswith("time")},
-            "solver_kwargs": solver_kwargs,
-            "plan": _plan(result.trajectory),
-        }
-        record["timing"]["solver"] = {k: v for k, v in stats.items() if k.startswith("time")}
-        if job.kind == "validate" and result.trajectory is not None:
-            report = _validate(job, problem, result.trajectory, execution)
+        record["formula"] = str(problem.stl_formula)
+        seed, source = _seed(job, spec)
+        solver_kwargs["seed"] = seed
+        record["seed"], record["seed_source"] = seed, source
+        record["solver_options"] = jsonable(solver_kwargs)
+        if job.plan is not None:
+            trajectory = _check_saved_plan(job, problem, record)
+        else:
+            result = problem.solve_result(**solver_kwargs)
+            record.update(result_to_dict(result))
+            record["plan_source"] = "solved"
+            trajectory = result.trajectory
+            stats = record.get("stats") or {}
+            record["timing"]["solver"] = {k: v for k, v in stats.items() if k.startswith("time")}
+        if job.kind == "validate" and trajectory is not None:
+            report = _validate(problem, trajectory, execution, seed, job.seed is not None)
             record["timing"]["validation"] = report.pop("elapsed", None)
             record["validation"] = report
     except Exception as exc:  # a failing job is a record, not a crash of the whole sweep
@@ -202,22 +315,77 @@ def run_job(job: Job | Mapping[str, Any]) -> dict[str, Any]:
             "traceback": None if isinstance(exc, IdstlpyError) else traceback.format_exc(),
         }
     record["timing"]["wall_time"] = time.perf_counter() - t0
-    return _jsonable(record)
+    return jsonable(record)  # type: ignore[no-any-return]
 
 
-def _plan(traj: Any) -> dict[str, Any] | None:
-    if traj is None:
-        return None
-    return {
-        "num_of_steps": int(traj.num_of_steps),
-        "actions": traj.get_action().tolist(),
-        "controls": traj.get_control().tolist(),
-        "means": traj.get_mean().tolist(),
-        "covs": traj.get_cov().tolist(),
+def _check_saved_plan(job: Job, problem: Any, record: dict[str, Any]) -> Any:
+    """Re-roll a saved plan's modes and controls under this problem and monitor the formula.
+
+    Fills the record's result fields and ``check``; returns the re-rolled plan, or None when it
+    is rejected (the record's status is then ``"rejected"``).
+    """
+    from ..belief import rollout
+    from ..monitor import robustness
+
+    saved = job.plan or {}
+    traj = plan_from_record(saved, "plan")
+    rolled = rollout(problem.switched_system, problem.initial_state, traj.get_action(), traj.get_control())
+    scale = max(1.0, float(np.max(np.abs(rolled.get_mean()))))
+    deviation = max(
+        float(np.max(np.abs(rolled.get_mean() - traj.get_mean()))),
+        float(np.max(np.abs(rolled.get_cov() - traj.get_cov()))),
+    )
+    margin = robustness(rolled, problem.stl_formula)
+    saved_problem = saved.get("problem") if isinstance(saved.get("problem"), Mapping) else {}
+    saved_sha = saved_problem.get("sha256") if isinstance(saved_problem, Mapping) else None
+    ok = margin >= 0.0 and deviation <= PLAN_TOLERANCE * scale
+    record["check"] = {
+        "satisfies": bool(margin >= 0.0),
+        "margin": margin,
+        "max_deviation": deviation,
+        "problem_sha256": saved_sha,
+        "same_problem": saved_sha == job.problem_sha256 if saved_sha else None,
     }
+    for key in ("formula", "stats"):
+        if saved.get(key) is not None:
+            record[key] = jsonable(saved[key])
+    record["formula"] = str(problem.stl_formula)
+    record["plan"] = result_to_plan(rolled)
+    record["margin"] = margin
+    record["plan_source"] = "saved"
+    if ok:
+        record["status"] = "found"
+        record["reason"] = f"saved plan re-rolled and monitored: margin {margin:.4g}"
+        return rolled
+    record["status"] = "rejected"
+    if margin < 0.0:
+        record["reason"] = f"the saved plan does not satisfy this problem's formula (margin {margin:.4g})"
+    else:
+        record["reason"] = (
+            f"the saved plan's beliefs differ from their re-roll under this problem by {deviation:.3g}"
+        )
+    return None
 
 
-def _validate(job: Job, problem: Any, trajectory: Any, execution: Any) -> dict[str, Any]:
+def result_to_plan(traj: Any) -> dict[str, Any]:
+    """The ``plan`` field of a record for a trajectory (the core's format).
+
+    Parameters
+    ----------
+    traj : ProbabilisticTSTrajectory
+
+    Returns
+    -------
+    dict
+    """
+    from ..synthesis import SolveResult
+
+    return result_to_dict(SolveResult("found", traj, ""))["plan"]  # type: ignore[no-any-return]
+
+
+def _validate(
+    problem: Any, trajectory: Any, execution: ExecutionSettings, seed: int, seed_from_job: bool
+) -> dict[str, Any]:
     """Execute the plan ``execution.runs`` times in this process; returns the report as data."""
     from ..execution.validate import validate
 
@@ -229,7 +397,12 @@ def _validate(job: Job, problem: Any, trajectory: Any, execution: Any) -> dict[s
                 Q=execution.lqr["Q"],
                 R=execution.lqr["R"],
             )
-    seed = execution.seed if job.seed is None else _derived_seed(job.seed, 1)
+    # a job's seed decides everything; otherwise the file's [validation] seed, else a child of
+    # the solver's seed (never fresh entropy: the same job gives the same record)
+    if seed_from_job or execution.seed is None:
+        vseed = derived_seed(seed, 1)
+    else:
+        vseed = execution.seed
     # "serial": the runs of one job stay in its worker (jobs are the unit of parallelism)
     report = validate(
         problem,
@@ -237,14 +410,25 @@ def _validate(job: Job, problem: Any, trajectory: Any, execution: Any) -> dict[s
         execution.real_system,
         execution.real_initial_state,
         runs=execution.runs,
-        seed=seed,
+        seed=vseed,
         executor="serial",
     )
-    return report.as_dict() if hasattr(report, "as_dict") else dict(report)
+    data = report.as_dict()
+    data["seed"] = vseed
+    return data
 
 
 def comparable(record: Mapping[str, Any]) -> dict[str, Any]:
-    """``record`` without what varies from run to run (``timing``, ``elapsed``, any ``time*`` field)."""
+    """``record`` without what varies from run to run (``timing``, ``elapsed``, any ``time*`` field).
+
+    Parameters
+    ----------
+    record : dict
+
+    Returns
+    -------
+    dict
+    """
 
     def strip(value: Any) -> Any:
         if isinstance(value, Mapping):
@@ -257,23 +441,22 @@ def comparable(record: Mapping[str, Any]) -> dict[str, Any]:
             return [strip(v) for v in value]
         return value
 
-    return strip(record)
+    return strip(record)  # type: ignore[no-any-return]
 
 
 def failure_record(job: Job, exc: BaseException) -> dict[str, Any]:
-    """The record of a job whose worker failed (killed, unpicklable result...)."""
-    return {
-        "version": RECORD_VERSION,
-        "id": job.key,
-        "job": {
-            "kind": job.kind,
-            "problem": job.problem_name,
-            "overrides": _jsonable(job.overrides),
-            "seed": job.seed,
-        },
-        "status": "error",
-        "result": None,
-        "validation": None,
-        "error": {"type": type(exc).__name__, "message": str(exc), "traceback": None},
-        "timing": {},
-    }
+    """The record of a job whose worker failed (killed, unpicklable result...).
+
+    Parameters
+    ----------
+    job : Job
+    exc : BaseException
+        What the executor raised.
+
+    Returns
+    -------
+    dict
+    """
+    record = new_record(job)
+    record["error"] = {"type": type(exc).__name__, "message": str(exc), "traceback": None}
+    return jsonable(record)  # type: ignore[no-any-return]

@@ -12,9 +12,10 @@ from typing import Any
 
 from ..errors import InvalidArgumentError
 from .executors import InProcessExecutor, executor_width, make_executor
-from .jobs import RECORD_VERSION, Job, failure_record, run_job
+from .jobs import Job, failure_record, run_job
+from .records import FINISHED_STATUSES, RESULT_SCHEMA, write_record
 
-__all__ = ["ProgressCallback", "run_jobs", "result_path", "summarize"]
+__all__ = ["ProgressCallback", "run_jobs", "result_path", "finished_record", "summarize"]
 
 logger = logging.getLogger("idstlpy.batch")
 
@@ -22,25 +23,56 @@ ProgressCallback = Callable[[int, int, dict[str, Any]], None]
 
 
 def result_path(out_dir: str | os.PathLike[str], job: Job) -> Path:
-    """Where the record of ``job`` is written: ``out_dir / f"{job.key}.json"``."""
+    """Where the record of ``job`` is written: ``out_dir / f"{job.key}.json"``.
+
+    Parameters
+    ----------
+    out_dir : path
+    job : Job
+
+    Returns
+    -------
+    Path
+    """
     return Path(out_dir) / f"{job.key}.json"
 
 
-def _write_atomic(path: Path, record: Mapping[str, Any]) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(record, indent=1, sort_keys=True, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+def finished_record(path: Path, job: Job) -> dict[str, Any] | None:
+    """The record at ``path`` if it is a finished run of exactly ``job``, else None.
 
+    A file counts only when it is a record of the current schema, its ``id`` is the job's key,
+    its problem's SHA-256 is the job's, and its status is a finished one (a failed job, a stub
+    or a file from another job or an older schema is run again).
 
-def _load_existing(path: Path) -> dict[str, Any] | None:
+    Parameters
+    ----------
+    path : Path
+    job : Job
+
+    Returns
+    -------
+    dict or None
+    """
     try:
         record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, UnicodeDecodeError, ValueError):
         return None
-    if not isinstance(record, dict) or record.get("version") != RECORD_VERSION:
+    why = None
+    if not isinstance(record, dict) or record.get("schema") != RESULT_SCHEMA:
+        why = "not a result of the current schema"
+    elif record.get("id") != job.key:
+        why = f"its id {record.get('id')!r} is not the job's {job.key!r}"
+    elif (record.get("problem") or {}).get("sha256") != job.problem_sha256:
+        why = "it was run on another problem text"
+    elif record.get("status") not in FINISHED_STATUSES:
+        why = f"its status is {record.get('status')!r}"
+    elif record.get("status") == "found" and not isinstance(record.get("plan"), dict):
+        why = "it has no plan"
+    elif job.kind == "validate" and record.get("status") == "found" and record.get("validation") is None:
+        why = "it has no validation"
+    if why is not None:
+        logger.info("%s: running the job again (%s)", path, why)
         return None
-    if record.get("status") == "error":
-        return None  # failed jobs are run again
     return record
 
 
@@ -53,6 +85,7 @@ def run_jobs(
     scheduler: str | None = None,
     resume: bool = True,
     progress: ProgressCallback | None = None,
+    on_executor: Callable[[cf.Executor], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Run jobs on an executor, writing one JSON record per job.
 
@@ -62,14 +95,20 @@ def run_jobs(
     out_dir : path, optional
         Directory of the result files (created); None keeps records in memory only.
     executor : {"inprocess", "processes", "dask"} or concurrent.futures.Executor, optional
-        Default: ``"inprocess"`` for at most one job to run, ``"processes"`` otherwise. An
-        executor passed in is not shut down.
-    workers, scheduler
-        See :func:`make_executor`.
+        Default: ``"dask"`` when a ``scheduler`` is given, else ``"inprocess"`` for at most one
+        job to run and ``"processes"`` otherwise. An executor passed in is not shut down.
+    workers : int, optional
+        See :func:`~idstlpy.batch.executors.make_executor`.
+    scheduler : str, optional
+        A Dask scheduler address; it implies the ``"dask"`` executor.
     resume : bool
-        Skip jobs whose result file exists (failed jobs are always run again).
+        Skip jobs whose result file holds a finished record of the same job (same id, same
+        problem text; see :func:`finished_record`); failed jobs are always run again.
     progress : callable, optional
         ``progress(done, total, record)`` after each job (cached ones included).
+    on_executor : callable, optional
+        ``on_executor(executor)`` once the executor exists, before the first job is submitted
+        (e.g. to print the Dask dashboard's address).
 
     Returns
     -------
@@ -92,7 +131,7 @@ def run_jobs(
     done = 0
     if out is not None and resume:
         for key, job in unique.items():
-            existing = _load_existing(result_path(out, job))
+            existing = finished_record(result_path(out, job), job)
             if existing is not None:
                 existing.setdefault("timing", {})["cached"] = True
                 records[key] = existing
@@ -104,10 +143,12 @@ def run_jobs(
         logger.info("running %d job(s), %d already done", len(todo), len(records))
         owned = not isinstance(executor, cf.Executor)
         if executor is None:
-            executor = "inprocess" if len(todo) <= 1 else "processes"
+            executor = "dask" if scheduler else "inprocess" if len(todo) <= 1 else "processes"
         backend = executor if isinstance(executor, str) else type(executor).__name__
         ex = make_executor(executor, workers, scheduler) if isinstance(executor, str) else executor
         try:
+            if on_executor is not None:
+                on_executor(ex)
             window = 2 * executor_width(ex) if not isinstance(ex, InProcessExecutor) else 1
             queue = iter(todo)
             pending: dict[cf.Future, Job] = {}
@@ -130,7 +171,7 @@ def run_jobs(
                         record = failure_record(job, exc)
                     record.setdefault("timing", {}).update(backend=backend, cached=False)
                     if out is not None:  # failed jobs too (for inspection); resume reruns them
-                        _write_atomic(result_path(out, job), record)
+                        write_record(result_path(out, job), record)
                     records[job.key] = record
                     done += 1
                     if progress is not None:
@@ -143,7 +184,17 @@ def run_jobs(
 
 
 def summarize(records: Iterable[Mapping[str, Any]]) -> dict[str, int]:
-    """Count records by status."""
+    """Count records by status.
+
+    Parameters
+    ----------
+    records : iterable of dict
+
+    Returns
+    -------
+    dict
+        ``status -> count``.
+    """
     counts: dict[str, int] = {}
     for r in records:
         counts[str(r.get("status"))] = counts.get(str(r.get("status")), 0) + 1

@@ -1,70 +1,24 @@
 """``idstlpy demo light-dark``: the paper's listing end to end.
 
-Solves the light-dark problem with the listing's parameters, tracks the plan with the listing's
-LQR weights, runs a Monte Carlo validation, and writes the figures and a JSON summary.
+Solves the light-dark problem (the shipped ``light_dark.toml``) with the listing's parameters,
+tracks the plan with the listing's LQR weights, runs a Monte Carlo validation, and writes the
+figures and the result file ``result.json``.
 """
 
 from __future__ import annotations
 
 import argparse
-import functools
-import itertools
-import json
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any, TextIO
 
 import numpy as np
 
+from .exit_codes import EXIT_NO_PLAN, EXIT_OK
+from .progress import Ticker
+
 __all__ = ["register", "run_light_dark"]
-
-
-class _Progress:
-    """A one-line progress indicator on stderr (a spinner on a terminal, plain lines otherwise)."""
-
-    def __init__(self, stream: TextIO, enabled: bool = True) -> None:
-        self.stream = stream
-        self.enabled = enabled
-        self.tty = enabled and hasattr(stream, "isatty") and stream.isatty()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._text = ""
-
-    def stage(self, text: str) -> None:
-        """Start a stage; a spinner runs while it lasts (terminal only)."""
-        self.end()
-        if not self.enabled:
-            return
-        self._text = text
-        if not self.tty:
-            print(f"... {text}", file=self.stream, flush=True)
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
-        self._thread.start()
-
-    def update(self, text: str) -> None:
-        """Change the text of the current stage."""
-        self._text = text
-
-    def _spin(self) -> None:
-        t0 = time.perf_counter()
-        for ch in itertools.cycle("|/-\\"):
-            if self._stop.wait(0.1):
-                break
-            self.stream.write(f"\r{ch} {self._text} ({time.perf_counter() - t0:.0f} s)\x1b[K")
-            self.stream.flush()
-
-    def end(self) -> None:
-        """Finish the current stage."""
-        if self._thread is not None:
-            self._stop.set()
-            self._thread.join()
-            self._thread = None
-            self.stream.write(f"\r  {self._text} done\x1b[K\n")
-            self.stream.flush()
 
 
 def _positive_int(text: str) -> int:
@@ -88,7 +42,13 @@ def _positive_float(text: str) -> float:
 
 
 def register(subparsers: Any) -> None:
-    """Add ``demo`` (with ``light-dark``) to the ``idstlpy`` command."""
+    """Add ``demo`` (with ``light-dark``) to the ``idstlpy`` command.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        What ``ArgumentParser.add_subparsers`` returned.
+    """
     demo = subparsers.add_parser("demo", help="run a worked example end to end", description=__doc__)
     kinds = demo.add_subparsers(dest="demo", metavar="DEMO", required=True)
     ld = kinds.add_parser(
@@ -128,93 +88,122 @@ def _table(rows: list[tuple[str, str]]) -> str:
 def run_light_dark(
     args: argparse.Namespace, stdout: TextIO | None = None, stderr: TextIO | None = None
 ) -> int:
-    """Handler of ``idstlpy demo light-dark``; returns the exit status (1 when no plan is found)."""
+    """Handler of ``idstlpy demo light-dark``; returns the exit status (1 when no plan is found).
+
+    The problem is the shipped example ``light_dark.toml`` (the paper's listing, checked against
+    it by the tests) with the command's options as overrides; the result file ``result.json``
+    has the schema of every result file (``docs/results-schema.md``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed options of ``idstlpy demo light-dark``.
+    stdout, stderr : file, optional
+        Where the summary and the progress go (default: the process's).
+
+    Returns
+    -------
+    int
+        0 with a plan, 1 without.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from ..batch.jobs import Job, new_record
+    from ..batch.records import jsonable, problem_section, result_to_dict, write_record
     from ..execution import validate
     from ..plotting import plot_light_dark, plot_monte_carlo
-    from ..scenarios import LIGHT_DARK_REAL_INITIAL_STATE, light_dark, light_dark_real_system
+    from ..problem_file import apply_overrides, load_problem
+    from .example import example_text
 
     out_stream = stdout or sys.stdout
-    progress = _Progress(stderr or sys.stderr, enabled=not args.quiet)
+    progress = Ticker(stderr or sys.stderr, enabled=not args.quiet, listen=not getattr(args, "verbose", 0))
     out_dir: Path = args.out
     out_dir.mkdir(parents=True, exist_ok=True)
 
-    problem = light_dark(deadline=args.deadline, hold=args.hold)
-    progress.stage(f"solving light-dark (deadline {args.deadline}, hold {args.hold}, seed {args.seed})")
-    result = problem.solve_result(
-        rrt_timeout=args.rrt_timeout,
-        delta_near=2,
-        delta_drain=0.5,
-        goal_bias=0.25,
-        min_num_of_steps=3,
-        max_num_of_steps=15,
+    overrides: dict[str, Any] = {
+        "solver.rrt_timeout": args.rrt_timeout,
+        "solver.seed": args.seed,
+        "validation.runs": args.runs,
+        "validation.seed": args.seed,
+    }
+    if args.time_limit is not None:
+        overrides["solver.time_limit"] = args.time_limit
+    if (args.deadline, args.hold) != (240, 40):
+        overrides["formula"] = f"(free_space U[0,{args.deadline}] G[0,{args.hold}] target)"
+    spec = apply_overrides(load_problem(example_text("light-dark"), name="light_dark.toml"), overrides)
+    problem, solver_kwargs, execution = spec.build()
+    job = Job("validate", spec.source, spec.name, overrides, args.seed)
+    record = new_record(job)
+    record.update(
+        kind="demo",
+        problem=problem_section(spec),
+        formula=str(problem.stl_formula),
         seed=args.seed,
-        time_limit=args.time_limit,
+        seed_source="job",
+        solver_options=jsonable(solver_kwargs),
+        plan_source="solved",
     )
-    progress.end()
+
+    t0 = time.perf_counter()
+    progress.start(f"solving light-dark (deadline {args.deadline}, hold {args.hold}, seed {args.seed})")
+    result = problem.solve_result(**solver_kwargs)
+    progress.stop(f"solved: {result.status}")
+    record.update(result_to_dict(result))
     stats = result.stats
+    record["timing"]["solver"] = {k: v for k, v in stats.as_dict().items() if k.startswith("time")}
     rows = [
         ("status", f"{result.status} ({result.reason})"),
         ("solve time", f"{stats.time_total:.2f} s"),
         ("candidates", str(stats.candidates)),
         ("counterexamples", str(stats.counterexamples)),
     ]
-    summary: dict[str, Any] = {
-        "problem": {"name": "light-dark", "deadline": args.deadline, "hold": args.hold},
-        "seed": args.seed,
-        "solve": {
-            "status": result.status,
-            "reason": result.reason,
-            "margin": result.margin,
-            "stats": stats.as_dict(),
-        },
-    }
-    written: list[Path] = []
+    path_json = out_dir / "result.json"
     plan = result.trajectory
     if plan is None:
+        record["timing"]["wall_time"] = time.perf_counter() - t0
+        write_record(path_json, record)
         print("idstlpy demo light-dark: no plan", file=out_stream)
         print(_table(rows), file=out_stream)
-        path = out_dir / "summary.json"
-        path.write_text(json.dumps(summary, indent=2, default=float))
-        print(f"wrote {path}", file=out_stream)
-        return 1
+        print(f"wrote {path_json}", file=out_stream)
+        return EXIT_NO_PLAN
 
+    lqr = execution.lqr or {}
     for mode in problem.switched_system.system_modes:
         mode.compute_finite_horizon_lqr(
-            horizon=5, Q_final=np.identity(2), Q=np.identity(2), R=0.05 * np.identity(2)
+            horizon=lqr.get("horizon", 5),
+            Q_final=lqr.get("Q_final", np.identity(2)),
+            Q=lqr.get("Q", np.identity(2)),
+            R=lqr.get("R", 0.05 * np.identity(2)),
         )
     control_domain = None if args.no_clip else problem.control_domain
-    real_system = light_dark_real_system()
     xi_sim, xi_real = problem.switched_system.simulate(
         reference_trajectory=plan,
         num_of_steps=plan.num_of_steps,
-        real_initial_state=LIGHT_DARK_REAL_INITIAL_STATE,
-        real_system=real_system,
+        real_initial_state=execution.real_initial_state,
+        real_system=execution.real_system,
         seed=args.seed,
         control_domain=control_domain,
     )
 
-    progress.stage(f"Monte Carlo: 0/{args.runs} runs")
+    progress.start(f"Monte Carlo: 0/{args.runs} runs")
     report = validate(
         problem,
         plan,
-        real_system,
-        LIGHT_DARK_REAL_INITIAL_STATE,
-        runs=args.runs,
+        execution.real_system,
+        execution.real_initial_state,
+        runs=execution.runs,
         seed=args.seed,
         clip_controls=not args.no_clip,
-        problem_factory=functools.partial(light_dark, args.deadline, args.hold),
         max_workers=args.workers,
         keep_trajectories=min(args.runs, 50),
         progress=lambda done, total: progress.update(f"Monte Carlo: {done}/{total} runs"),
     )
-    progress.end()
+    progress.stop(f"Monte Carlo: {report.runs} runs")
 
-    progress.stage("drawing figures")
+    progress.start("drawing figures")
     fig1, ax1 = plt.subplots(figsize=(6.5, 5.5))
     plot_light_dark(problem, plan, xi_sim, xi_real, ax=ax1)
     ax1.set_title(f"light-dark: plan ({plan.num_of_steps} steps) and one execution", fontsize="small")
@@ -226,8 +215,7 @@ def run_light_dark(
     path2 = out_dir / "monte_carlo.png"
     fig2.savefig(path2, dpi=120, bbox_inches="tight")
     plt.close(fig2)
-    progress.end()
-    written += [path1, path2]
+    progress.stop("figures drawn")
 
     rows += [
         ("plan length", f"{plan.num_of_steps} steps (margin {result.margin:.4f})"),
@@ -243,19 +231,16 @@ def run_light_dark(
         ),
         ("monte carlo time", f"{report.elapsed:.2f} s"),
     ]
-    summary["plan"] = {"num_of_steps": plan.num_of_steps, "margin": result.margin}
-    summary["execution"] = {
-        "lqr": {"horizon": 5, "Q_final": "I", "Q": "I", "R": "0.05 I"},
-        "clip_controls": not args.no_clip,
-        "real_initial_state": LIGHT_DARK_REAL_INITIAL_STATE.tolist(),
-    }
-    summary["monte_carlo"] = report.as_dict()
-    path3 = out_dir / "summary.json"
-    path3.write_text(json.dumps(summary, indent=2, default=float))
-    written.append(path3)
+    validation = report.as_dict()
+    record["timing"]["validation"] = validation.pop("elapsed", None)
+    validation["seed"] = args.seed
+    validation["clip_controls"] = not args.no_clip
+    record["validation"] = validation
+    record["timing"]["wall_time"] = time.perf_counter() - t0
+    write_record(path_json, record)
 
     print("idstlpy demo light-dark", file=out_stream)
     print(_table(rows), file=out_stream)
-    for path in written:
+    for path in (path1, path2, path_json):
         print(f"wrote {path}", file=out_stream)
-    return 0
+    return EXIT_OK

@@ -2,29 +2,37 @@
 
 ::
 
-    idstlpy solve examples/light_dark.toml --set solver.rrt_timeout=5
+    idstlpy solve examples/light_dark.toml --set solver.rrt_timeout=5 --plot plan.pdf
     idstlpy validate examples/light_dark.toml --out results/
-    idstlpy sweep examples/sweep_light_dark.toml --executor dask --scheduler tcp://host:8786
+    idstlpy validate examples/light_dark.toml --plan results/3f2a9c1e0b7d4a65.json
+    idstlpy sweep examples/sweep_light_dark.toml --scheduler tcp://host:8786
 
-Each command writes one JSON record per job into ``--out`` (named by the job's hash, so an
-interrupted sweep resumes), shows a progress line on stderr and prints a summary table.
-Exit status: 0 when every job ran (whatever the solver's verdict), 1 when a job failed,
-2 when a problem or sweep file is invalid.
+Each command writes one JSON record per job into ``--out`` (named by the job's id, so an
+interrupted sweep resumes; schema in ``docs/results-schema.md``), shows progress on stderr and
+prints a summary table. Exit status: see :mod:`idstlpy.cli` (0 ok, 1 no plan, 2 usage or input
+error, 3 a job failed).
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures as cf
 import sys
 import tomllib
 from collections.abc import Mapping, Sequence
-from typing import Any, TextIO
+from pathlib import Path
+from typing import Any
 
-from ..batch import EXECUTORS, Job, load_sweep, run_jobs, summarize
-from ..errors import IdstlpyError, ProblemFileError
-from ..problem_file import apply_overrides, load_problem
+from ..batch import EXECUTORS, DaskExecutor, Job, load_sweep, result_path, run_jobs, summarize
+from ..batch.jobs import DEFAULT_SEED
+from ..batch.records import plan_from_record, plan_steps, read_record
+from ..errors import InvalidArgumentError, ProblemFileError
+from ..problem_file import ProblemSpec, apply_overrides, load_problem
+from .exit_codes import exit_status
+from .figures import check_figure_path, save_plan_figure
+from .progress import ProgressBar, Ticker
 
-__all__ = ["register", "parse_set_option", "format_table"]
+__all__ = ["register", "parse_set_option", "format_table", "DEFAULT_OUT"]
 
 DEFAULT_OUT = "idstlpy-results"
 
@@ -34,70 +42,146 @@ def register(subparsers: Any) -> None:
 
     Each parser sets ``func``: a callable taking the parsed namespace and returning the exit
     status.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        What ``ArgumentParser.add_subparsers`` returned.
     """
     solve = subparsers.add_parser(
-        "solve", help="solve a TOML problem file",
-        description="Load a problem file, solve it and write one JSON result record.",
+        "solve",
+        help="solve a TOML problem file",
+        description="Load a problem file, solve it and write one JSON result record "
+        "(and a figure with --plot).",
+        epilog="examples: `idstlpy example light-dark --out light_dark.toml` writes the paper's "
+        "problem; exit status: 0 plan found, 1 no plan, 2 input error, 3 the job failed",
     )
-    solve.add_argument("file", help="TOML problem file (see examples/light_dark.toml)")
+    solve.add_argument("file", help="TOML problem file (`idstlpy example --list` shows the shipped ones)")
     _common(solve, single=True)
     solve.set_defaults(func=_cmd_solve)
 
     validate = subparsers.add_parser(
-        "validate", help="solve a problem file and execute the plan on its real system",
-        description="Solve, then run the plan on the file's [execution] real system "
-        "([validation] runs) and write one JSON result record.",
+        "validate",
+        help="execute a plan on a problem file's real system (Monte Carlo)",
+        description="Solve (or, with --plan, check a saved plan against the problem without "
+        "solving), then run the plan on the file's [execution] real system ([validation] runs) "
+        "and write one JSON result record.",
+        epilog="exit status: 0 plan found or accepted and executed, 1 no plan or the saved plan "
+        "is rejected, 2 input error, 3 the job failed",
     )
     validate.add_argument("file", help="TOML problem file with [execution] and [validation]")
+    validate.add_argument(
+        "--plan",
+        metavar="RESULT.json",
+        default=None,
+        help="a saved result (from solve, validate, sweep, demo or SolveResult.save): re-roll its "
+        "modes and controls under this problem, check the formula, execute it; no solving",
+    )
     _common(validate, single=True)
     validate.set_defaults(func=_cmd_validate)
 
     sweep = subparsers.add_parser(
-        "sweep", help="run a parameter sweep (TOML sweep file)",
-        description="Run every job of a sweep file; existing result files are reused.",
+        "sweep",
+        help="run a parameter sweep (TOML sweep file)",
+        description="Run every job of a sweep file; finished result files of the same jobs are "
+        "reused (resume).",
+        epilog="exit status: 0 every plan found, 1 some job has no plan, 2 input error, 3 some job failed",
     )
-    sweep.add_argument("file", metavar="SWEEP.toml", help="TOML sweep file")
+    sweep.add_argument("file", metavar="SWEEP.toml", help="TOML sweep file (docs/sweeps.md)")
     _common(sweep, single=False)
     sweep.set_defaults(func=_cmd_sweep)
 
 
 def _common(parser: argparse.ArgumentParser, single: bool) -> None:
-    parser.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
-                        help=f"directory of the JSON result files (default: {DEFAULT_OUT})")
-    parser.add_argument("--executor", choices=EXECUTORS, default=None,
-                        help="where jobs run (default: inprocess for one job, processes for a sweep)")
-    parser.add_argument("--scheduler", metavar="ADDR", default=None,
-                        help="Dask scheduler address (with --executor dask; default: a local cluster)")
-    parser.add_argument("--workers", type=_positive_int, metavar="N", default=None,
-                        help="worker processes (default: number of CPUs)")
-    parser.add_argument("--seed", type=_seed, default=None,
-                        help="seed (solve/validate: the solver's seed, default the file's; "
-                        "sweep: root of the job seeds, default the sweep file's)")
-    parser.add_argument("--no-resume", dest="resume", action="store_false",
-                        help="run jobs again even when their result file exists")
-    parser.add_argument("--quiet", action="store_true", help="no progress line on stderr")
+    parser.add_argument(
+        "--out",
+        default=DEFAULT_OUT,
+        metavar="DIR",
+        help=f"directory of the JSON result files (default: {DEFAULT_OUT})",
+    )
+    parser.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default=None,
+        help="where jobs run (default: dask with --scheduler, else inprocess for one job and "
+        "processes for several)",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="ADDR",
+        default=None,
+        help="Dask scheduler address, e.g. tcp://host:8786 (implies --executor dask)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=_positive_int,
+        metavar="N",
+        default=None,
+        help="worker processes or local Dask workers (default: number of CPUs)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=_seed,
+        default=None,
+        help="seed (solve/validate: the solver's seed, default the file's [solver] seed, else "
+        f"{DEFAULT_SEED}; sweep: root of the job seeds, default the sweep file's)",
+    )
+    parser.add_argument(
+        "--no-resume",
+        dest="resume",
+        action="store_false",
+        help="run jobs again even when their result file exists",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
     if single:
-        parser.add_argument("--set", dest="overrides", action="append", default=[],
-                            metavar="KEY=VALUE",
-                            help="override a value, e.g. solver.rrt_timeout=5 (TOML value syntax)")
+        parser.add_argument(
+            "--set",
+            dest="overrides",
+            action="append",
+            default=[],
+            metavar="KEY=VALUE",
+            help="override a value, e.g. solver.rrt_timeout=5 (TOML value syntax)",
+        )
+        parser.add_argument(
+            "--plot",
+            metavar="FIGURE",
+            default=None,
+            help="also draw the plan into FIGURE (.png, .pdf or .svg: the extension gives the format)",
+        )
 
 
 def _positive_int(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
     return value
 
 
 def _seed(text: str) -> int:
-    value = int(text)
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text}")
     return value
 
 
 def parse_set_option(items: Sequence[str]) -> dict[str, Any]:
-    """``["solver.rrt_timeout=5", "name=x"]`` to overrides (values in TOML syntax, else strings)."""
+    """``["solver.rrt_timeout=5", "name=x"]`` to overrides (values in TOML syntax, else strings).
+
+    Parameters
+    ----------
+    items : sequence of str
+        ``KEY=VALUE`` texts.
+
+    Returns
+    -------
+    dict
+    """
     out: dict[str, Any] = {}
     for item in items:
         key, sep, raw = item.partition("=")
@@ -112,55 +196,28 @@ def parse_set_option(items: Sequence[str]) -> dict[str, Any]:
     return out
 
 
-class _Progress:
-    """A one-line progress bar on stderr."""
-
-    def __init__(self, stream: TextIO, enabled: bool, width: int = 30) -> None:
-        self.stream = stream
-        self.enabled = enabled
-        self.width = width
-        self.tty = hasattr(stream, "isatty") and stream.isatty()
-        self.cached = 0
-        self.failed = 0
-
-    def __call__(self, done: int, total: int, record: Mapping[str, Any]) -> None:
-        if record.get("timing", {}).get("cached"):
-            self.cached += 1
-        if record.get("status") == "error":
-            self.failed += 1
-        if not self.enabled:
-            return
-        filled = self.width * done // max(total, 1)
-        bar = "#" * filled + "." * (self.width - filled)
-        extra = []
-        if self.cached:
-            extra.append(f"{self.cached} cached")
-        if self.failed:
-            extra.append(f"{self.failed} failed")
-        suffix = f" ({', '.join(extra)})" if extra else ""
-        line = f"[{bar}] {done}/{total} jobs, last: {record.get('status')}{suffix}"
-        if self.tty:
-            self.stream.write("\r" + line + ("\n" if done == total else ""))
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
-
-
 def _short(value: Any, width: int) -> str:
     text = str(value)
     return text if len(text) <= width else text[: width - 3] + "..."
 
 
 def format_table(records: Sequence[Mapping[str, Any]]) -> str:
-    """A plain-text summary table of result records (one row per job)."""
+    """A plain-text summary table of result records (one row per job).
+
+    Parameters
+    ----------
+    records : sequence of dict
+
+    Returns
+    -------
+    str
+    """
     header = ["id", "status", "steps", "margin", "time [s]", "belief/state ok", "overrides / reason"]
     rows = [header]
     for r in records:
-        result = r.get("result") or {}
-        plan = result.get("plan") or {}
         timing = r.get("timing") or {}
         solver_time = (timing.get("solver") or {}).get("time_total")
-        margin = result.get("margin")
+        margin = r.get("margin")
         validation = r.get("validation")
         vtext = "-"
         if isinstance(validation, Mapping):
@@ -169,22 +226,26 @@ def format_table(records: Sequence[Mapping[str, Any]]) -> str:
                 vtext = f"{rates[0]:.2f}/{rates[1]:.2f}"
             else:
                 vtext = "done"
-        overrides = (r.get("job") or {}).get("overrides") or {}
+        problem = r.get("problem") or {}
+        overrides = problem.get("overrides") or {}
         note = ", ".join(f"{k}={v}" for k, v in overrides.items())
         if r.get("status") == "error":
             err = r.get("error") or {}
             note = f"{err.get('type')}: {err.get('message')}".splitlines()[0]
-        elif not note:
-            note = result.get("reason", "")
-        rows.append([
-            str(r.get("id", ""))[:8],
-            str(r.get("status")),
-            str(plan.get("num_of_steps", "-")),
-            f"{margin:.3g}" if isinstance(margin, int | float) else "-",
-            f"{solver_time:.2f}" if isinstance(solver_time, int | float) else "-",
-            vtext,
-            _short(note, 60),
-        ])
+        elif not note or r.get("status") == "rejected":
+            note = r.get("reason") or ""
+        steps = plan_steps(r.get("plan"))
+        rows.append(
+            [
+                str(r.get("id", ""))[:8],
+                str(r.get("status")),
+                "-" if steps is None else str(steps),
+                f"{margin:.3g}" if isinstance(margin, int | float) else "-",
+                f"{solver_time:.2f}" if isinstance(solver_time, int | float) else "-",
+                vtext,
+                _short(note, 60),
+            ]
+        )
     widths = [max(len(row[i]) for row in rows) for i in range(len(header))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip() for row in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
@@ -194,26 +255,104 @@ def format_table(records: Sequence[Mapping[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _run(args: argparse.Namespace, jobs: list[Job]) -> int:
-    progress = _Progress(sys.stderr, not args.quiet)
-    records = run_jobs(
-        jobs, args.out, args.executor, workers=args.workers, scheduler=args.scheduler,
-        resume=args.resume, progress=progress,
+def _executor(args: argparse.Namespace) -> str | None:
+    """``--scheduler`` implies the dask executor; with another ``--executor`` it is an error."""
+    if args.scheduler:
+        if args.executor not in (None, "dask"):
+            raise InvalidArgumentError(f"--scheduler needs the dask executor, got --executor {args.executor}")
+        return "dask"
+    return args.executor  # type: ignore[no-any-return]
+
+
+def _announce_executor(ex: cf.Executor) -> None:
+    if isinstance(ex, DaskExecutor):
+        link = ex.dashboard_link
+        if link:
+            note = " (install bokeh to see it)" if ex.dashboard_needs_bokeh else ""
+            print(f"dask dashboard: {link}{note}", file=sys.stderr, flush=True)
+        else:
+            print("dask dashboard: none (the scheduler runs no dashboard)", file=sys.stderr, flush=True)
+
+
+def _run(args: argparse.Namespace, jobs: list[Job], label: str | None = None) -> list[dict[str, Any]]:
+    executor = _executor(args)
+    bar = ProgressBar(sys.stderr, not args.quiet and label is None)
+    ticker = Ticker(
+        sys.stderr, enabled=not args.quiet and label is not None, listen=not getattr(args, "verbose", 0)
     )
+    if label is not None:
+        ticker.start(label)
+    try:
+        records = run_jobs(
+            jobs,
+            args.out,
+            executor,
+            workers=args.workers,
+            scheduler=args.scheduler,
+            resume=args.resume,
+            progress=bar,
+            on_executor=_announce_executor,
+        )
+    finally:
+        ticker.stop()
+    if label is not None and records and (records[0].get("timing") or {}).get("cached"):
+        print(f"(reused {result_path(args.out, jobs[0])}; --no-resume runs it again)", file=sys.stderr)
     print(format_table(records))
-    print(f"results: {args.out}/")
-    return 1 if any(r.get("status") == "error" for r in records) else 0
+    if label is not None:
+        print(f"result: {result_path(args.out, jobs[0])}")
+    else:
+        print(f"results: {args.out}/")
+    return records
+
+
+def _seed_warning(args: argparse.Namespace, spec: ProblemSpec) -> None:
+    if args.seed is None and spec.seed is None:
+        print(
+            f"idstlpy {args.command}: warning: {spec.name} sets no [solver] seed; using the default "
+            f"seed {DEFAULT_SEED} (set solver.seed in the file, or pass --seed)",
+            file=sys.stderr,
+        )
 
 
 def _single(args: argparse.Namespace, kind: str) -> int:
-    try:
-        overrides = parse_set_option(args.overrides)
-        spec = apply_overrides(load_problem(args.file), overrides)
-        job = Job(kind, spec.source, spec.name, overrides, args.seed)
-    except IdstlpyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    return _run(args, [job])
+    figure = check_figure_path(args.plot) if args.plot else None
+    overrides = parse_set_option(args.overrides)
+    spec = apply_overrides(load_problem(args.file), overrides)
+    saved = None
+    plan_path = getattr(args, "plan", None)
+    if plan_path is not None:
+        saved = read_record(plan_path)
+        if plan_from_record(saved, plan_path) is None:
+            raise InvalidArgumentError(
+                f"{plan_path}: the result has no plan (status {saved.get('status')!r})"
+            )
+    else:
+        _seed_warning(args, spec)
+    _executor(args)  # check --scheduler / --executor before any work
+    job = Job(kind, spec.source, spec.name, overrides, args.seed, saved)
+    if saved is not None:
+        label = f"checking and executing the saved plan of {plan_path} on {spec.name}"
+    else:
+        seed = args.seed if args.seed is not None else spec.seed if spec.seed is not None else DEFAULT_SEED
+        verb = "solving" if kind == "solve" else "solving and validating"
+        label = f"{verb} {spec.name} (seed {seed})"
+    records = _run(args, [job], label)
+    record = records[0]
+    if figure is not None:
+        _figure(spec, record, figure)
+    return exit_status(records)
+
+
+def _figure(spec: ProblemSpec, record: Mapping[str, Any], figure: Path) -> None:
+    problem = spec.build().problem
+    plan = plan_from_record(record, str(figure)) if record.get("status") != "error" else None
+    steps = plan_steps(record.get("plan"))
+    title = f"{spec.title}: {record.get('status')}"
+    if steps is not None:
+        margin = record.get("margin")
+        title += f", {steps} steps" + (f", margin {margin:.3g}" if isinstance(margin, float) else "")
+    save_plan_figure(problem, plan, figure, title)
+    print(f"figure: {figure}")
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
@@ -225,12 +364,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    try:
-        sweep = load_sweep(args.file)
-        jobs = sweep.jobs(seed=args.seed)
-    except IdstlpyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    sweep = load_sweep(args.file)
+    jobs = sweep.jobs(seed=args.seed)
+    _executor(args)
     if not args.quiet:
         print(f"sweep {sweep.name}: {len(jobs)} job(s) of {sweep.problem_name}", file=sys.stderr)
-    return _run(args, jobs)
+    return exit_status(_run(args, jobs))
