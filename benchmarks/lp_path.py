@@ -1,6 +1,7 @@
 """Noise-free reach-avoid through the LP teacher: solve time against the horizon.
 
-Run: ``python -m benchmarks.lp_path [--horizons 25,50,100,200] [--repeats 5] [--lazy-candidates N]``.
+Run: ``python -m benchmarks.lp_path [--horizons 25,50,100,200] [--repeats 5] [--lazy-candidates N]
+[--milp-backend highs|scip]``.
 
 :func:`idstlpy.scenarios.reach_avoid`: a 4-D double integrator (``|u_i| <= 0.5``, zero
 covariance, so every chance constraint is a plain linear one) must avoid the box
@@ -8,7 +9,7 @@ covariance, so every chance constraint is a plain linear one) must avoid the box
 at rest: ``G[0,T] avoid & F[0,T] goal``. Prints a Markdown table
 (median of the repeats, and which path decided the problem). ``--lazy-candidates`` overrides how
 many candidates the lazy SAT/LP loop refutes before it hands the problem to the eager MILP
-(idstlpy's default is 10; this problem needs 17 lazily).
+(``SolverOptions.lazy_candidates``, default 10; this problem needs 17 lazily).
 """
 
 from __future__ import annotations
@@ -26,11 +27,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--horizons", default="25,50,100,200")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--lazy-candidates", type=int, default=None)
+    p.add_argument("--milp-backend", default="auto")
     a = p.parse_args(argv)
+    kw: dict = {"milp_backend": a.milp_backend}
     if a.lazy_candidates is not None:
-        from idstlpy.synthesis import cegis
-
-        cegis._LAZY_CANDIDATES = a.lazy_candidates  # a private knob, measured on purpose
+        kw["lazy_candidates"] = a.lazy_candidates
     print("| T | status | median solve (s) | min / max (s) | candidates | plan steps | decided by |")
     print("|---|---|---|---|---|---|---|")
     for T in (int(t) for t in a.horizons.split(",")):
@@ -38,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
         for _ in range(a.repeats):
             problem = reach_avoid(T)
             t0 = time.perf_counter()
-            result = problem.solve_result(rrt_timeout=60, seed=0)
+            result = problem.solve_result(rrt_timeout=60, seed=0, **kw)
             times.append(time.perf_counter() - t0)
         steps = result.trajectory.num_of_steps if result.found else "-"
         print(f"| {T} | {result.status} | {statistics.median(times):.3f} | {min(times):.3f} / "

@@ -5,7 +5,8 @@ A back-end takes a pure linear model (:class:`LinearModel`: ``min c'x`` subject 
 and returns a :class:`BackendSolution`: a status, the solution, and for LPs the row duals (from
 which the teachers read infeasibility certificates). Back-ends register themselves by name;
 adding a solver is a new class and one :func:`register_backend` call, nothing else changes.
-HiGHS (through SciPy) is always available and is the default.
+HiGHS (through SciPy) is always available and is the default; SCIP (``pyscipopt``, the
+``scip`` extra) registers as ``"scip"`` without being imported until it solves.
 """
 
 from __future__ import annotations
@@ -30,7 +31,9 @@ __all__ = [
     "BackendSolution",
     "HighsBackend",
     "LinearModel",
+    "ScipBackend",
     "available_backends",
+    "default_milp_backend",
     "get_backend",
     "register_backend",
 ]
@@ -152,6 +155,7 @@ class HighsBackend:
 
     name: ClassVar[str] = "highs"
     supports_integer: ClassVar[bool] = True
+    provides_duals: ClassVar[bool] = True
 
     @classmethod
     def is_available(cls) -> bool:
@@ -256,13 +260,38 @@ def register_backend(cls: type) -> type:
     return cls
 
 
+def _serves(cls: Any, integer: bool) -> bool:
+    """Whether ``cls`` can serve as a MILP back-end (``integer``) or as an LP back-end.
+
+    An LP back-end must report row duals (``provides_duals``, default True): the teachers read
+    their infeasibility certificates from them.
+    """
+    if integer:
+        return bool(cls.supports_integer)
+    return bool(getattr(cls, "provides_duals", True))
+
+
 def available_backends(integer: bool = False) -> list[str]:
-    """Names of the registered back-ends usable here (``integer``: those that solve MILPs)."""
-    return [
-        name
-        for name, cls in sorted(_REGISTRY.items())
-        if (not integer or cls.supports_integer) and cls.is_available()
-    ]
+    """Names of the registered back-ends usable here.
+
+    ``integer=True``: those that solve MILPs; ``integer=False``: those that serve as LP
+    back-ends (with row duals).
+    """
+    return [name for name, cls in sorted(_REGISTRY.items()) if _serves(cls, integer) and cls.is_available()]
+
+
+MILP_PREFERENCE = ("scip", "highs")
+"""The order ``milp_backend="auto"`` tries: SCIP first, measured faster on the eager MILPs of
+the benchmarks (BENCHMARKS.md, "MILP back-ends"), HiGHS (always installed) otherwise."""
+
+
+def default_milp_backend() -> str:
+    """The first installed back-end of :data:`MILP_PREFERENCE` (what ``"auto"`` resolves to)."""
+    for name in MILP_PREFERENCE:
+        cls = _REGISTRY.get(name)
+        if cls is not None and cls.supports_integer and cls.is_available():
+            return name
+    return "highs"
 
 
 def get_backend(name: str, integer: bool = False) -> Backend:
@@ -281,6 +310,8 @@ def get_backend(name: str, integer: bool = False) -> Backend:
         )
     if integer and not cls.supports_integer:
         raise InvalidArgumentError(f"back-end {name!r} cannot solve MILPs")
+    if not integer and not _serves(cls, False):
+        raise InvalidArgumentError(f"back-end {name!r} reports no LP duals: it cannot be an LP back-end")
     if not cls.is_available():
         raise InvalidArgumentError(f"back-end {name!r} is not installed here")
     backend: Backend = cls()
@@ -293,3 +324,9 @@ def module_available(module: str) -> bool:
 
 
 register_backend(HighsBackend)
+
+
+# Back-ends of optional extras: their modules import the solver only when they solve.
+from .backends_scip import ScipBackend  # noqa: E402
+
+register_backend(ScipBackend)

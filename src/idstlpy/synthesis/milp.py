@@ -325,8 +325,14 @@ def solve_milp(
         # The margin t (raw slack, the monitor's units) is capped at t_cap; an optimum at the cap
         # is reported as not proven.
         t_cap = 10.0 * float(np.max(dx)) * float(np.max(np.linalg.norm(F, axis=1))) if nt else 0.0
-        r_parts, c_parts, v_parts, ub_parts = [], [], [], []
-        h_parts, hc_parts, hv_parts, hub_parts = [], [], [], []
+        r_parts: list[np.ndarray] = []
+        c_parts: list[np.ndarray] = []
+        v_parts: list[np.ndarray] = []
+        ub_parts: list[np.ndarray] = []
+        h_parts: list[np.ndarray] = []
+        hc_parts: list[np.ndarray] = []
+        hv_parts: list[np.ndarray] = []
+        hub_parts: list[np.ndarray] = []
         row = hrow = 0
         for k in range(1, H + 1):
             if not k % 64:
