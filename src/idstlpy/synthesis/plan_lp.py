@@ -87,10 +87,13 @@ def _lower_update(mode: Any, P: np.ndarray) -> np.ndarray:
     rounding leave it indefinite or not finite, zero, the trivial lower bound, is used.
     """
     C, F = mode.C, mode.noise_floor
-    PCt = P @ C.T
-    S = C @ PCt + F
-    post = P - PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True) @ PCt.T
-    post = 0.5 * (post + post.T)
+    with np.errstate(all="ignore"):
+        PCt = P @ C.T
+        S = C @ PCt + F
+        if not np.all(np.isfinite(S)):
+            return np.zeros_like(P)
+        post = P - PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True) @ PCt.T
+        post = 0.5 * (post + post.T)
     if not np.all(np.isfinite(post)):
         return np.zeros_like(P)
     w, v = np.linalg.eigh(post)
