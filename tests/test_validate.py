@@ -137,3 +137,63 @@ def test_listing_plan_meets_the_bar():
     )
     assert report.belief_success_rate >= 0.90, report.as_dict()
     assert report.state_success_rate >= 0.95, report.as_dict()
+
+
+def test_report_repr_is_short_and_has_html(light_dark_case):
+    problem, plan = light_dark_case
+    report = validate(
+        problem,
+        plan,
+        light_dark_real_system(),
+        LIGHT_DARK_REAL_INITIAL_STATE,
+        runs=30,
+        seed=0,
+        executor="serial",
+    )
+    text = repr(report)
+    assert len(text) < 300, text
+    assert text.startswith("ValidationReport(runs=30, num_of_steps=82")
+    assert f"belief={100 * report.belief_success_rate:.1f}%" in text
+    html = report._repr_html_()
+    assert html.count("<table>") == 2 and "free_space" in html and "target" in html
+    assert "true state" in html and "%" in html
+    assert report.to_dict() == report.as_dict()
+
+
+def test_seed_sequence_with_a_list_entropy_is_reported(light_dark_case):
+    problem, plan = light_dark_case
+    args = (problem, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE)
+    report = validate(*args, runs=2, seed=np.random.SeedSequence([3, 4]), executor="serial")
+    assert report.seed_entropy == (3, 4)
+    json.dumps(report.as_dict())
+    again = validate(*args, runs=2, seed=np.random.SeedSequence(report.seed_entropy), executor="serial")
+    assert again == report
+
+
+def test_face_slacks_are_the_chance_kernel():
+    from idstlpy.chance import slack
+    from idstlpy.execution.validation import _face_slacks
+
+    x = stl.mk_variable(2)
+    ap = stl.logical_and(stl.prob(x[0] <= 1) >= 1.0, stl.prob(x[1] >= -1) >= 0.9, name="a")
+    means = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, -2.0]])
+    covs = np.stack([np.zeros((2, 2)), np.diag([0.0, 1.0]), np.diag([1.0, 0.0])])
+    got = _face_slacks(ap, means, covs)
+    cone = ap.cone
+    np.testing.assert_array_equal(got, slack(cone.H, cone.c, cone.z, means, covs))
+    assert got[0, 0] == 1.0 and got[1, 0] == -1.0  # eps = 0 with zero variance along the face
+    assert got[2, 0] == -np.inf  # eps = 0 with variance: no mean meets it
+
+
+def test_no_function_shadows_its_submodule():
+    import importlib
+    import types
+
+    import idstlpy.execution as execution
+
+    for name in ("lqr", "simulation", "validation"):
+        assert isinstance(importlib.import_module(f"idstlpy.execution.{name}"), types.ModuleType)
+    assert execution.simulate is stl.simulate and callable(execution.simulate)
+    assert execution.validate is stl.validate and callable(execution.validate)
+    assert execution.simulation.simulate is stl.simulate
+    assert execution.validation.validate is stl.validate

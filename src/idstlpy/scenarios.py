@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from . import dynamical_system
@@ -33,6 +35,13 @@ def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
         Latest step by which the target must be reached (240 in the paper).
     hold : int
         Steps the target must then be held (40 in the paper).
+
+    Returns
+    -------
+    Problem
+        Its noise function is a lambda: plain ``pickle`` refuses the problem (use
+        ``functools.partial(light_dark, deadline, hold)`` to rebuild it elsewhere); its plans
+        pickle and serialise (:meth:`~idstlpy.ProbabilisticTSTrajectory.to_dict`).
     """
     q = mk_variable(size=1, dtype=int)
     x = mk_variable(size=2, dtype=float)
@@ -79,11 +88,17 @@ def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
 
 
 def light_dark_real_system() -> SwitchedSystem:
-    """The noise-free real system the paper executes the plan on."""
+    """The noise-free real system the paper executes the plan on.
+
+    Returns
+    -------
+    SwitchedSystem
+        One mode, ``x+ = x + 0.25 u``, no noise and no sensor.
+    """
     return mk_switched_sys([mk_lcs(A=np.identity(2), B=0.25 * np.identity(2))])
 
 
-def double_integrator():
+def double_integrator() -> tuple[Any, SwitchedSystem, Polytope]:
     """A noise-free 2-D double integrator: state ``(p_x, p_y, v_x, v_y)``, ``|u_i| <= 0.5``.
 
     Returns
@@ -109,10 +124,19 @@ def reach_avoid(T: int) -> Problem:
 
     :func:`double_integrator` from ``(1, 1)`` at rest with zero covariance, so every chance
     constraint (0.99) is a plain linear one and the LP decides each candidate exactly.
+
+    Parameters
+    ----------
+    T : int
+        Horizon of both the avoidance and the deadline of the goal.
+
+    Returns
+    -------
+    Problem
     """
     x, system, domain = double_integrator()
 
-    def p(pred):
+    def p(pred: Any) -> Any:
         return prob(pred) >= 0.99
 
     avoid = logical_or(p(x[0] <= 3), p(x[0] >= 5), p(x[1] <= 4), p(x[1] >= 6))

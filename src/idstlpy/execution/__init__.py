@@ -1,14 +1,41 @@
 """Execution of plans: LQR tracking, Kalman filtering against a real system, Monte Carlo.
 
+Functions (re-exported at the top level as ``idstlpy.finite_horizon_lqr``, ``idstlpy.simulate``,
+``idstlpy.validate``):
+
 - :func:`finite_horizon_lqr`: gains of the tracking law (``LCS.compute_finite_horizon_lqr``);
 - :func:`simulate`: one execution (``SwitchedSystem.simulate``);
 - :func:`validate`: many independent executions and the rates at which the plan's promise held.
+
+Submodules (one job each; none is named like a function it defines):
+
+- :mod:`idstlpy.execution.lqr`: the finite-horizon Riccati recursion;
+- :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
+  control domain);
+- :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals.
 """
 
 from __future__ import annotations
 
-from .lqr import finite_horizon_lqr
-from .simulate import simulate
-from .validate import ValidationReport, validate, wilson_interval
+import sys as _sys
 
-__all__ = ["finite_horizon_lqr", "simulate", "validate", "ValidationReport", "wilson_interval"]
+from . import simulation, validation
+from .lqr import finite_horizon_lqr
+from .simulation import simulate
+from .validation import ValidationReport, validate, wilson_interval
+
+__all__ = [
+    "finite_horizon_lqr",
+    "simulate",
+    "validate",
+    "ValidationReport",
+    "wilson_interval",
+]
+
+# Transitional aliases of the old submodule names (``execution.simulate`` / ``execution.validate``,
+# renamed so that no function shadows its submodule) for importers not yet moved to the new names
+# (``dynamical_system.SwitchedSystem.simulate`` and ``batch.jobs``). Attribute access
+# (``idstlpy.execution.simulate``) gives the function; remove these two lines once every importer
+# uses ``.simulation`` / ``.validation``.
+_sys.modules.setdefault(f"{__name__}.simulate", simulation)
+_sys.modules.setdefault(f"{__name__}.validate", validation)

@@ -1,6 +1,6 @@
 """Monte Carlo validation: how often does the plan's promise hold when it is executed?
 
-Each run executes the plan with :func:`~idstlpy.execution.simulate.simulate` (Kalman filter,
+Each run executes the plan with :func:`~idstlpy.execution.simulation.simulate` (Kalman filter,
 receding-horizon LQR, true state moved by the real system) under its own random stream, and
 records
 
@@ -49,11 +49,12 @@ from typing import Any
 import numpy as np
 
 from .._checks import as_int
+from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAtomicProposition, STLFormula
 from ..monitor import atom_margins, robustness
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .simulate import mode_gains, simulate
+from .simulation import mode_gains, simulate
 
 __all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory"]
 
@@ -120,8 +121,10 @@ class ValidationReport:
     Attributes
     ----------
     runs : int
-    seed_entropy : int
-        Entropy of the root ``SeedSequence`` (pass it as ``seed`` to reproduce the report).
+        Number of executions.
+    seed_entropy : int or tuple of int
+        Entropy of the root ``SeedSequence`` (pass it as ``seed``, or
+        ``SeedSequence(seed_entropy)``, to reproduce the report).
     num_of_steps : int
         Steps executed per run.
     plan_margin : float
@@ -146,7 +149,7 @@ class ValidationReport:
     """
 
     runs: int
-    seed_entropy: int
+    seed_entropy: int | tuple[int, ...]
     num_of_steps: int
     plan_margin: float
     belief_successes: int
@@ -165,26 +168,75 @@ class ValidationReport:
     )
 
     def meets(self, belief: float = 0.90, state: float = 0.95) -> bool:
-        """Whether both success rates reach the given bars."""
+        """Whether both success rates reach the given bars.
+
+        Parameters
+        ----------
+        belief : float
+            Least acceptable belief success rate (the paper's 0.90).
+        state : float
+            Least acceptable state success rate (the paper's 0.95).
+
+        Returns
+        -------
+        bool
+        """
         return self.belief_success_rate >= belief and self.state_success_rate >= state
 
-    def as_dict(self) -> dict[str, Any]:
-        """Plain-data copy for JSON (margins summarised; trajectories left out)."""
+    def __repr__(self) -> str:
+        return (
+            f"ValidationReport(runs={self.runs}, num_of_steps={self.num_of_steps}, "
+            f"belief={_pct(self.belief_success_rate)} {_ci(self.belief_ci)}, "
+            f"state={_pct(self.state_success_rate)} {_ci(self.state_ci)}, "
+            f"plan_margin={self.plan_margin:.4g}, propositions={len(self.proposition_violations)}, "
+            f"predicates={len(self.predicate_violations)}, elapsed={self.elapsed:.3g}s)"
+        )
 
-        def stats(values: tuple[float, ...]) -> dict[str, float]:
-            arr = np.asarray(values, dtype=float)
-            finite = arr[np.isfinite(arr)]
-            if not finite.size:
-                return {"min": float("nan"), "median": float("nan"), "max": float("nan")}
-            return {
-                "min": float(finite.min()),
-                "median": float(np.median(finite)),
-                "max": float(finite.max()),
-            }
+    def _repr_html_(self) -> str:
+        """A small HTML table for notebooks: the two rates, then violations per proposition."""
+        from html import escape
+
+        head = (
+            f"<b>ValidationReport</b>: {self.runs} runs of {self.num_of_steps} steps, "
+            f"plan margin {self.plan_margin:.4g}, {self.elapsed:.3g} s"
+        )
+        rows = [
+            "<tr><th></th><th>success</th><th>95% CI</th><th>margin min / median</th></tr>",
+        ]
+        for name, rate, ci, margins in (
+            ("executed belief", self.belief_success_rate, self.belief_ci, self.belief_margins),
+            ("true state", self.state_success_rate, self.state_ci, self.state_margins),
+        ):
+            st = _margin_stats(margins)
+            rows.append(
+                f"<tr><td>{name}</td><td>{_pct(rate)}</td><td>{_ci(ci)}</td>"
+                f"<td>{st['min']:.3g} / {st['median']:.3g}</td></tr>"
+            )
+        viol = [
+            "<tr><th>proposition</th><th>broken (belief)</th><th>broken (state)</th></tr>",
+        ]
+        for name, v in self.proposition_violations.items():
+            viol.append(
+                f"<tr><td>{escape(name)}</td><td>{_pct(v['belief'])} {_ci(v['belief_ci'])}</td>"
+                f"<td>{_pct(v['state'])} {_ci(v['state_ci'])}</td></tr>"
+            )
+        return f"<div><p>{head}</p><table>{''.join(rows)}</table><table>{''.join(viol)}</table></div>"
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain-data copy for JSON (margins summarised; trajectories left out).
+
+        Returns
+        -------
+        dict
+            Rates, intervals, margin summaries (``min``, ``median``, ``max``; NaN when no run
+            has a finite margin) and violation rates.
+        """
 
         return {
             "runs": self.runs,
-            "seed_entropy": self.seed_entropy,
+            "seed_entropy": list(self.seed_entropy)
+            if isinstance(self.seed_entropy, tuple)
+            else self.seed_entropy,
             "num_of_steps": self.num_of_steps,
             "plan_margin": self.plan_margin,
             "belief_successes": self.belief_successes,
@@ -193,12 +245,30 @@ class ValidationReport:
             "state_success_rate": self.state_success_rate,
             "belief_ci": list(self.belief_ci),
             "state_ci": list(self.state_ci),
-            "belief_margin": stats(self.belief_margins),
-            "state_margin": stats(self.state_margins),
+            "belief_margin": _margin_stats(self.belief_margins),
+            "state_margin": _margin_stats(self.state_margins),
             "proposition_violations": {k: dict(v) for k, v in self.proposition_violations.items()},
             "predicate_violations": {k: dict(v) for k, v in self.predicate_violations.items()},
             "elapsed": self.elapsed,
         }
+
+    to_dict = as_dict
+
+
+def _pct(rate: float) -> str:
+    return f"{100 * rate:.1f}%"
+
+
+def _ci(ci: Sequence[float]) -> str:
+    return f"[{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+
+
+def _margin_stats(values: Sequence[float]) -> dict[str, float]:
+    arr = np.asarray(values, dtype=float)
+    finite = arr[np.isfinite(arr)]
+    if not finite.size:
+        return {"min": float("nan"), "median": float("nan"), "max": float("nan")}
+    return {"min": float(finite.min()), "median": float(np.median(finite)), "max": float(finite.max())}
 
 
 # --------------------------------------------------------------------------------------------
@@ -223,16 +293,11 @@ def _propositions(formula: STLFormula) -> list[STLAtomicProposition]:
 
 
 def _face_slacks(ap: STLAtomicProposition, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
-    """Slack of every chance predicate of ``ap`` at every step, shape (L, k)."""
+    """Slack of every chance predicate of ``ap`` at every step, shape (L, k) (:func:`chance.slack`)."""
     cone = ap.cone
     if cone.num_faces == 0:
         return np.zeros((means.shape[0], 0))
-    var = np.einsum("fi,kij,fj->kf", cone.H, covs, cone.H)
-    sd = np.sqrt(np.maximum(var, 0.0))
-    with np.errstate(invalid="ignore"):
-        terms = cone.z[None, :] * sd
-    terms = np.where(np.isinf(cone.z)[None, :] & (sd <= 0), 0.0, terms)
-    return -(means @ cone.H.T + cone.c[None, :] + terms)
+    return slack(cone.H, cone.c, cone.z, means, covs)
 
 
 def _promises(formula: STLFormula, plan: ProbabilisticTSTrajectory, L: int) -> list[np.ndarray]:
@@ -251,7 +316,8 @@ def _violations(
     formula: STLFormula, traj: ProbabilisticTSTrajectory, promises: list[np.ndarray]
 ) -> tuple[list[bool], list[bool]]:
     means, covs, actions = traj.get_mean(), traj.get_cov(), traj.get_action()
-    props, preds = [], []
+    props: list[bool] = []
+    preds: list[bool] = []
     for ap, mask in zip(_propositions(formula), promises, strict=True):
         margins = atom_margins(ap, means, covs, actions)
         props.append(bool(np.any(margins[mask] < 0.0)))
@@ -313,7 +379,7 @@ def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> 
     except Exception as exc:  # noqa: BLE001 - any pickling failure sends us to the next option
         logger.debug("validate: payload not picklable (%s)", exc)
     try:
-        import cloudpickle  # type: ignore[import-not-found]
+        import cloudpickle  # type: ignore[import-not-found, unused-ignore]
 
         return cloudpickle.dumps(payload)
     except Exception as exc:  # noqa: BLE001
@@ -372,10 +438,10 @@ def validate(
     clip_controls : bool
         Project the corrected inputs on ``problem.control_domain`` (default True).
     process_noise : {"model", "real", "none"}
-        See :func:`~idstlpy.execution.simulate.simulate`.
+        See :func:`~idstlpy.execution.simulation.simulate`.
     lqr_gains : mapping or sequence, optional
         Per mode gains; default each mode's ``lqr_gains`` (from ``compute_finite_horizon_lqr``),
-        else the defaults of :func:`~idstlpy.execution.simulate.simulate`.
+        else the defaults of :func:`~idstlpy.execution.simulation.simulate`.
     default_lqr : mapping, optional
         Weights for modes without gains.
     problem_factory : callable, optional
@@ -452,10 +518,10 @@ def validate(
         blob = _serialise(payload, problem_factory)
         if blob is None:
             logger.debug("validate: problem not picklable and no problem_factory: running in-process")
-        elif executor is None:
-            own_pool = pool = ProcessPoolExecutor(max_workers=max_workers)
+        elif isinstance(executor, Executor):
+            pool = executor
         else:
-            pool = executor  # type: ignore[assignment]
+            own_pool = pool = ProcessPoolExecutor(max_workers=max_workers)
 
     chunk = max(1, math.ceil(runs / (4 * max_workers)))
     batches = [(i, children[i : i + chunk]) for i in range(0, runs, chunk)]
@@ -467,7 +533,7 @@ def validate(
                 if progress is not None:
                     progress(len(results), runs)
         else:
-            if isinstance(pool, ThreadPoolExecutor):
+            if isinstance(pool, ThreadPoolExecutor) or blob is None:  # threads share the payload
                 futures = [pool.submit(_execute, payload, seeds, i) for i, seeds in batches]
             else:
                 futures = [pool.submit(_run_batch, blob, seeds, i) for i, seeds in batches]
@@ -519,7 +585,7 @@ def _report(
     entropy = root.entropy
     return ValidationReport(
         runs=runs,
-        seed_entropy=int(entropy),
+        seed_entropy=int(entropy) if isinstance(entropy, int | np.integer) else tuple(entropy or ()),
         num_of_steps=steps,
         plan_margin=robustness(plan, formula),
         belief_successes=b_ok,
