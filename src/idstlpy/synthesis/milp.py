@@ -350,9 +350,10 @@ def solve_milp(
             # eps = 0 with variance: the proposition cannot hold at k.
             never_p.extend(int(c) for c in np.unique(p_cols[~finite]))
             fixed_p.extend(int(c) for c in np.unique(p_cols[is_hard & finite]))
-            # A hard row is dropped only when the dynamics alone keep it (its own box is no reason).
+            # A hard row is dropped only when the dynamics alone keep it (its own box is no reason),
+            # with the margin t on top when one is maximised.
             with np.errstate(invalid="ignore"):
-                free = reach_max[k] - bound > 0
+                free = reach_max[k] + t_cap - bound > 0
             hsel = np.nonzero(is_hard & finite & free)[0]
             sel = np.nonzero(~is_hard & finite & (big > 0))[0]  # big <= 0: every reachable mean is inside
             if sel.size and (not np.all(np.isfinite(big[sel])) or np.max(big[sel]) > _MAX_BIG_M):
