@@ -257,6 +257,10 @@ def _optimise(
     except BudgetExceeded:
         stats.caps_hit.append("time_limit")
         how += " (the time limit stopped the optimisation: the best plan so far)"
+    if np.isfinite(bound):
+        # The MILP's bound is on its own model, within the solver's tolerances; the verified plan
+        # is a bound too, so the reported one is never on the wrong side of the value.
+        bound = max(bound, value) if name == "margin" else min(bound, value)
     result = run.done("found", how, traj, robustness(traj, formula))
     result.objective = name
     result.objective_value = value
