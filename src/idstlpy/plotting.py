@@ -1,17 +1,28 @@
-"""Figures of plans and executions in a 2-D workspace (matplotlib is imported inside functions).
+"""Figures of plans and executions (matplotlib is imported inside the functions).
 
-:func:`plot_workspace` draws, on one axes, the sensing quality (``light``), the regions of the
-formula's atomic propositions, a planned belief trajectory (means and covariance ellipses), an
-executed belief, the observations received and the true states. :func:`plot_light_dark` is the
-same with the light taken from the problem's sensor noise. :func:`plot_monte_carlo` overlays many
-executions. Every function takes ``ax=`` and returns a small dataclass holding what it drew.
+- :func:`plot_workspace` draws, on one axes and in two chosen state coordinates, a shading of
+  the sensing quality with its colorbar, the regions of the formula's atomic propositions
+  (clipped to the view, half-planes included), a planned belief trajectory (means, 95%
+  covariance ellipses, modes coloured along it), an executed belief, the observations received
+  and the true states; the legend names every kind of mark and stays off the data.
+- :func:`plot_light_dark` is the same with the shading taken from the problem's sensor: the
+  noise standard deviation of the plan's mode over the workspace (brighter is less noise).
+- :func:`plot_monte_carlo` overlays many executions.
+- :func:`plot_time_series` draws any trajectory against the step: per state the mean with a
+  2-sigma band, then the inputs and the modes; it works for any state dimension.
+- :func:`save_figure` writes a figure in the format of the file's extension (PNG, PDF, SVG).
+
+Every drawing function takes an axes (or axes) to draw on, and returns a small dataclass
+holding what it drew (the python-control convention).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,15 +32,32 @@ from .errors import DimensionError, IdstlpyError, InvalidArgumentError, InvalidT
 __all__ = [
     "WorkspaceArtists",
     "MonteCarloArtists",
+    "TimeSeriesArtists",
     "plot_workspace",
     "plot_light_dark",
     "plot_monte_carlo",
+    "plot_time_series",
     "sensor_light",
+    "sensor_noise_std",
+    "clip_halfplanes",
+    "save_figure",
+    "FIGURE_FORMATS",
 ]
 
 logger = logging.getLogger(__name__)
 
 _CHI2_95_2DOF = 5.991464547107979  # ellipses enclose 95% of a 2-D Gaussian
+
+FIGURE_FORMATS = ("png", "pdf", "svg")
+"""Formats :func:`save_figure` writes, chosen by the file's extension."""
+
+MODE_COLORS = ("tab:cyan", "tab:pink", "tab:olive", "tab:green", "tab:brown", "tab:gray", "gold", "navy")
+"""Colours of the modes along a plan (mode ``q`` takes ``MODE_COLORS[q % len]``)."""
+
+REGION_COLORS = ("black", "darkgreen", "darkviolet", "saddlebrown", "teal")
+"""Edge colours of the propositions' regions, in order of appearance."""
+
+LegendPlacement = bool | str
 
 
 @dataclass
@@ -39,32 +67,51 @@ class WorkspaceArtists:
     Attributes
     ----------
     figure, ax : matplotlib Figure and Axes
+        Where it was drawn.
     light : AxesImage or None
-        The light shading.
+        The shading of the sensing quality.
+    colorbar : Colorbar or None
+        The shading's colorbar (its label names the quantity).
     regions : dict[str, Polygon]
-        One patch per atomic proposition with chance constraints (by name).
+        One patch per atomic proposition with chance constraints (by name): the states its mean
+        must be in at zero covariance, clipped to the view.
     plan : Line2D or None
         Planned means.
     plan_ellipses : list of Ellipse
         Planned 95% covariance ellipses.
+    modes : LineCollection or None
+        The plan's segments coloured by the mode applied along them (when shown).
     executed : Line2D or None
         Executed belief means.
     executed_ellipses : list of Ellipse
+        Executed 95% covariance ellipses.
     observations : PathCollection or None
+        The observations received (their first two outputs, in the drawn coordinates).
     real : Line2D or None
         True states.
+    legend : Legend or None
+        The legend.
+    legend_proxies : list of Artist
+        Entries of the legend that are not drawn on the axes (ellipses, shading, modes).
+    dims : tuple of int
+        The two state coordinates drawn.
     """
 
     figure: Any
     ax: Any
     light: Any = None
+    colorbar: Any = None
     regions: dict[str, Any] = field(default_factory=dict)
     plan: Any = None
     plan_ellipses: list[Any] = field(default_factory=list)
+    modes: Any = None
     executed: Any = None
     executed_ellipses: list[Any] = field(default_factory=list)
     observations: Any = None
     real: Any = None
+    legend: Any = None
+    legend_proxies: list[Any] = field(default_factory=list)
+    dims: tuple[int, int] = (0, 1)
 
 
 @dataclass
@@ -74,13 +121,17 @@ class MonteCarloArtists:
     Attributes
     ----------
     figure, ax : matplotlib Figure and Axes
+        Where it was drawn.
     workspace : WorkspaceArtists
-        Light, regions and the plan.
+        Shading, regions and the plan.
     executed : list of Line2D
         One line per executed belief.
     real : list of Line2D
         One line per true-state trajectory.
     title : Text
+        The title (success rates).
+    legend : Legend or None
+        The legend.
     """
 
     figure: Any
@@ -89,44 +140,169 @@ class MonteCarloArtists:
     executed: list[Any] = field(default_factory=list)
     real: list[Any] = field(default_factory=list)
     title: Any = None
+    legend: Any = None
 
 
-def sensor_light(problem: Any, mode: int | None = None) -> Callable[[np.ndarray], np.ndarray] | None:
+@dataclass
+class TimeSeriesArtists:
+    """What :func:`plot_time_series` drew.
+
+    Attributes
+    ----------
+    figure : matplotlib Figure
+        The figure.
+    axes : list of Axes
+        One per drawn state, then the inputs' axes and the modes' axes (when drawn).
+    ax : Axes
+        The first axes (for a title).
+    states : tuple of int
+        The state coordinates drawn, in the order of ``axes``.
+    means, bands : dict[int, Artist]
+        Per state coordinate, the planned mean (Line2D) and its ``sigma`` band (PolyCollection).
+    executed_means, executed_bands : dict[int, Artist]
+        The same for the executed belief.
+    real : dict[int, Line2D]
+        Per state coordinate, the true state.
+    bounds : list of Line2D
+        The propositions' bounds on single coordinates (horizontal lines).
+    controls_ax : Axes or None
+        The inputs' axes.
+    controls : list of Line2D
+        One line per input (planned), then one per input (executed, dashed).
+    modes_ax : Axes or None
+        The modes' axes.
+    modes : list of Line2D
+        The planned modes (and the executed ones, when different from the plan's).
+    mode_bands : list of BrokenBarHCollection
+        One coloured band per run of the same planned mode (the colours of
+        :func:`plot_workspace`).
+    legend : Legend or None
+        The legend of the states' axes.
+    """
+
+    figure: Any
+    axes: list[Any]
+    ax: Any
+    states: tuple[int, ...]
+    means: dict[int, Any] = field(default_factory=dict)
+    bands: dict[int, Any] = field(default_factory=dict)
+    executed_means: dict[int, Any] = field(default_factory=dict)
+    executed_bands: dict[int, Any] = field(default_factory=dict)
+    real: dict[int, Any] = field(default_factory=dict)
+    bounds: list[Any] = field(default_factory=list)
+    controls_ax: Any = None
+    controls: list[Any] = field(default_factory=list)
+    modes_ax: Any = None
+    modes: list[Any] = field(default_factory=list)
+    mode_bands: list[Any] = field(default_factory=list)
+    legend: Any = None
+
+
+# ----------------------------------------------------------------------------------------------
+# Sensing maps
+
+
+def _sensor_mode(problem: Any, mode: int | None) -> Any:
+    modes = list(problem.switched_system.system_modes)
+    if mode is None:
+        observing = [md for md in modes if md.p]
+        return observing[0] if observing else None
+    return problem.switched_system.mode(mode)
+
+
+def _full_states(problem: Any, dims: Sequence[int], base: Any) -> Callable[[np.ndarray], np.ndarray]:
+    """Map points (k, 2) of the ``dims`` plane to states (k, n), other coordinates from ``base``."""
+    n = problem.switched_system.n
+    ref = np.asarray(problem.initial_state.mean if base is None else base, dtype=float).reshape(-1)
+    if ref.shape != (n,):
+        raise DimensionError(f"base must be a state of size {n}, got shape {ref.shape}")
+    d = list(dims)
+    if len(d) != 2 or not all(0 <= i < n for i in d) or d[0] == d[1]:
+        raise DimensionError(f"dims must be two different coordinates in 0..{n - 1}, got {tuple(dims)}")
+
+    def lift(points: np.ndarray) -> np.ndarray:
+        pts = np.asarray(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 2:
+            raise DimensionError(f"points must have shape (k, 2), got {pts.shape}")
+        out = np.tile(ref, (pts.shape[0], 1))
+        out[:, d] = pts
+        return out
+
+    return lift
+
+
+def sensor_noise_std(
+    problem: Any, mode: int | None = None, *, dims: Sequence[int] = (0, 1), base: Any = None
+) -> Callable[[np.ndarray], np.ndarray] | None:
+    """The sensor's noise standard deviation over the workspace: ``sqrt(trace R(x) / p)``.
+
+    For a noise ``n(x) = s(x) I`` this is ``s(x)``; in general the root mean square of the
+    outputs' standard deviations (smaller means better sensing).
+
+    Parameters
+    ----------
+    problem : Problem
+        Supplies the modes and the initial belief.
+    mode : int, optional
+        Which mode's sensor (default: the first mode with an output).
+    dims : sequence of two int
+        The state coordinates of the points the map takes.
+    base : array_like, shape (n,), optional
+        The other coordinates of the states evaluated (default: the initial mean).
+
+    Returns
+    -------
+    callable or None
+        Maps points of shape (k, 2) (coordinates ``dims``) to values of shape (k,); None when
+        the mode does not observe (or no mode does).
+    """
+    sensor = _sensor_mode(problem, mode)
+    if sensor is None or not sensor.p:
+        return None
+    lift = _full_states(problem, dims, base)
+
+    def noise_std(points: np.ndarray) -> np.ndarray:
+        states = lift(points)
+        return np.array([np.sqrt(max(float(np.trace(sensor.noise_cov(x))), 0.0) / sensor.p) for x in states])
+
+    return noise_std
+
+
+def sensor_light(
+    problem: Any, mode: int | None = None, *, dims: Sequence[int] = (0, 1), base: Any = None
+) -> Callable[[np.ndarray], np.ndarray] | None:
     """A light map from a problem's sensor: ``-log10 trace R(x)`` (higher means better sensing).
 
     Parameters
     ----------
     problem : Problem
+        Supplies the modes and the initial belief.
     mode : int, optional
         Which mode's sensor (default: the first mode with an output).
+    dims : sequence of two int
+        The state coordinates of the points the map takes.
+    base : array_like, shape (n,), optional
+        The other coordinates of the states evaluated (default: the initial mean).
 
     Returns
     -------
     callable or None
-        Maps points of shape (k, n) to values of shape (k,); None when no mode observes.
+        Maps points of shape (k, 2) to values of shape (k,); None when no mode observes.
     """
-    modes = list(problem.switched_system.system_modes)
-    if mode is None:
-        observing = [md for md in modes if md.p]
-        if not observing:
-            return None
-        sensor = observing[0]
-    else:
-        sensor = problem.switched_system.mode(mode)
-    n = problem.switched_system.n
-    base = np.asarray(problem.initial_state.mean, dtype=float)
+    sensor = _sensor_mode(problem, mode)
+    if sensor is None or not sensor.p:
+        return None
+    lift = _full_states(problem, dims, base)
 
     def light(points: np.ndarray) -> np.ndarray:
-        pts = np.asarray(points, dtype=float)
-        out = np.empty(pts.shape[0])
-        for i, p in enumerate(pts):
-            x = base.copy() if pts.shape[1] < n else p
-            if pts.shape[1] < n:
-                x[: pts.shape[1]] = p
-            out[i] = -np.log10(max(float(np.trace(sensor.noise_cov(x))), 1e-300))
-        return out
+        states = lift(points)
+        return np.array([-np.log10(max(float(np.trace(sensor.noise_cov(x))), 1e-300)) for x in states])
 
     return light
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry
 
 
 def _ellipse(mean: np.ndarray, cov: np.ndarray, **kw: Any) -> Any:
@@ -139,32 +315,208 @@ def _ellipse(mean: np.ndarray, cov: np.ndarray, **kw: Any) -> Any:
     return Ellipse(tuple(mean), float(width), float(height), angle=angle, **kw)
 
 
-def _axes(ax: Any, figsize: tuple[float, float] = (6.0, 5.0)) -> tuple[Any, Any]:
+def clip_halfplanes(H: np.ndarray, c: np.ndarray, low: Any, high: Any) -> np.ndarray:
+    """The polygon ``{y in [low, high] : H y + c <= 0}`` (counter-clockwise vertices, shape (v, 2)).
+
+    Parameters
+    ----------
+    H : ndarray, shape (F, 2)
+        Face normals.
+    c : ndarray, shape (F,)
+        Offsets.
+    low, high : array_like, shape (2,)
+        Corners of the view box.
+
+    Returns
+    -------
+    ndarray, shape (v, 2)
+        Empty (shape (0, 2)) when nothing of the region is in view.
+    """
+    (x0, y0), (x1, y1) = low, high
+    poly = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]], dtype=float)
+    scale = max(1.0, float(np.max(np.abs(poly))))
+    for h, cst in zip(np.asarray(H, dtype=float), np.asarray(c, dtype=float), strict=True):
+        if not len(poly):
+            break
+        norm = float(np.linalg.norm(h))
+        if norm == 0.0:
+            if cst > 0:
+                return np.zeros((0, 2))
+            continue
+        s = (poly @ h + cst) / norm
+        tol = 1e-12 * scale
+        out: list[np.ndarray] = []
+        for i in range(len(poly)):
+            p, q = poly[i], poly[(i + 1) % len(poly)]
+            sp, sq = s[i], s[(i + 1) % len(poly)]
+            if sp <= tol:
+                out.append(p)
+            if (sp < -tol and sq > tol) or (sp > tol and sq < -tol):
+                out.append(p + (sp / (sp - sq)) * (q - p))
+        poly = np.array(out).reshape(-1, 2)
+    if len(poly) < 3:
+        return np.zeros((0, 2))
+    keep = np.ones(len(poly), dtype=bool)
+    keep[1:] = np.any(np.abs(np.diff(poly, axis=0)) > 1e-12 * scale, axis=1)
+    poly = poly[keep]
+    if len(poly) > 1 and np.allclose(poly[0], poly[-1], atol=1e-12 * scale):
+        poly = poly[:-1]
+    return poly if len(poly) >= 3 else np.zeros((0, 2))
+
+
+def _propositions(problem: Any) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
+    """``(j, name, H, c)`` per atomic proposition with chance constraints (``j`` counts them).
+
+    ``H x + c <= 0`` is the set its mean must be in at zero covariance; ``j`` picks the style,
+    so a proposition looks the same in every figure.
+    """
+    out: list[tuple[int, str, np.ndarray, np.ndarray]] = []
+    for i, ap in enumerate(problem.stl_formula.atomic_propositions()):
+        if not ap.predicates:
+            continue
+        region = ap.cone.deterministic_region
+        H, c = np.asarray(region.H, dtype=float), np.asarray(region.c, dtype=float)
+        out.append((len(out), ap.name or f"ap{i}", H, c))
+    return out
+
+
+def _region_style(j: int) -> dict[str, Any]:
+    return {"color": REGION_COLORS[j % len(REGION_COLORS)], "linestyle": "--" if j == 0 else "-"}
+
+
+def _proposition_halfplanes(
+    problem: Any, dims: Sequence[int]
+) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
+    """Per atomic proposition with chance constraints, its faces on the ``dims`` coordinates."""
+    d = list(dims)
+    others = [i for i in range(problem.switched_system.n) if i not in d]
+    out = []
+    for j, name, H, c in _propositions(problem):
+        on_plane = np.all(H[:, others] == 0.0, axis=1) if others else np.ones(H.shape[0], dtype=bool)
+        if not on_plane.all():
+            logger.debug(
+                "plot_workspace: %s: %d face(s) on other coordinates than %s not drawn",
+                name,
+                int((~on_plane).sum()),
+                tuple(d),
+            )
+        if on_plane.any():
+            out.append((j, name, H[on_plane][:, d], c[on_plane]))
+    return out
+
+
+def _bounded_box(H: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Bounding box of ``{y : H y + c <= 0}`` in the plane, or None when unbounded or empty."""
+    from .sets import Polytope
+
+    try:
+        low, high = Polytope(H, c).bounding_box()
+    except IdstlpyError:
+        return None
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))) or np.any(low > high):
+        return None
+    return low, high
+
+
+# ----------------------------------------------------------------------------------------------
+# Helpers
+
+
+def _axes(ax: Any, figsize: tuple[float, float] = (9.0, 5.5)) -> tuple[Any, Any]:
     if ax is None:
         import matplotlib.pyplot as plt
 
-        fig, ax = plt.subplots(figsize=figsize)
+        fig, ax = plt.subplots(figsize=figsize, layout="constrained")
         return fig, ax
     return ax.figure, ax
 
 
-def _check_traj(traj: Any, what: str, n: int) -> None:
+def _check_problem(problem: Any) -> None:
+    from .formulas import STLFormula
+
+    if not isinstance(getattr(problem, "stl_formula", None), STLFormula) or not hasattr(
+        problem, "switched_system"
+    ):
+        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
+
+
+def _check_traj(traj: Any, what: str, n: int | None) -> None:
     from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
     if not isinstance(traj, ProbabilisticTSTrajectory | RealTrajectory):
         raise InvalidTypeError(f"{what} must be a trajectory, got {type(traj).__name__}")
-    dim = traj.n if isinstance(traj, ProbabilisticTSTrajectory) else traj.get_state().shape[1]
-    if dim != n:
+    dim = traj.n
+    if n is not None and dim != n:
         raise DimensionError(f"{what} has state dimension {dim}, the problem has n = {n}")
 
 
-def _extent(problem: Any, regions: list[np.ndarray], trajs: list[np.ndarray], dims: tuple[int, int]) -> Any:
-    pts = [r for r in regions] + [t[:, list(dims)] for t in trajs]
-    pts.append(np.asarray(problem.initial_state.mean)[list(dims)][None, :])
-    allp = np.vstack([p for p in pts if p.size])
+def _check_dims(dims: Any, n: int) -> tuple[int, int]:
+    if n < 2:
+        raise DimensionError(
+            f"a workspace plot needs two state coordinates; the state has n = {n}: use plot_time_series"
+        )
+    try:
+        d = tuple(int(i) for i in dims)
+    except (TypeError, ValueError) as exc:
+        raise DimensionError(f"dims must be two different coordinates in 0..{n - 1}, got {dims!r}") from exc
+    if len(d) != 2 or not all(0 <= i < n for i in d) or d[0] == d[1]:
+        raise DimensionError(f"dims must be two different coordinates in 0..{n - 1}, got {dims!r}")
+    return d[0], d[1]
+
+
+def _extent(
+    initial_mean: np.ndarray, boxes: list[tuple[np.ndarray, np.ndarray]], trajs: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    pts = [initial_mean[None, :]] + [np.vstack(b) for b in boxes] + [t for t in trajs if t.size]
+    allp = np.vstack(pts)
     lo, hi = allp.min(axis=0), allp.max(axis=0)
     pad = 0.08 * np.maximum(hi - lo, 1.0)
     return lo - pad, hi + pad
+
+
+def _place_legend(ax: Any, proxies: list[Any], where: LegendPlacement) -> Any:
+    """A legend of the labelled artists and ``proxies``, outside the axes or at the best place."""
+    if where is False or where is None:
+        return None
+    handles, labels = ax.get_legend_handles_labels()
+    handles = list(handles) + list(proxies)
+    labels = list(labels) + [p.get_label() for p in proxies]
+    if not handles:
+        return None
+    if where is True or where == "outside":
+        return ax.legend(
+            handles, labels, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small"
+        )
+    if isinstance(where, str):
+        return ax.legend(handles, labels, loc=where, fontsize="small")
+    raise InvalidArgumentError(
+        f"legend must be True, False, 'outside' or a matplotlib location, got {where!r}"
+    )
+
+
+def _light_norm(norm: Any, values: np.ndarray) -> Any:
+    from matplotlib.colors import LogNorm, Normalize
+
+    finite = values[np.isfinite(values)]
+    if norm is None or norm == "linear":
+        return None
+    if norm == "log":
+        if finite.size and float(finite.min()) > 0.0 and float(finite.max()) > 10.0 * float(finite.min()):
+            return LogNorm(vmin=float(finite.min()), vmax=float(finite.max()))
+        return None
+    if isinstance(norm, Normalize):
+        return norm
+    raise InvalidArgumentError(
+        f"light_norm must be None, 'linear', 'log' or a matplotlib Normalize, got {norm!r}"
+    )
+
+
+def _mode_color(q: int) -> str:
+    return MODE_COLORS[int(q) % len(MODE_COLORS)]
+
+
+# ----------------------------------------------------------------------------------------------
+# Workspace
 
 
 def plot_workspace(
@@ -175,12 +527,18 @@ def plot_workspace(
     ax: Any = None,
     light: Callable[[np.ndarray], np.ndarray] | None = None,
     *,
-    dims: tuple[int, int] = (0, 1),
+    dims: Sequence[int] = (0, 1),
     ellipse_every: int | None = None,
     resolution: int = 120,
-    legend: bool = True,
+    legend: LegendPlacement = "outside",
+    light_label: str | None = None,
+    light_cmap: str = "gray",
+    light_norm: Any = None,
+    colorbar: bool = True,
+    show_modes: bool | None = None,
+    light_legend: str | None = None,
 ) -> WorkspaceArtists:
-    """Draw a problem's workspace with a plan and an execution.
+    """Draw a problem's workspace with a plan and an execution, in two chosen state coordinates.
 
     Parameters
     ----------
@@ -193,54 +551,73 @@ def plot_workspace(
     real : RealTrajectory, optional
         True states (red) and observations (purple dots).
     ax : matplotlib Axes, optional
-        Where to draw (default: a new figure).
+        Where to draw (default: a new figure with a constrained layout).
     light : callable, optional
-        ``light(points (k, 2)) -> (k,)``: the sensing quality to shade (brighter is better).
-    dims : tuple of int
-        The two state coordinates to draw.
+        ``light(points (k, 2)) -> (k,)``: a map to shade over the view (points in the ``dims``
+        coordinates), e.g. :func:`sensor_noise_std` or :func:`sensor_light`.
+    dims : sequence of two int
+        The two state coordinates to draw (any two of ``0..n-1``). A proposition is drawn by its
+        faces on these two coordinates (the cross-section of the set it describes); faces on
+        other coordinates are not drawn.
     ellipse_every : int, optional
         Draw a covariance ellipse every this many steps (default: about 25 per trajectory).
     resolution : int
-        Grid points per axis of the light shading.
-    legend : bool
-        Add a legend.
+        Grid points per axis of the shading.
+    legend : bool or str
+        ``"outside"`` (default, or True): right of the axes, off the data; a matplotlib
+        location such as ``"best"`` to place it inside; False for none.
+    light_label : str, optional
+        What the shading shows: the colorbar's label and the legend entry (default
+        ``"sensing quality (brighter is better)"``).
+    light_cmap : str
+        Colormap of the shading (``"gray"``: brighter for higher values; ``"gray_r"`` for lower).
+    light_norm : None, "linear", "log" or matplotlib Normalize
+        Scaling of the shading (``"log"`` falls back to linear for values not all positive or
+        spanning less than a decade).
+    colorbar : bool
+        Add a colorbar under the axes for the shading.
+    show_modes : bool, optional
+        Colour the plan by the mode applied along each segment (default: when the system has
+        more than one mode).
+    light_legend : str, optional
+        A shorter name of the shading for the legend (default ``light_label``).
 
     Returns
     -------
     WorkspaceArtists
+
+    Raises
+    ------
+    DimensionError
+        When ``dims`` are not two different coordinates (or the state is 1-D: use
+        :func:`plot_time_series`), or a trajectory's dimension is not the problem's.
+    InvalidTypeError
+        When ``problem`` is not a problem or a trajectory is not a trajectory.
     """
-    from matplotlib.patches import Polygon
+    from matplotlib.collections import LineCollection
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon
 
-    from .formulas import STLFormula
-
+    _check_problem(problem)
     n = problem.switched_system.n
-    if not isinstance(getattr(problem, "stl_formula", None), STLFormula):
-        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
-    if len(dims) != 2 or not all(0 <= d < n for d in dims) or dims[0] == dims[1]:
-        raise DimensionError(f"dims must be two different coordinates in 0..{n - 1}, got {dims}")
+    d0, d1 = _check_dims(dims, n)
+    d = [d0, d1]
     for traj, what in ((plan, "plan"), (executed, "executed"), (real, "real")):
         if traj is not None:
             _check_traj(traj, what, n)
+    resolution = int(resolution)
+    if resolution < 2:
+        raise InvalidArgumentError(f"resolution must be >= 2, got {resolution}")
     fig, ax = _axes(ax)
-    out = WorkspaceArtists(figure=fig, ax=ax)
+    out = WorkspaceArtists(figure=fig, ax=ax, dims=(d0, d1))
+    proxies: list[Any] = []
 
-    # Regions of the atomic propositions (their zero-covariance shapes).
-    region_pts: list[tuple[str, np.ndarray]] = []
-    if n == 2:
-        for i, ap in enumerate(problem.stl_formula.atomic_propositions()):
-            if not ap.predicates:
-                continue
-            name = ap.name or f"ap{i}"
-            try:
-                verts = ap.cone.deterministic_region.vertices_2d()
-            except IdstlpyError as exc:  # unbounded or empty region: nothing to draw
-                logger.debug("plot_workspace: skip region %s (%s)", name, exc)
-                continue
-            region_pts.append((name, verts))
-    trajs = [t.get_mean() for t in (plan, executed) if t is not None]
+    halfplanes = _proposition_halfplanes(problem, d)
+    boxes = [b for b in (_bounded_box(H, c) for _, _, H, c in halfplanes) if b is not None]
+    trajs = [t.get_mean()[:, d] for t in (plan, executed) if t is not None]
     if real is not None:
-        trajs.append(real.get_state())
-    lo, hi = _extent(problem, [v for _, v in region_pts], trajs, dims)
+        trajs.append(real.get_state()[:, d])
+    lo, hi = _extent(np.asarray(problem.initial_state.mean, dtype=float)[d], boxes, trajs)
 
     if light is not None:
         xs = np.linspace(lo[0], hi[0], resolution)
@@ -250,25 +627,40 @@ def plot_workspace(
         vals = np.asarray(light(pts), dtype=float)
         if vals.shape != (pts.shape[0],):
             raise DimensionError(f"light must map points (k, 2) to values (k,), got shape {vals.shape}")
+        label = light_label or "sensing quality (brighter is better)"
         out.light = ax.imshow(
             vals.reshape(X.shape),
             origin="lower",
             extent=(lo[0], hi[0], lo[1], hi[1]),
-            cmap="gray",
+            cmap=light_cmap,
+            norm=_light_norm(light_norm, vals),
             aspect="auto",
             alpha=0.8,
             zorder=0,
+            interpolation="bilinear",
         )
+        proxies.append(
+            Patch(facecolor="0.55", edgecolor="0.3", alpha=0.8, label=f"shading: {light_legend or label}")
+        )
+        if colorbar:
+            out.colorbar = fig.colorbar(
+                out.light, ax=ax, location="bottom", fraction=0.05, pad=0.02 if _constrained(fig) else 0.12
+            )
+            out.colorbar.set_label(label, fontsize="small")
 
-    colors = ["black", "tab:green", "tab:purple", "tab:brown", "tab:cyan"]
-    for j, (name, verts) in enumerate(region_pts):
+    for j, name, H, c in halfplanes:
+        verts = clip_halfplanes(H, c, lo, hi)
+        if not len(verts):
+            logger.debug("plot_workspace: region %s is empty in view", name)
+            continue
+        style = _region_style(j)
         poly = Polygon(
             verts,
             closed=True,
             fill=False,
-            edgecolor=colors[j % len(colors)],
+            edgecolor=style["color"],
+            linestyle=style["linestyle"],
             linewidth=1.5,
-            linestyle="-" if j else "--",
             label=name,
             zorder=2,
         )
@@ -278,29 +670,80 @@ def plot_workspace(
     def every(traj: Any) -> int:
         return ellipse_every or max(1, (traj.num_of_steps + 1) // 25)
 
-    d = list(dims)
     if plan is not None:
         m = plan.get_mean()
-        (out.plan,) = ax.plot(m[:, d[0]], m[:, d[1]], "-", color="tab:blue", lw=1.5, label="plan", zorder=4)
+        colour_modes = problem.switched_system.num_modes > 1 if show_modes is None else bool(show_modes)
+        if colour_modes and plan.num_of_steps:
+            segments = np.stack([m[:-1, d], m[1:, d]], axis=1)
+            actions = plan.get_action()
+            out.modes = LineCollection(
+                list(segments),
+                colors=[_mode_color(q) for q in actions],
+                linewidths=4.0,
+                alpha=0.85,
+                zorder=3.5,
+            )
+            ax.add_collection(out.modes)
+            for q in sorted(set(actions.tolist())):
+                proxies.append(
+                    Line2D([], [], color=_mode_color(q), lw=4.0, alpha=0.85, label=f"plan: mode {q}")
+                )
+        (out.plan,) = ax.plot(
+            m[:, d[0]],
+            m[:, d[1]],
+            "-",
+            color="black" if out.modes is not None else "tab:blue",
+            lw=0.9 if out.modes is not None else 1.5,
+            label="plan: mean",
+            zorder=4,
+        )
         for k in range(0, plan.num_of_steps + 1, every(plan)):
             e = _ellipse(m[k, d], plan.get_cov(k)[np.ix_(d, d)], fill=False, ec="tab:blue", lw=0.6, zorder=3)
             ax.add_patch(e)
             out.plan_ellipses.append(e)
+        if out.plan_ellipses:
+            proxies.append(
+                Line2D(
+                    [],
+                    [],
+                    ls="none",
+                    marker="o",
+                    ms=9,
+                    mfc="none",
+                    mec="tab:blue",
+                    mew=0.8,
+                    label="plan: 95% covariance ellipses",
+                )
+            )
     if executed is not None:
         m = executed.get_mean()
         (out.executed,) = ax.plot(
-            m[:, d[0]], m[:, d[1]], "-", color="tab:orange", lw=1.2, label="executed belief", zorder=5
+            m[:, d[0]], m[:, d[1]], "-", color="tab:orange", lw=1.2, label="executed belief: mean", zorder=5
         )
         for k in range(0, executed.num_of_steps + 1, every(executed)):
             cov = executed.get_cov(k)[np.ix_(d, d)]
             e = _ellipse(m[k, d], cov, fill=False, ec="tab:orange", lw=0.5, zorder=3)
             ax.add_patch(e)
             out.executed_ellipses.append(e)
+        if out.executed_ellipses:
+            proxies.append(
+                Line2D(
+                    [],
+                    [],
+                    ls="none",
+                    marker="o",
+                    ms=9,
+                    mfc="none",
+                    mec="tab:orange",
+                    mew=0.8,
+                    label="executed: 95% covariance ellipses",
+                )
+            )
     if real is not None:
         obs = real.get_observation()
-        if obs.ndim == 2 and obs.shape[1] >= 2 and np.any(np.isfinite(obs[:, 0])):
-            ok = np.all(np.isfinite(obs[:, d]), axis=1) if obs.shape[1] > max(d) else None
-            if ok is not None and ok.any():
+        if obs.ndim == 2 and obs.shape[1] > max(d):
+            ok = np.all(np.isfinite(obs[:, d]), axis=1)
+            if ok.any():
                 out.observations = ax.scatter(
                     obs[ok, d[0]],
                     obs[ok, d[1]],
@@ -318,9 +761,28 @@ def plot_workspace(
     ax.set_ylim(lo[1], hi[1])
     ax.set_xlabel(f"x[{d[0]}]")
     ax.set_ylabel(f"x[{d[1]}]")
-    if legend:
-        ax.legend(loc="best", fontsize="small")
+    out.legend_proxies = proxies
+    out.legend = _place_legend(ax, proxies, legend)
     return out
+
+
+def _constrained(fig: Any) -> bool:
+    engine = fig.get_layout_engine() if hasattr(fig, "get_layout_engine") else None
+    return engine is not None and type(engine).__name__ == "ConstrainedLayoutEngine"
+
+
+def _plan_mode(problem: Any, plan: Any) -> int | None:
+    """The observing mode the plan uses most (ties: the lowest), else the first observing mode."""
+    modes = list(problem.switched_system.system_modes)
+    observing = [q for q, md in enumerate(modes) if md.p]
+    if not observing:
+        return None
+    if plan is not None and plan.num_of_steps:
+        counts = np.bincount(plan.get_action(), minlength=len(modes))
+        used = [q for q in observing if counts[q] > 0]
+        if used:
+            return max(used, key=lambda q: (counts[q], -q))
+    return observing[0]
 
 
 def plot_light_dark(
@@ -330,25 +792,51 @@ def plot_light_dark(
     real: Any = None,
     ax: Any = None,
     light: Callable[[np.ndarray], np.ndarray] | None = None,
+    *,
+    mode: int | None = None,
     **kwargs: Any,
 ) -> WorkspaceArtists:
-    """:func:`plot_workspace` with the light taken from the problem's sensor (:func:`sensor_light`).
+    """:func:`plot_workspace` shaded by the sensor: the noise std of the plan's mode (brighter: less noise).
 
     Parameters
     ----------
-    problem, plan, executed, real, ax
+    problem : Problem
+        Supplies the formula's regions, the sensor and the initial belief.
+    plan : ProbabilisticTSTrajectory, optional
+        As in :func:`plot_workspace`.
+    executed : ProbabilisticTSTrajectory, optional
+        As in :func:`plot_workspace`.
+    real : RealTrajectory, optional
+        As in :func:`plot_workspace`.
+    ax : matplotlib Axes, optional
         As in :func:`plot_workspace`.
     light : callable, optional
-        Overrides the sensor-derived light map.
+        Overrides the sensor-derived map (then shaded as in :func:`plot_workspace`).
+    mode : int, optional
+        Whose sensor to show (default: the observing mode the plan uses most, else the first
+        observing mode). Its :func:`sensor_noise_std` is shaded on a log scale, the other state
+        coordinates taken from the initial mean.
     **kwargs
-        Passed to :func:`plot_workspace`.
+        Passed to :func:`plot_workspace` (``dims``, ``legend``, ``colorbar``...).
 
     Returns
     -------
     WorkspaceArtists
     """
+    _check_problem(problem)
     if light is None:
-        light = sensor_light(problem)
+        q = _plan_mode(problem, plan) if mode is None else int(mode)
+        dims = kwargs.get("dims", (0, 1))
+        if q is not None and problem.switched_system.n >= 2:
+            _check_dims(dims, problem.switched_system.n)
+            light = sensor_noise_std(problem, q, dims=dims)
+        if light is not None:
+            kwargs.setdefault(
+                "light_label", f"sensor noise std of mode {q} (RMS over outputs; brighter is less noise)"
+            )
+            kwargs.setdefault("light_legend", f"sensor noise std of mode {q} (colorbar)")
+            kwargs.setdefault("light_cmap", "gray_r")
+            kwargs.setdefault("light_norm", "log")
     return plot_workspace(problem, plan, executed, real, ax=ax, light=light, **kwargs)
 
 
@@ -361,37 +849,47 @@ def plot_monte_carlo(
     light: Callable[[np.ndarray], np.ndarray] | None = None,
     *,
     success_rate: float | None = None,
-    dims: tuple[int, int] = (0, 1),
+    dims: Sequence[int] = (0, 1),
+    legend: LegendPlacement = "outside",
+    colorbar: bool = True,
 ) -> MonteCarloArtists:
     """Overlay many executions of a plan; the title gives the success rate(s).
 
     Parameters
     ----------
     problem : Problem
+        Supplies the formula's regions, the sensor and the initial belief.
     plan : ProbabilisticTSTrajectory
+        The plan (dashed, above the executions).
     executions : sequence of (ProbabilisticTSTrajectory, RealTrajectory)
         E.g. ``ValidationReport.executions``.
     report : ValidationReport, optional
         Supplies the belief / state success rates and their confidence intervals.
     ax : matplotlib Axes, optional
+        Where to draw (default: a new figure).
     light : callable, optional
-        As in :func:`plot_workspace` (default: :func:`sensor_light`).
+        As in :func:`plot_light_dark` (default: the sensor noise of the plan's mode).
     success_rate : float, optional
         Used in the title when no report is given.
-    dims : tuple of int
+    dims : sequence of two int
+        The two state coordinates to draw.
+    legend : bool or str
+        As in :func:`plot_workspace`.
+    colorbar : bool
+        Add the shading's colorbar.
 
     Returns
     -------
     MonteCarloArtists
     """
-    if light is None:
-        light = sensor_light(problem)
-    ws = plot_workspace(problem, plan, ax=ax, light=light, dims=dims, legend=False)
+    from matplotlib.lines import Line2D
+
+    ws = plot_light_dark(problem, plan, ax=ax, light=light, dims=dims, legend=False, colorbar=colorbar)
     ax = ws.ax
     if ws.plan is not None:  # keep the plan visible above the executions that track it
         ws.plan.set_zorder(7)
         ws.plan.set_linestyle("--")
-    d = list(dims)
+    d = list(ws.dims)
     out = MonteCarloArtists(figure=ws.figure, ax=ax, workspace=ws)
     n = problem.switched_system.n
     for i, pair in enumerate(executions):
@@ -418,8 +916,308 @@ def plot_monte_carlo(
     else:
         title = f"{len(executions)} executions"
     out.title = ax.set_title(title, fontsize="small")
+    proxies = list(ws.legend_proxies)
     if out.executed:
-        out.executed[0].set_label("executed beliefs")
-        out.real[0].set_label("true states")
-    ax.legend(loc="best", fontsize="small")
+        proxies.append(
+            Line2D([], [], color="tab:orange", lw=0.8, label=f"executed beliefs ({len(out.executed)})")
+        )
+        proxies.append(Line2D([], [], color="tab:red", lw=0.8, label=f"true states ({len(out.real)})"))
+    out.legend = _place_legend(ax, proxies, legend)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Time series
+
+
+def _axis_bounds(problem: Any, i: int) -> list[tuple[int, str, float]]:
+    """``(j, name, b)`` per face ``x[i] <= b`` / ``x[i] >= b`` of a proposition on coordinate ``i`` alone."""
+    out: list[tuple[int, str, float]] = []
+    for j, name, H, c in _propositions(problem):
+        alone = np.all(np.delete(H, i, axis=1) == 0.0, axis=1) & (H[:, i] != 0.0)
+        out.extend((j, name, float(-cst / h)) for h, cst in zip(H[alone, i], c[alone], strict=True))
+    return out
+
+
+def plot_time_series(
+    problem: Any,
+    plan: Any,
+    executed: Any = None,
+    real: Any = None,
+    axes: Any = None,
+    *,
+    states: Sequence[int] | None = None,
+    sigma: float = 2.0,
+    controls: bool = True,
+    modes: bool = True,
+    bounds: bool = True,
+    legend: LegendPlacement = "outside",
+) -> TimeSeriesArtists:
+    """Draw trajectories against the step: each state's mean with a band, the inputs, the modes.
+
+    Works for any state dimension (one axes per drawn state coordinate).
+
+    Parameters
+    ----------
+    problem : Problem or None
+        Supplies the propositions' bounds on single coordinates (drawn dotted); None for none.
+    plan : ProbabilisticTSTrajectory
+        The planned belief: mean (blue) and ``mean +- sigma * std`` band per state, its inputs
+        (steps, ``u_k`` held from step ``k`` to ``k + 1``) and its modes.
+    executed : ProbabilisticTSTrajectory, optional
+        An executed belief (orange, with its band; its inputs dashed).
+    real : RealTrajectory, optional
+        The true states (red).
+    axes : sequence of Axes, optional
+        Where to draw: one per state drawn, then one for the inputs and one for the modes (when
+        drawn). Default: a new figure with a column of shared-step axes.
+    states : sequence of int, optional
+        The state coordinates to draw (default: all).
+    sigma : float
+        Half-width of the band in standard deviations (2: about 95% per coordinate).
+    controls : bool
+        Draw the inputs (when the plan has any).
+    modes : bool
+        Draw the modes.
+    bounds : bool
+        Draw the propositions' bounds on single coordinates (needs ``problem``).
+    legend : bool or str
+        As in :func:`plot_workspace` (one legend, on the first axes).
+
+    Returns
+    -------
+    TimeSeriesArtists
+
+    Raises
+    ------
+    DimensionError
+        When a state index is out of range, the trajectories' dimensions disagree or ``axes``
+        has the wrong length.
+    InvalidTypeError
+        When ``plan`` is not a belief trajectory.
+    """
+    from .trajectory import ProbabilisticTSTrajectory
+
+    if not isinstance(plan, ProbabilisticTSTrajectory):
+        raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
+    n = plan.n
+    if problem is not None:
+        _check_problem(problem)
+        if problem.switched_system.n != n:
+            raise DimensionError(
+                f"plan has state dimension {n}, the problem has n = {problem.switched_system.n}"
+            )
+    if executed is not None:
+        if not isinstance(executed, ProbabilisticTSTrajectory):
+            raise InvalidTypeError(
+                f"executed must be a ProbabilisticTSTrajectory, got {type(executed).__name__}"
+            )
+        _check_traj(executed, "executed", n)
+    if real is not None:
+        _check_traj(real, "real", n)
+    idx = tuple(range(n)) if states is None else tuple(int(i) for i in states)
+    if not idx or any(not 0 <= i < n for i in idx) or len(set(idx)) != len(idx):
+        raise DimensionError(f"states must be different coordinates in 0..{n - 1}, got {states!r}")
+    sigma = float(sigma)
+    if not np.isfinite(sigma) or sigma < 0:
+        raise InvalidArgumentError(f"sigma must be a finite number >= 0, got {sigma}")
+    draw_u = bool(controls) and plan.m > 0 and plan.num_of_steps > 0
+    draw_q = bool(modes) and plan.num_of_steps > 0
+    count = len(idx) + int(draw_u) + int(draw_q)
+    if axes is None:
+        import matplotlib.pyplot as plt
+
+        ratios = [1.5] * len(idx) + [1.2] * int(draw_u) + [0.7] * int(draw_q)
+        fig, ax_arr = plt.subplots(
+            count,
+            1,
+            sharex=True,
+            figsize=(8.0, 1.2 + sum(ratios)),
+            layout="constrained",
+            squeeze=False,
+            gridspec_kw={"height_ratios": ratios},
+        )
+        ax_list = list(ax_arr[:, 0])
+    else:
+        ax_list = list(np.ravel(np.asarray(axes, dtype=object)))
+        if len(ax_list) != count:
+            raise DimensionError(
+                f"axes must hold {count} axes ({len(idx)} states, {int(draw_u)} inputs, "
+                f"{int(draw_q)} modes), got {len(ax_list)}"
+            )
+        fig = ax_list[0].figure
+    out = TimeSeriesArtists(figure=fig, axes=ax_list, ax=ax_list[0], states=idx)
+    band_label = f"plan: mean \u00b1 {sigma:g} std"
+
+    steps = np.arange(plan.num_of_beliefs)
+    named: set[str] = set()
+    mean, std = plan.get_mean(), plan.get_std()
+    for row, i in enumerate(idx):
+        ax = ax_list[row]
+        out.bands[i] = ax.fill_between(
+            steps,
+            mean[:, i] - sigma * std[:, i],
+            mean[:, i] + sigma * std[:, i],
+            color="tab:blue",
+            alpha=0.2,
+            lw=0,
+            label=band_label if row == 0 else None,
+        )
+        (out.means[i],) = ax.plot(
+            steps, mean[:, i], color="tab:blue", lw=1.3, label="plan: mean" if row == 0 else None
+        )
+        if executed is not None:
+            em, es = executed.get_mean(), executed.get_std()
+            ek = np.arange(executed.num_of_beliefs)
+            out.executed_bands[i] = ax.fill_between(
+                ek,
+                em[:, i] - sigma * es[:, i],
+                em[:, i] + sigma * es[:, i],
+                color="tab:orange",
+                alpha=0.15,
+                lw=0,
+                label=f"executed: mean \u00b1 {sigma:g} std" if row == 0 else None,
+            )
+            (out.executed_means[i],) = ax.plot(
+                ek, em[:, i], color="tab:orange", lw=1.0, label="executed: mean" if row == 0 else None
+            )
+        if real is not None:
+            rs = real.get_state()
+            (out.real[i],) = ax.plot(
+                np.arange(rs.shape[0]),
+                rs[:, i],
+                color="tab:red",
+                lw=0.9,
+                label="true state" if row == 0 else None,
+            )
+        if bounds and problem is not None:
+            for j, name, value in _axis_bounds(problem, i):
+                line = ax.axhline(
+                    value,
+                    color=_region_style(j)["color"],
+                    ls=":",
+                    lw=1.0,
+                    label=f"{name}: bounds" if name not in named else None,
+                )
+                named.add(name)
+                out.bounds.append(line)
+        ax.set_ylabel(f"x[{i}]")
+    row = len(idx)
+    if draw_u:
+        ax = ax_list[row]
+        out.controls_ax = ax
+        u = plan.get_control()
+        k = np.arange(plan.num_of_steps + 1)
+        for j in range(plan.m):
+            (line,) = ax.step(k, np.append(u[:, j], u[-1, j]), where="post", lw=1.1, label=f"u[{j}]")
+            out.controls.append(line)
+        if executed is not None and executed.num_of_steps and executed.m == plan.m:
+            eu = executed.get_control()
+            ek = np.arange(executed.num_of_steps + 1)
+            for j in range(plan.m):
+                (line,) = ax.step(
+                    ek,
+                    np.append(eu[:, j], eu[-1, j]),
+                    where="post",
+                    lw=0.9,
+                    ls="--",
+                    color=out.controls[j].get_color(),
+                    label=f"u[{j}] executed",
+                )
+                out.controls.append(line)
+        ax.set_ylabel("input")
+        ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, fontsize="small")
+        row += 1
+    if draw_q:
+        ax = ax_list[row]
+        out.modes_ax = ax
+        q = plan.get_action()
+        k = np.arange(plan.num_of_steps + 1)
+        (line,) = ax.step(k, np.append(q, q[-1]), where="post", color="black", lw=1.2, label="plan")
+        out.modes.append(line)
+        change = np.flatnonzero(np.diff(q)) + 1
+        for k0, k1 in zip(np.r_[0, change], np.r_[change, q.size], strict=True):
+            qq = int(q[k0])
+            out.mode_bands.append(
+                ax.broken_barh(
+                    [(int(k0), int(k1 - k0))], (qq - 0.3, 0.6), color=_mode_color(qq), alpha=0.5, lw=0
+                )
+            )
+        if executed is not None and executed.num_of_steps:
+            eq = executed.get_action()
+            if eq.shape != q.shape or np.any(eq != q):
+                ek = np.arange(executed.num_of_steps + 1)
+                (line,) = ax.step(
+                    ek, np.append(eq, eq[-1]), where="post", color="tab:orange", ls="--", label="executed"
+                )
+                out.modes.append(line)
+        num_modes = problem.switched_system.num_modes if problem is not None else int(q.max()) + 1
+        ax.set_yticks(range(num_modes))
+        ax.set_ylim(-0.5, num_modes - 0.5)
+        ax.set_ylabel("mode")
+    ax_list[-1].set_xlabel("step k")
+    # One legend for the states' axes (each label once), on the first.
+    handles: dict[str, Any] = {}
+    for ax in ax_list[: len(idx)]:
+        for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(lab, h)
+    if legend is not False and legend is not None and handles:
+        first = ax_list[0]
+        if legend is True or legend == "outside":
+            out.legend = first.legend(
+                list(handles.values()),
+                list(handles),
+                loc="upper left",
+                bbox_to_anchor=(1.02, 1.0),
+                borderaxespad=0.0,
+                fontsize="small",
+            )
+        else:
+            out.legend = _place_legend(first, [], legend)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# Files
+
+
+def save_figure(figure: Any, path: str | os.PathLike[str], *, dpi: int = 150, **kwargs: Any) -> Path:
+    """Write a figure in the format of the file's extension: ``.png``, ``.pdf`` or ``.svg``.
+
+    The bounding box is tight, so a legend outside the axes is kept.
+
+    Parameters
+    ----------
+    figure : matplotlib Figure or an ``*Artists`` object of this module
+        What to save (an artists object gives its ``figure``).
+    path : path
+        The file; its extension chooses the format (PDF and SVG are vector formats).
+    dpi : int
+        Resolution of PNG files (and of the shading embedded in PDF / SVG).
+    **kwargs
+        Passed to ``Figure.savefig``.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    InvalidArgumentError
+        For another extension or a folder that does not exist.
+    """
+    fig = getattr(figure, "figure", figure)
+    if not hasattr(fig, "savefig"):
+        raise InvalidTypeError(f"figure must be a matplotlib Figure, got {type(figure).__name__}")
+    out = Path(path)
+    fmt = out.suffix.lower().lstrip(".")
+    if fmt not in FIGURE_FORMATS:
+        raise InvalidArgumentError(
+            f"figure {str(out)!r}: the extension gives the format; use one of "
+            f"{', '.join('.' + f for f in FIGURE_FORMATS)}"
+        )
+    if not out.parent.is_dir():
+        raise InvalidArgumentError(f"figure {str(out)!r}: folder {str(out.parent)!r} does not exist")
+    kwargs.setdefault("bbox_inches", "tight")
+    fig.savefig(out, format=fmt, dpi=dpi, **kwargs)
     return out
