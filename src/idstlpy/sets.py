@@ -167,6 +167,14 @@ class Polytope:
 
     def bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
         """Tight axis-aligned bounds ``(low, high)``, each shape (n,); infinite where unbounded."""
+        cached = self.__dict__.get("_bbox")
+        if cached is not None:
+            return cached[0].copy(), cached[1].copy()
+        low, high = self._bounding_box()
+        self.__dict__["_bbox"] = (low, high)
+        return low.copy(), high.copy()
+
+    def _bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
         n = self.dim
         low, high = np.empty(n), np.empty(n)
         for i in range(n):

@@ -110,11 +110,15 @@ class Abstraction:
         return out
 
     def region(self, i: int) -> Polytope:
-        """Mean region of proposition ``i`` at zero covariance (whole space without faces)."""
-        ap = self.atoms[i]
-        if not ap.predicates:
-            return Polytope(np.zeros((0, self.n)), np.zeros(0))
-        return Polytope(ap.cone.H, ap.cone.c)
+        """Mean region of proposition ``i`` at zero covariance (whole space without faces; cached)."""
+        cache = self.__dict__.setdefault("_regions", {})
+        if i not in cache:
+            ap = self.atoms[i]
+            if not ap.predicates:
+                cache[i] = Polytope(np.zeros((0, self.n)), np.zeros(0))
+            else:
+                cache[i] = Polytope(ap.cone.H, ap.cone.c)
+        return cache[i]
 
     def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box ``(low, high)`` of proposition ``i``'s mean region (cached; infinite where open)."""
