@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import pytest
@@ -267,3 +268,73 @@ def test_wheel_ships_the_examples():
     wheel = pyproject["tool"]["hatch"]["build"]["targets"]["wheel"]
     assert "src/idstlpy" in wheel["packages"]  # hatch ships every file of the package: examples too
     assert not any("examples" in e for e in wheel.get("exclude", []))
+
+
+def test_example_notebook_runs(tmp_path):
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+    nb = nbformat.read(EXAMPLES / "light_dark.ipynb", as_version=4)
+    t0 = time.perf_counter()
+    client = nbclient.NotebookClient(
+        nb, timeout=120, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    )
+    client.execute()
+    errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
+    assert not errors, errors
+    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
+    assert "status='found'" in text and "belief:" in text
+    assert time.perf_counter() - t0 < 60
+    assert not list(tmp_path.iterdir())  # it writes nothing where it runs
+
+
+# ------------------------------------------------------------------------------------------------
+# docs
+# ------------------------------------------------------------------------------------------------
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+
+
+def _options(parser) -> set[str]:
+    return {s for a in parser._actions for s in a.option_strings if s.startswith("--")}
+
+
+def test_cli_doc_names_every_command_option_and_exit_status():
+    import argparse
+
+    text = (DOCS / "cli.md").read_text()
+    parser = build_parser()
+    (sub,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for name, command in sub.choices.items():
+        assert f"idstlpy {name}" in text, name
+        if name == "demo":
+            continue
+        missing = {
+            o for o in _options(command) - {"--help", "--verbose", "--list", "--force"} if o not in text
+        }
+        assert not missing, f"docs/cli.md does not mention {name} {sorted(missing)}"
+    for status in ("| 0 |", "| 1 |", "| 2 |", "| 3 |", "| 130 |"):
+        assert status in text
+    assert 'if __name__ == "__main__":' in text
+
+
+def test_results_schema_doc_names_every_field(tmp_path):
+    from idstlpy.batch import Job, run_job
+
+    text = (DOCS / "results-schema.md").read_text()
+    record = run_job(
+        Job.from_file(LIGHT_DARK, "validate", {"solver.rrt_timeout": 5, "validation.runs": 2}, 1)
+    )
+    missing = [k for k in record if f"`{k}`" not in text]
+    missing += [f"plan.{k}" for k in record["plan"] if f"`{k}`" not in text]
+    missing += [f"stats.{k}" for k in record["stats"] if f"`{k}`" not in text]
+    missing += [f"problem.{k}" for k in record["problem"] if f"`{k}`" not in text]
+    assert not missing, f"docs/results-schema.md does not document {missing}"
+    assert f'"{record["schema"]}"' in text
+
+
+def test_sweeps_doc_names_every_key():
+    from idstlpy.batch.sweeps import SWEEP_KEYS
+
+    text = (DOCS / "sweeps.md").read_text()
+    assert not [k for k in SWEEP_KEYS if f"`{k}`" not in text and f"[{k}]" not in text]

@@ -627,3 +627,50 @@ def test_cov_as_a_vector_of_variances():
     np.testing.assert_array_equal(load_problem(one_d).build().problem.initial_state.cov, [[0.5]])
     with pytest.raises(stl.ProblemFileError, match=r"initial_belief\.cov: variances must be >= 0"):
         load_problem(text.replace("cov = [0.01, 0.04]", "cov = [0.01, -0.04]"))
+
+
+def test_every_solver_option_is_a_solver_key():
+    import dataclasses
+
+    # values other than the defaults where a default would not show the type plumbing
+    values = {
+        "rrt_timeout": 5, "delta_near": 1.5, "min_num_of_steps": 2, "max_num_of_steps": 9, "seed": 3,
+        "time_limit": 30, "max_candidates": 7, "sampler_iterations": 100, "objective": "effort",
+        "effort_weights": [1.0, 2.0], "sat_backend": "minisat22", "milp_backend": "highs",
+    }
+    fields = {f.name: f.default for f in dataclasses.fields(stl.SolverOptions)}
+    # every field: the given value, else its default (valid by construction); None stays unset
+    chosen = {k: values.get(k, d) for k, d in fields.items() if values.get(k, d) is not None}
+    overrides = {f"solver.{k}": v for k, v in chosen.items()}
+    solver = apply_overrides(load_problem(LIGHT_DARK), overrides).build().solver_kwargs
+    assert set(solver) == set(chosen)
+    options = stl.SolverOptions.make(**solver)
+    for key, value in chosen.items():
+        want = tuple(value) if isinstance(value, list) else value
+        assert getattr(options, key) == want, key
+
+
+def test_problem_file_doc_names_every_key_and_solver_default():
+    import dataclasses
+    import re
+
+    from idstlpy.problem_file import schema
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "problem-files.md").read_text()
+    keys = set(schema.TOP_KEYS) | set(schema.MODE_KEYS) | set(schema.NOISE_TABLE_KEYS)
+    keys |= set(schema.CONTROL_DOMAIN_KEYS) | set(schema.INITIAL_BELIEF_KEYS) | set(schema.PROPOSITION_KEYS)
+    keys |= set(schema.CONSTRAINT_TABLE_KEYS) | set(schema.EXECUTION_KEYS) | set(schema.LQR_KEYS)
+    keys |= set(schema.VALIDATION_KEYS)
+    missing = [k for k in sorted(keys) if not {f"`{k}", f"[{k}]", f".{k}]"} & set(_substrings(text, k))]
+    assert not missing, f"docs/problem-files.md does not document {missing}"
+    for f in dataclasses.fields(stl.SolverOptions):
+        row = re.search(rf"^\| `{f.name}` \| ([^|]+) \|", text, re.MULTILINE)
+        assert row, f"docs/problem-files.md has no [solver] row for {f.name}"
+        documented = row.group(1).strip()
+        want = "none" if f.default is None else f"`{f.default!r}`".replace("'", '"')
+        assert documented == want, f"[solver] {f.name}: documented {documented}, default {want}"
+    assert "W W'" in text and "n(x) n(x)'" in text  # square-root factors
+
+
+def _substrings(text: str, key: str) -> list[str]:
+    return [s for s in (f"`{key}", f"[{key}]", f".{key}]") if s in text]

@@ -346,8 +346,11 @@ def _check_saved_plan(job: Job, problem: Any, record: dict[str, Any]) -> Any:
         "problem_sha256": saved_sha,
         "same_problem": saved_sha == job.problem_sha256 if saved_sha else None,
     }
-    for key in ("formula", "stats"):
-        if saved.get(key) is not None:
+    # the saved result's own fields (statistics, objective...) come along; the verdict is ours
+    from ..synthesis import SolveResult
+
+    for key in result_to_dict(SolveResult("found", None, "")):
+        if key not in ("schema", "status", "reason", "margin", "formula", "plan") and key in saved:
             record[key] = jsonable(saved[key])
     record["formula"] = str(problem.stl_formula)
     record["plan"] = result_to_plan(rolled)

@@ -28,14 +28,16 @@ def _folder() -> Traversable:
 
 
 def _files() -> dict[str, Traversable]:
+    """Example name -> file: ``light_dark.toml`` is ``light-dark``, ``light_dark.ipynb`` is
+    ``light-dark-notebook``."""
     out: dict[str, Traversable] = {}
-    for entry in sorted(_folder().iterdir(), key=lambda e: e.name):
+    for entry in sorted(_folder().iterdir(), key=lambda e: (not e.name.endswith(".toml"), e.name)):
         name = entry.name
         if entry.is_file() and name.endswith(_SUFFIXES) and not name.startswith("."):
-            stem = name.rsplit(".", 1)[0].replace("_", "-")
-            key = stem if stem not in out else stem + "-" + name.rsplit(".", 1)[1]
-            out[key] = entry
-    return out
+            stem, suffix = name.rsplit(".", 1)
+            key = stem.replace("_", "-") + ("-notebook" if suffix == "ipynb" else "")
+            out.setdefault(key, entry)
+    return dict(sorted(out.items()))
 
 
 def example_names() -> list[str]:
@@ -51,9 +53,10 @@ def example_names() -> list[str]:
 def _resolve(name: str) -> Traversable:
     files = _files()
     key = name.replace("_", "-")
-    for suffix in _SUFFIXES:
-        if key.endswith(suffix):
-            key = key[: -len(suffix)]
+    if key.endswith(".ipynb"):
+        key = key[: -len(".ipynb")] + "-notebook"
+    elif key.endswith(".toml"):
+        key = key[: -len(".toml")]
     if key in files:
         return files[key]
     raise InvalidArgumentError(f"no example {name!r}; the examples are: {', '.join(files)}")
@@ -76,6 +79,9 @@ def example_text(name: str) -> str:
 
 def _description(entry: Traversable) -> str:
     text = entry.read_text(encoding="utf-8")
+    if entry.name.endswith(".ipynb"):
+        m = re.search(r'"# ([^"\\]+)', text)
+        return f"notebook: {m.group(1)}" if m else "notebook"
     m = re.search(r'^description\s*=\s*"([^"]*)"', text, re.MULTILINE)
     if m:
         return m.group(1)

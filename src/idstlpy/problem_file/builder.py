@@ -389,25 +389,36 @@ class _Builder:
         value = sc.table(self.ctx, path, value, tuple(params))
         kwargs: dict[str, Any] = {}
         for key, v in value.items():
-            default, type_text = params[key]
-            if isinstance(default, str) or type_text.startswith("str"):
-                if not isinstance(v, str):
-                    raise self.err(path + (key,), f"must be a string, got {sc.kind_of(v)}")
-                kwargs[key] = v
-                continue
-            if isinstance(v, bool) or not sc.is_number(v):
-                raise self.err(path + (key,), f"must be a number, got {sc.kind_of(v)}")
-            if type(default) is int or ("int" in type_text and "float" not in type_text):
-                if not (isinstance(v, int) or (isinstance(v, float) and v.is_integer())):
-                    raise self.err(path + (key,), f"must be an integer, got {v}")
-                v = int(v)
-            kwargs[key] = v
+            kwargs[key] = self.solver_value(path + (key,), v, *params[key])
         try:
             SolverOptions.make(**kwargs)
         except IdstlpyError as exc:
             bad = next((k for k in kwargs if k in str(exc)), None)
             raise self.err(path + ((bad,) if bad else ()), str(exc)) from None
         return kwargs
+
+    def solver_value(self, path: FieldPath, v: Any, default: Any, type_text: str) -> Any:
+        """A ``[solver]`` value checked against the type of its SolverOptions field."""
+        words = set(type_text.replace("|", " ").replace("[", " ").replace("]", " ").replace(",", " ").split())
+        if words & {"tuple", "list", "Sequence"}:
+            if not isinstance(v, list) or not all(sc.is_number(x) for x in v):
+                raise self.err(path, f"must be an array of numbers, got {sc.kind_of(v)}")
+            return tuple(float(x) for x in v)
+        if isinstance(default, bool) or "bool" in words:
+            if not isinstance(v, bool):
+                raise self.err(path, f"must be true or false, got {sc.kind_of(v)}")
+            return v
+        if isinstance(default, str) or "str" in words:
+            if not isinstance(v, str):
+                raise self.err(path, f"must be a string, got {sc.kind_of(v)}")
+            return v
+        if isinstance(v, bool) or not sc.is_number(v):
+            raise self.err(path, f"must be a number, got {sc.kind_of(v)}")
+        if type(default) is int or ("int" in words and "float" not in words):
+            if not (isinstance(v, int) or (isinstance(v, float) and v.is_integer())):
+                raise self.err(path, f"must be an integer, got {v}")
+            return int(v)
+        return v
 
     def execution(
         self, value: Any, validation: Any, system: SwitchedSystem, mean: np.ndarray
