@@ -116,3 +116,154 @@ def test_constants():
     assert stl.TRUE.horizon == 0
     with pytest.raises(stl.InvalidTypeError, match="truth value"):
         bool(stl.TRUE)
+
+
+# -- convenience forms (issue 14 "Inputs") -------------------------------------------------------
+def test_logical_and_and_or_accept_a_single_list_or_tuple(xq):
+    x, q = xq
+    p1, p2 = _cp(x, 0, 1), _cp(x, 1, 2)
+    polytope = stl.logical_and([x[0] <= 1, x[1] <= 1])
+    assert list(polytope.predicates) == [x[0] <= 1, x[1] <= 1]
+    region = stl.logical_and([p1, p2])
+    assert isinstance(region, stl.ConvexRegion) and list(region.predicates) == [p1, p2]
+    assert stl.logical_and((p1, q == 1), name="a") == stl.logical_and(p1, q == 1, name="a")
+    a = stl.logical_and(p1, name="a")
+    b = stl.logical_and(p2, name="b")
+    assert stl.logical_or([a, b]) == stl.logical_or(a, b)
+    assert stl.logical_or((q == 0, q == 1)) == stl.logical_or(q == 0, q == 1)
+    assert stl.logical_and([a]) is a
+    with pytest.raises(stl.InvalidArgumentError, match="logical_and needs at least one argument"):
+        stl.logical_and([])
+    with pytest.raises(stl.InvalidArgumentError, match="logical_or needs at least one argument"):
+        stl.logical_or(())
+    with pytest.raises(stl.InvalidTypeError, match="logical_and argument 1 must be a predicate"):
+        stl.logical_and([p1, "p2"])
+
+
+# -- structural equality -------------------------------------------------------------------------
+def _listing(x, q):
+    free = stl.logical_and(q == 0, stl.prob(x[0] >= -1) >= 1 - 0.01, stl.prob(x[1] <= 4) >= 0.99, name="free")
+    target = stl.logical_and(q == 0, stl.prob(x[0] <= 0.25) >= 0.95, name="target")
+    return stl.until(free, 0, 240, stl.always(0, 40, target))
+
+
+def test_identical_formulas_built_separately_are_equal_and_hash_alike():
+    f = _listing(stl.mk_variable(2), stl.mk_variable(1, dtype=int))
+    g = _listing(stl.mk_variable(2), stl.mk_variable(1, dtype=int))  # other variable objects
+    assert f is not g and f == g and hash(f) == hash(g)
+    assert not (f != g)
+    assert len({f, g}) == 1 and g in [f] and {f: 1}[g] == 1
+    assert f.right == g.right and f.left == g.left
+
+
+def test_structurally_different_formulas_are_unequal(xq):
+    x, q = xq
+    a = stl.logical_and(_cp(x, 0, 1), name="a")
+    b = stl.logical_and(_cp(x, 1, 1), name="b")
+    different = [
+        stl.until(a, 0, 5, b),
+        stl.until(a, 0, 6, b),
+        stl.until(a, 1, 5, b),
+        stl.until(b, 0, 5, a),
+        stl.release(a, 0, 5, b),
+        stl.eventually(0, 5, b),
+        stl.always(0, 5, b),
+        a & b,
+        b & a,  # operand order counts
+        a | b,
+        stl.logical_and(_cp(x, 0, 1), name="c"),  # same definition, other name
+        stl.logical_and(_cp(x, 0, 1, eps=0.1), name="a"),  # other confidence
+        stl.logical_and(_cp(x, 0, 2), name="a"),  # other constant
+        stl.logical_and(_cp(x, 0, 1), q == 1, name="a"),  # modes
+        stl.logical_and(stl.prob(stl.mk_variable(2, name="y")[0] <= 1) >= 0.95, name="a"),  # variable
+        stl.logical_and(stl.prob(stl.mk_variable(3)[0] <= 1) >= 0.95, name="a"),  # its size
+        stl.TRUE,
+        stl.FALSE,
+        a,
+    ]
+    for i, f in enumerate(different):
+        for j, g in enumerate(different):
+            assert (f == g) == (i == j), (f, g)
+    assert len(set(different)) == len(different)
+    assert a != "a" and a != 3 and (a == None) is False  # noqa: E711
+
+
+def test_mode_order_does_not_count_and_equal_formulas_print_alike(xq):
+    x, _ = xq
+    p = _cp(x, 0, 1)
+    f = stl.STLAtomicProposition([p], [1, 0])
+    g = stl.STLAtomicProposition([p], (0, 1))
+    assert f == g and hash(f) == hash(g) and str(f) == str(g)
+    assert stl.STLAtomicProposition([p], [0]) != stl.STLAtomicProposition([p])
+
+
+def test_parsed_formula_equals_the_built_one(xq):
+    x, q = xq
+    f = _listing(x, q)
+    atoms = {ap.name: ap for ap in f.atomic_propositions()}
+    assert stl.parse_formula(str(f), atoms) == f
+    anon = stl.eventually(1, 3, stl.logical_and(_cp(x, 0, 1), q == 1))
+    assert stl.parse_formula(str(anon), state_variable=stl.mk_variable(2)) == anon
+
+
+def test_pickled_formula_is_equal_and_carries_no_salted_hash():
+    import pickle
+
+    f = _listing(stl.mk_variable(2), stl.mk_variable(1, dtype=int))
+    h = hash(f)
+    assert "_hash" not in f.__getstate__()
+    g = pickle.loads(pickle.dumps(f))
+    assert g == f and hash(g) == h
+
+
+def test_atomic_propositions_still_lists_distinct_objects(xq):
+    x, _ = xq
+    a1 = stl.logical_and(_cp(x, 0, 1), name="a")
+    a2 = stl.logical_and(_cp(x, 0, 1), name="a")
+    assert a1 == a2
+    aps = stl.logical_and(stl.eventually(0, 1, a1), stl.always(0, 1, a2)).atomic_propositions()
+    named = [ap for ap in aps if ap.name == "a"]
+    assert len(named) == 2 and named[0] is a1 and named[1] is a2
+
+
+def test_predicates_and_mode_formulas_compare_structurally(xq):
+    x, q = xq
+    y = stl.mk_variable(2)
+    assert (x[0] <= 1) == (y[0] <= 1) and hash(x[0] <= 1) == hash(y[0] <= 1)
+    assert (x[0] <= 1) != (x[0] <= 2) and (x[0] <= 1) != (x[1] <= 1)
+    assert _cp(x, 0, 1) == _cp(y, 0, 1) and _cp(x, 0, 1) != _cp(x, 0, 1, eps=0.1)
+    assert _cp(x, 0, 1) != (x[0] <= 1)  # a chance constraint is not its predicate
+    assert (q == 1) == (q == 1) and hash(q == 1) == hash(q == 1)
+    assert stl.logical_or(q == 0, q == 1) == stl.logical_or(q == 1, q == 0) and (q == 0) != (q == 1)
+    assert (q != 0) == (q == 1)  # the same set of modes
+
+
+# -- reprs --------------------------------------------------------------------------------------------
+def test_repr_is_the_text_syntax(xq):
+    x, q = xq
+    f = _listing(x, q)
+    assert repr(f) == str(f) == "(free U[0,240] G[0,40] target)"
+    target = f.right.right
+    assert repr(target) == "target := {P[x[0] - 0.25 <= 0] >= 0.95 & q == 0}"
+    assert repr(stl.TRUE) == "true" and repr(stl.FALSE) == "false"
+    anon = stl.logical_and(_cp(x, 0, 1), q == 1)
+    assert repr(anon) == str(anon)
+
+
+def test_long_repr_is_shortened(xq):
+    x, _ = xq
+    atoms = [stl.logical_and(_cp(x, i % 2, i), name=f"region_{i}") for i in range(60)]
+    f = stl.logical_or([stl.eventually(0, i, a) for i, a in enumerate(atoms)])
+    text, short = str(f), repr(f)
+    assert len(text) > 1000 and len(short) <= 200
+    head, tail = short.split(" ... ")
+    assert text.startswith(head) and text.endswith(tail)
+
+
+def test_repr_html_shows_text_horizon_and_definitions(xq):
+    x, q = xq
+    f = _listing(x, q)
+    html = f._repr_html_()
+    assert "(free U[0,240] G[0,40] target)" in html and "horizon 280 steps" in html
+    assert "<code>target</code>" in html and "&lt;= 0] &gt;= 0.95 &amp; q == 0" in html
+    assert html.count("<code>free</code>") == 1

@@ -168,5 +168,5 @@ def test_deep_nesting_is_an_error_not_a_crash():
 
 
 def test_non_string_rejected():
-    with pytest.raises(stl.InvalidArgumentError):
+    with pytest.raises(stl.InvalidTypeError, match="text .* must be a str, got int"):
         parse_formula(42, NAMED, X)  # type: ignore[arg-type]

@@ -101,3 +101,90 @@ def test_trajectory_index_errors_and_shapes():
     real = stl.RealTrajectory(np.zeros((3, 2)), np.zeros((3, 1)), [1, 0], np.zeros((2, 2)))
     assert real.num_of_steps == 2 and real.get_action(0) == 1
     assert real.get_state().shape == (3, 2)
+
+
+# -- state-space objects (python-control's StateSpace, scipy's, duck-typed) -------------------------
+class _StateSpace:
+    """The attributes idstlpy reads from python-control's ``StateSpace``."""
+
+    def __init__(self, A, B, C, D, dt):
+        self.A, self.B, self.C, self.D, self.dt = (np.asarray(A), np.asarray(B), np.asarray(C),
+                                                   np.asarray(D), dt)
+
+
+A_SS = np.array([[1.0, 0.1], [0.0, 1.0]])
+B_SS = np.array([[0.0], [0.1]])
+C_SS = np.array([[1.0, 0.0]])
+
+
+@pytest.mark.parametrize("dt", [True, 0.1, 1])
+def test_mk_lcs_and_mk_lbs_accept_a_discrete_state_space(dt):
+    ss = _StateSpace(A_SS, B_SS, C_SS, np.zeros((1, 1)), dt)
+    lcs = stl.mk_lcs(ss)
+    assert type(lcs) is stl.LCS and (lcs.n, lcs.m, lcs.p) == (2, 1, 0)
+    np.testing.assert_array_equal(lcs.A, A_SS)
+    np.testing.assert_array_equal(lcs.B, B_SS)
+    observed = mk_lbs(ss, W=0.1 * np.eye(2), V=[[0.2]])
+    assert type(observed) is stl.POLBSWithLinNoise
+    np.testing.assert_array_equal(observed.C, C_SS)
+    np.testing.assert_allclose(observed.noise_cov(np.zeros(2)), [[0.04]])
+    light = mk_lbs(ss, W=np.zeros((2, 2)), V=lambda s: [[0.1 + s[0] ** 2]])
+    assert type(light) is stl.POLBSWithNonLinNoise
+    noise_free = mk_lbs(ss, W=np.zeros((2, 2)))
+    assert type(noise_free) is stl.POLBSWithLinNoise and noise_free.p == 1
+    blind = mk_lbs(_StateSpace(A_SS, B_SS, np.zeros((0, 2)), np.zeros((0, 1)), dt), W=np.eye(2))
+    assert type(blind) is stl.LBS
+    assert stl.mk_switched_sys([lcs, observed, blind]).num_modes == 3
+
+
+def test_scipy_state_space_is_accepted_when_discrete():
+    signal = pytest.importorskip("scipy.signal")
+    discrete = signal.StateSpace(A_SS, B_SS, C_SS, np.zeros((1, 1)), dt=0.1)
+    np.testing.assert_array_equal(stl.mk_lcs(discrete).A, A_SS)
+    continuous = signal.StateSpace(A_SS, B_SS, C_SS, np.zeros((1, 1)))
+    with pytest.raises(stl.InvalidArgumentError, match="discrete-time .* dt=None"):
+        stl.mk_lcs(continuous)
+
+
+def test_python_control_state_space_is_accepted_when_discrete():
+    control = pytest.importorskip("control")
+    sys_d = control.ss(A_SS, B_SS, C_SS, 0, dt=0.1)
+    np.testing.assert_array_equal(stl.mk_lcs(sys_d).B, B_SS)
+    with pytest.raises(stl.InvalidArgumentError, match="discrete-time"):
+        stl.mk_lcs(control.ss(A_SS, B_SS, C_SS, 0))
+
+
+@pytest.mark.parametrize("dt", [0, 0.0, None, False, -0.1, float("inf"), "0.1"])
+def test_state_space_in_continuous_or_unknown_time_is_rejected(dt):
+    ss = _StateSpace(A_SS, B_SS, C_SS, np.zeros((1, 1)), dt)
+    match = r"mk_lcs takes a discrete-time state-space system.*sample\(Ts\)"
+    with pytest.raises(stl.InvalidArgumentError, match=match):
+        stl.mk_lcs(ss)
+    with pytest.raises(stl.InvalidArgumentError, match="mk_lbs takes a discrete-time"):
+        mk_lbs(ss, W=np.eye(2))
+
+
+def test_state_space_argument_errors():
+    ss = _StateSpace(A_SS, B_SS, C_SS, [[0.5]], True)
+    with pytest.raises(stl.InvalidArgumentError, match=r"D must be zero .* got D = \[\[0.5\]\]"):
+        mk_lbs(ss, W=np.eye(2))
+    ok = _StateSpace(A_SS, B_SS, C_SS, [[0.0]], True)
+    with pytest.raises(stl.InvalidTypeError, match="mk_lcs: B comes from the state-space system"):
+        stl.mk_lcs(ok, B_SS)
+    with pytest.raises(stl.InvalidTypeError, match="mk_lbs: C comes from the state-space system"):
+        mk_lbs(ok, W=np.eye(2), C=C_SS)
+    with pytest.raises(stl.InvalidTypeError, match="mk_lbs needs W"):
+        mk_lbs(ok)
+    with pytest.raises(stl.InvalidArgumentError, match="_StateSpace.A contains NaN"):
+        stl.mk_lcs(_StateSpace([[np.nan]], [[1.0]], [[1.0]], [[0.0]], True))
+
+
+def test_switched_system_html_lists_modes():
+    I2 = np.eye(2)
+    system = stl.mk_switched_sys(
+        [stl.mk_lcs(I2, I2), mk_lbs(I2, I2, I2, C=I2, V=0.1 * I2), mk_lbs(I2, I2, I2, C=I2, V=lambda s: I2)]
+    )
+    html = system._repr_html_()
+    assert "3 modes, n=2 states, m=2 inputs" in html
+    for text in ("none (blind)", "constant", "state-dependent V(x)", "POLBSWithNonLinNoise"):
+        assert text in html

@@ -76,16 +76,47 @@ def as_covariance(value: Any, name: str, size: int | None = None, tol: float = 1
     return cov
 
 
-def as_int(value: Any, name: str, minimum: int | None = None) -> int:
-    """Return ``value`` as an ``int`` (integral floats accepted) not below ``minimum``."""
+def as_int(value: Any, name: str, minimum: int | None = None, maximum: int | None = None) -> int:
+    """Return ``value`` as an ``int`` (integral floats accepted) in ``[minimum, maximum]``.
+
+    Parameters
+    ----------
+    value : int or float
+        The value to check; ``bool`` is rejected, integral floats such as ``3.0`` are accepted.
+    name : str
+        The argument's name, used in error messages.
+    minimum, maximum : int, optional
+        Inclusive bounds (none by default).
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    InvalidTypeError
+        ``value`` is not a number.
+    InvalidArgumentError
+        ``value`` is not a finite integer or lies outside the bounds.
+    """
     if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
         raise InvalidTypeError(f"{name} must be an integer, got {type(value).__name__}")
-    if not np.isfinite(value) or int(value) != value:
+    # Python ints are unbounded: check them without numpy, which refuses ints beyond int64.
+    if isinstance(value, float | np.floating) and not np.isfinite(value):
+        raise InvalidArgumentError(f"{name} must be a finite integer, got {value!r}")
+    if int(value) != value:
         raise InvalidArgumentError(f"{name} must be a finite integer, got {value!r}")
     out = int(value)
     if minimum is not None and out < minimum:
         raise InvalidArgumentError(f"{name} must be >= {minimum}, got {out}")
+    if maximum is not None and out > maximum:
+        raise InvalidArgumentError(f"{name} must be <= {maximum}, got {_fmt_int(out)}")
     return out
+
+
+def _fmt_int(value: int) -> str:
+    text = str(value)
+    return text if len(text) <= 40 else f"{text[:20]}...({len(text)} digits)"
 
 
 def as_float(

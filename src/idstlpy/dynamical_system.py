@@ -18,7 +18,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ._checks import as_matrix, as_vector
-from .errors import DimensionError, InvalidArgumentError, InvalidTypeError, NoiseFunctionError
+from .errors import (
+    DimensionError,
+    InvalidArgumentError,
+    InvalidTypeError,
+    NoiseFunctionError,
+    OutOfRangeError,
+)
 
 if TYPE_CHECKING:
     from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
@@ -38,32 +44,60 @@ __all__ = [
 
 
 class DynamicalSystem:
-    """Base class of every system."""
+    """Base class of every system.
+
+    Attributes
+    ----------
+    n : int
+        State dimension.
+    m : int
+        Input dimension.
+    """
 
     n: int
     m: int
 
 
 class LCS(DynamicalSystem):
-    """Linear control system ``x' = A x + B u``.
+    """Linear control system ``x' = A x + B u`` (build it with :func:`mk_lcs`).
 
     Parameters
     ----------
     A : array_like, shape (n, n)
+        State matrix, ``n >= 1``.
     B : array_like, shape (n, m)
+        Input matrix, ``m >= 1``.
     """
 
     def __init__(self, A: Any, B: Any) -> None:
         self.A = as_matrix(A, "A")
         if self.A.shape[0] != self.A.shape[1]:
             raise DimensionError(f"A must be square, got shape {self.A.shape}")
+        if self.A.shape[0] == 0:
+            raise DimensionError(
+                f"A must be at least 1x1 (a state of dimension n >= 1), got shape {self.A.shape}"
+            )
         self.n = self.A.shape[0]
         self.B = as_matrix(B, "B", (self.n, None))
+        if self.B.shape[1] == 0:
+            raise DimensionError(
+                f"B must have at least one column (m >= 1 inputs), got shape {self.B.shape}"
+            )
         self.m = self.B.shape[1]
         self.W = np.zeros((self.n, 0))
         self.C = np.zeros((0, self.n))
         self.process_cov = np.zeros((self.n, self.n))
         self.lqr_gains: list[np.ndarray] | None = None
+        # indices this mode has in the switched systems built from it (named in error messages)
+        self._mode_indices: set[int] = set()
+
+    def _where(self) -> str:
+        """`` of mode 1`` (or ``of modes 0, 2``) once the mode is in a switched system."""
+        idx = sorted(getattr(self, "_mode_indices", ()))
+        if not idx:
+            return ""
+        label = "mode" if len(idx) == 1 else "modes"
+        return f" of {label} " + ", ".join(str(i) for i in idx)
 
     @property
     def p(self) -> int:
@@ -81,11 +115,31 @@ class LCS(DynamicalSystem):
         return False
 
     def noise(self, x: Any) -> np.ndarray:
-        """The noise matrix ``n(x)``, shape (p, r)."""
+        """The observation noise matrix ``n(x)``.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state (the belief's mean when planning).
+
+        Returns
+        -------
+        ndarray, shape (p, r)
+        """
         return np.zeros((self.p, 0))
 
     def noise_cov(self, x: Any) -> np.ndarray:
-        """``R(x) = n(x) n(x)'``, shape (p, p)."""
+        """The observation noise covariance ``R(x) = n(x) n(x)'``.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state (the belief's mean when planning).
+
+        Returns
+        -------
+        ndarray, shape (p, p)
+        """
         nx = self.noise(x)
         return nx @ nx.T
 
@@ -100,8 +154,20 @@ class LCS(DynamicalSystem):
         return np.zeros((self.p, self.p))
 
     def step(self, x: Any, u: Any) -> np.ndarray:
-        """Noise-free successor ``A x + B u``."""
-        return self.A @ x + self.B @ u
+        """Noise-free successor ``A x + B u``.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state.
+        u : array_like, shape (m,)
+            The input.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        return self.A @ x + self.B @ u  # type: ignore[no-any-return]
 
     def compute_finite_horizon_lqr(
         self, horizon: int, Q_final: Any, Q: Any, R: Any
@@ -112,8 +178,10 @@ class LCS(DynamicalSystem):
         ----------
         horizon : int
             Number of steps ``h`` of the receding horizon.
-        Q_final, Q : array_like, shape (n, n)
-            Terminal and stage state weights (symmetric PSD).
+        Q_final : array_like, shape (n, n)
+            Terminal state weight (symmetric PSD).
+        Q : array_like, shape (n, n)
+            Stage state weight (symmetric PSD).
         R : array_like, shape (m, m)
             Input weight (symmetric positive definite).
 
@@ -133,7 +201,17 @@ class LCS(DynamicalSystem):
 
 
 class LBS(LCS):
-    """Linear belief system: ``x' = A x + B u + W w`` with no observation."""
+    """Linear belief system: ``x' = A x + B u + W w`` with no observation (see :func:`mk_lbs`).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        State matrix.
+    B : array_like, shape (n, m)
+        Input matrix.
+    W : array_like, shape (n, w)
+        Process noise factor: the disturbance covariance is ``W W'``.
+    """
 
     def __init__(self, A: Any, B: Any, W: Any) -> None:
         super().__init__(A, B)
@@ -142,7 +220,19 @@ class LBS(LCS):
 
 
 class POLBS(LBS):
-    """Partially observable linear belief system: adds ``y = C x + n(x) v``."""
+    """Partially observable linear belief system: adds ``y = C x + n(x) v`` (see :func:`mk_lbs`).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        State matrix.
+    B : array_like, shape (n, m)
+        Input matrix.
+    W : array_like, shape (n, w)
+        Process noise factor: the disturbance covariance is ``W W'``.
+    C : array_like, shape (p, n)
+        Output matrix, ``p >= 1``.
+    """
 
     def __init__(self, A: Any, B: Any, W: Any, C: Any) -> None:
         super().__init__(A, B, W)
@@ -152,7 +242,21 @@ class POLBS(LBS):
 
 
 class POLBSWithLinNoise(POLBS):
-    """POLBS with a constant noise matrix ``n(x) = V`` of shape (p, r)."""
+    """POLBS with a constant noise matrix ``n(x) = V`` of shape (p, r) (see :func:`mk_lbs`).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        State matrix.
+    B : array_like, shape (n, m)
+        Input matrix.
+    W : array_like, shape (n, w)
+        Process noise factor: the disturbance covariance is ``W W'``.
+    C : array_like, shape (p, n)
+        Output matrix, ``p >= 1``.
+    V : array_like, shape (p, r)
+        Observation noise factor: the noise covariance is ``V V'``.
+    """
 
     def __init__(self, A: Any, B: Any, W: Any, C: Any, V: Any) -> None:
         super().__init__(A, B, W, C)
@@ -173,8 +277,26 @@ class POLBSWithLinNoise(POLBS):
 class POLBSWithNonLinNoise(POLBS):
     """POLBS whose noise matrix is a function of the state, ``n(x)`` of shape (p, r).
 
-    The function is checked on its first call (shape) and on every call (finite values); a bad
-    return raises :class:`~idstlpy.errors.NoiseFunctionError` naming ``V``.
+    Every evaluation is checked: the function must return a finite matrix with ``p`` rows and
+    the same number ``r`` of columns at every call, and ``R(x) = n(x) n(x)'`` must be finite
+    (and above ``V_floor`` when one is declared). A bad return raises
+    :class:`~idstlpy.errors.NoiseFunctionError` naming ``V``, the mode (once the system is in a
+    switched system), the state and what came back.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+        State matrix.
+    B : array_like, shape (n, m)
+        Input matrix.
+    W : array_like, shape (n, w)
+        Process noise factor: the disturbance covariance is ``W W'``.
+    C : array_like, shape (p, n)
+        Output matrix, ``p >= 1``.
+    V : callable
+        ``V(x) -> array (p, r)``, the noise factor at state ``x`` (an array of shape (n,)).
+    V_floor : float or array_like of shape (p, p), optional
+        Declared lower bound on ``R(x)`` (see :func:`mk_lbs`).
     """
 
     def __init__(
@@ -193,29 +315,35 @@ class POLBSWithNonLinNoise(POLBS):
 
     def noise_cov(self, x: Any) -> np.ndarray:
         nx = self.noise(x)
-        R = nx @ nx.T
+        with np.errstate(over="ignore", invalid="ignore"):
+            R = nx @ nx.T
+        if not np.all(np.isfinite(R)):
+            raise NoiseFunctionError(
+                f"noise function V{self._where()} gives a non-finite covariance "
+                f"R(x) = n(x) n(x)' = {_show(R)} at x={_show(x)} (n(x) = {_show(nx)} is too large)"
+            )
         if self._floor.any() and np.linalg.eigvalsh(R - self._floor).min() < -1e-9 * (1 + np.abs(R).max()):
             raise NoiseFunctionError(
-                f"noise function V returned R(x) = n(x) n(x)' below its declared V_floor at x={x}"
+                f"noise function V{self._where()} returned R(x) = n(x) n(x)' = {_show(R)} below its "
+                f"declared V_floor at x={_show(x)}"
             )
-        return R
+        return R  # type: ignore[no-any-return]
 
     @property
     def has_state_dependent_noise(self) -> bool:
         return True
 
     def noise(self, x: Any) -> np.ndarray:
+        who = f"noise function V{self._where()}"
         try:
             out = self.V(x)
         except Exception as exc:  # the user's function failed: say which one and where
-            raise NoiseFunctionError(
-                f"noise function V raised {type(exc).__name__}: {exc} at x={x}"
-            ) from exc
+            raise NoiseFunctionError(f"{who} raised {type(exc).__name__}: {exc} at x={_show(x)}") from exc
         try:
             arr = np.asarray(out, dtype=float)
         except (TypeError, ValueError) as exc:
             raise NoiseFunctionError(
-                f"noise function V must return a matrix, got {type(out).__name__}"
+                f"{who} must return a matrix, got {type(out).__name__} at x={_show(x)}"
             ) from exc
         if (
             arr.ndim != 2
@@ -224,18 +352,32 @@ class POLBSWithNonLinNoise(POLBS):
         ):
             want = f"({self.p}, {self._cols if self._cols is not None else 'r'})"
             raise NoiseFunctionError(
-                f"noise function V must return a matrix of shape {want}, got shape {arr.shape}"
+                f"{who} must return a matrix of shape {want}, got shape {arr.shape} "
+                f"({_show(arr)}) at x={_show(x)}"
             )
         if not np.all(np.isfinite(arr)):
-            raise NoiseFunctionError(
-                f"noise function V returned non-finite values at x={np.asarray(x).tolist()}"
-            )
+            raise NoiseFunctionError(f"{who} returned non-finite values {_show(arr)} at x={_show(x)}")
         self._cols = arr.shape[1]
         return arr
 
 
+def _show(value: Any) -> str:
+    """Short text of an array for error messages."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return repr(value)[:80]
+    return np.array2string(arr, precision=4, threshold=12, edgeitems=2).replace("\n", "")
+
+
 class SwitchedSystem(DynamicalSystem):
-    """A finite set of modes sharing state and input spaces.
+    """A finite set of modes sharing state and input spaces (build it with :func:`mk_switched_sys`).
+
+    Parameters
+    ----------
+    system_modes : sequence of LCS
+        The modes (:class:`LCS` or subclasses, made by :func:`mk_lcs` / :func:`mk_lbs`), all with
+        the same state and input dimensions; a single mode is accepted too.
 
     Attributes
     ----------
@@ -243,12 +385,17 @@ class SwitchedSystem(DynamicalSystem):
         The modes (:class:`LCS` or subclasses); the listing iterates ``system_modes.size``.
     """
 
-    def __init__(self, system_modes: Sequence[LCS]) -> None:
-        modes = (
-            list(np.asarray(system_modes, dtype=object).reshape(-1))
-            if not isinstance(system_modes, LCS)
-            else [system_modes]
-        )
+    def __init__(self, system_modes: Sequence[LCS] | LCS) -> None:
+        if isinstance(system_modes, LCS):
+            modes: list[Any] = [system_modes]
+        else:
+            try:
+                modes = list(np.asarray(system_modes, dtype=object).reshape(-1))
+            except (TypeError, ValueError) as exc:
+                raise InvalidTypeError(
+                    f"system_modes must be a list of modes made by mk_lcs / mk_lbs, "
+                    f"got {type(system_modes).__name__}"
+                ) from exc
         if not modes:
             raise InvalidArgumentError("system_modes must contain at least one mode")
         for i, mode in enumerate(modes):
@@ -266,6 +413,7 @@ class SwitchedSystem(DynamicalSystem):
         arr = np.empty(len(modes), dtype=object)
         for i, mode in enumerate(modes):
             arr[i] = mode
+            mode.__dict__.setdefault("_mode_indices", set()).add(i)
         self.system_modes = arr
         self.n, self.m = n, m
 
@@ -275,9 +423,22 @@ class SwitchedSystem(DynamicalSystem):
         return int(self.system_modes.size)
 
     def mode(self, q: int) -> LCS:
-        """Mode ``q`` (raises :class:`~idstlpy.errors.OutOfRangeError` when out of range)."""
-        from .errors import OutOfRangeError
+        """Mode ``q``.
 
+        Parameters
+        ----------
+        q : int
+            Mode index in ``0 .. num_modes - 1``.
+
+        Returns
+        -------
+        LCS
+
+        Raises
+        ------
+        OutOfRangeError
+            When ``q`` is not a mode index.
+        """
         if (
             isinstance(q, bool)
             or not isinstance(q, int | np.integer)
@@ -286,7 +447,7 @@ class SwitchedSystem(DynamicalSystem):
             raise OutOfRangeError(
                 f"mode {q!r} is out of range: the system has modes 0..{self.num_modes - 1}"
             )
-        return self.system_modes[int(q)]
+        return self.system_modes[int(q)]  # type: ignore[no-any-return]
 
     def simulate(
         self,
@@ -299,11 +460,49 @@ class SwitchedSystem(DynamicalSystem):
     ) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
         """Execute a plan against a real system with a Kalman filter and LQR tracking.
 
-        See :func:`idstlpy.execution.simulate.simulate` for the parameters and returns.
+        The paper's ``switched_system.simulate``; see :func:`idstlpy.execution.simulate.simulate`
+        for the details.
+
+        Parameters
+        ----------
+        reference_trajectory : ProbabilisticTSTrajectory
+            The plan (``Problem.solve``'s result).
+        num_of_steps : int
+            Steps to execute, at most the plan's number of steps.
+        real_initial_state : array_like, shape (n,)
+            True initial state.
+        real_system : SwitchedSystem
+            The system that moves the true state.
+        seed : int or Generator, optional
+            Randomness of the disturbances and measurement noises.
+        **options
+            Keyword options of :func:`idstlpy.execution.simulate.simulate` (``control_domain``,
+            ``process_noise``, ``lqr_gains``, ``default_lqr``, ``initial_belief``); an unknown
+            keyword raises :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``).
+
+        Returns
+        -------
+        xi_sim : ProbabilisticTSTrajectory
+            The executed belief.
+        xi_real : RealTrajectory
+            The true states, observations, modes and applied inputs.
         """
+        import inspect
+
         from .execution.simulate import simulate
 
-        return simulate(
+        known = {
+            name
+            for name, par in inspect.signature(simulate).parameters.items()
+            if par.kind is inspect.Parameter.KEYWORD_ONLY
+        }
+        unknown = sorted(set(options) - known)
+        if unknown:
+            raise InvalidTypeError(
+                f"simulate got an unexpected keyword argument {', '.join(map(repr, unknown))}; "
+                f"its options are {', '.join(sorted(known))}"
+            )
+        return simulate(  # type: ignore[no-any-return]
             self,
             reference_trajectory,
             num_of_steps,
@@ -316,9 +515,98 @@ class SwitchedSystem(DynamicalSystem):
     def __repr__(self) -> str:
         return f"SwitchedSystem(modes={self.num_modes}, n={self.n}, m={self.m})"
 
+    def _repr_html_(self) -> str:
+        """Notebook display: one row per mode (kind, dimensions, noise)."""
+        rows = []
+        for i, mode in enumerate(self.system_modes):
+            rows.append(
+                f"<tr><td>{i}</td><td>{type(mode).__name__}</td><td>{mode.p}</td>"
+                f"<td>{_noise_kind(mode)}</td></tr>"
+            )
+        return (
+            f"<div>SwitchedSystem: {self.num_modes} modes, n={self.n} states, m={self.m} inputs"
+            "<table><tr><th>mode</th><th>kind</th><th>outputs p</th><th>observation noise</th></tr>"
+            + "".join(rows)
+            + "</table></div>"
+        )
 
-def mk_lcs(A: Any, B: Any) -> LCS:
-    """Linear control system ``x' = A x + B u`` (deterministic)."""
+
+def _noise_kind(mode: LCS) -> str:
+    if not mode.has_output:
+        return "none (blind)"
+    if mode.has_state_dependent_noise:
+        return "state-dependent V(x)"
+    return "constant" if np.any(mode.noise_floor) else "noise-free"
+
+
+# ------------------------------------------------------------------------------------------------
+# factories
+# ------------------------------------------------------------------------------------------------
+
+
+def _is_state_space(obj: Any) -> bool:
+    """Duck typing of python-control's ``StateSpace`` (or scipy's): ``A, B, C, D`` and ``dt``."""
+    return not isinstance(obj, np.ndarray | list | tuple) and all(
+        hasattr(obj, attr) for attr in ("A", "B", "C", "D", "dt")
+    )
+
+
+def _state_space_matrices(sys: Any, func: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``A, B, C, D`` of a discrete-time state-space object (no import of python-control)."""
+    dt = sys.dt
+    discrete = dt is True or (
+        not isinstance(dt, bool)
+        and isinstance(dt, int | float | np.integer | np.floating)
+        and np.isfinite(dt)
+        and dt > 0
+    )
+    if not discrete:
+        raise InvalidArgumentError(
+            f"{func} takes a discrete-time state-space system, got {type(sys).__name__} with "
+            f"dt={dt!r} (continuous or unspecified time base); discretize it first, e.g. "
+            "sys.sample(Ts) in python-control or sys.to_discrete(dt) in scipy"
+        )
+    return (
+        as_matrix(sys.A, f"{type(sys).__name__}.A"),
+        as_matrix(sys.B, f"{type(sys).__name__}.B"),
+        as_matrix(sys.C, f"{type(sys).__name__}.C"),
+        as_matrix(sys.D, f"{type(sys).__name__}.D"),
+    )
+
+
+def mk_lcs(A: Any, B: Any = None) -> LCS:
+    """Linear control system ``x' = A x + B u`` (deterministic; paper ``mk_lcs``).
+
+    Parameters
+    ----------
+    A : array_like of shape (n, n), or a discrete-time state-space system
+        State matrix (``n >= 1``). A state-space object such as python-control's
+        ``StateSpace`` (anything with ``A``, ``B``, ``C``, ``D`` and ``dt``; ``dt`` must be
+        ``True`` or a positive sampling time) gives its ``A`` and ``B``; its outputs are
+        ignored (an LCS observes nothing).
+    B : array_like, shape (n, m)
+        Input matrix (``m >= 1``); omitted when ``A`` is a state-space system.
+
+    Returns
+    -------
+    LCS
+
+    Raises
+    ------
+    DimensionError
+        For shapes that disagree or empty matrices.
+    InvalidArgumentError
+        For non-finite entries or a continuous-time state-space system.
+    InvalidTypeError
+        When ``B`` is missing, or given together with a state-space system.
+    """
+    if _is_state_space(A):
+        if B is not None:
+            raise InvalidTypeError("mk_lcs: B comes from the state-space system; pass the system alone")
+        A_, B_, _, _ = _state_space_matrices(A, "mk_lcs")
+        return LCS(A_, B_)
+    if B is None:
+        raise InvalidTypeError("mk_lcs needs B, the input matrix of shape (n, m)")
     return LCS(A, B)
 
 
@@ -339,20 +627,31 @@ def _as_floor(value: Any, p: int) -> np.ndarray:
     return 0.5 * (F + F.T)
 
 
-def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None, V_floor: Any = None) -> LBS:
-    """Linear belief system, observed when ``C`` is given.
+def mk_lbs(
+    A: Any, B: Any = None, W: Any = None, C: Any = None, V: Any = None, V_floor: Any = None
+) -> LBS:
+    """Linear belief system, observed when ``C`` is given (paper ``mk_lbs``).
+
+    ``x' = A x + B u + W w`` and, with ``C``, ``y = C x + n(x) v`` (``w``, ``v`` standard normal).
 
     Parameters
     ----------
-    A : array_like, shape (n, n)
+    A : array_like of shape (n, n), or a discrete-time state-space system
+        State matrix (``n >= 1``). A state-space object such as python-control's
+        ``StateSpace`` (``A``, ``B``, ``C``, ``D`` and ``dt``; ``dt`` must be ``True`` or a
+        positive sampling time) gives ``A``, ``B`` and the output matrix ``C`` (none when it has
+        no outputs); its ``D`` must be zero.
     B : array_like, shape (n, m)
+        Input matrix (``m >= 1``); omitted when ``A`` is a state-space system.
     W : array_like, shape (n, w)
-        Process noise matrix (``W W'`` is the disturbance covariance).
+        Process noise factor: the disturbance covariance is ``W W'`` (required; zeros for none).
     C : array_like, shape (p, n), optional
-        Output matrix; without it the mode observes nothing (an :class:`LBS`).
+        Output matrix; without it the mode observes nothing (an :class:`LBS`). Omitted when
+        ``A`` is a state-space system.
     V : array_like of shape (p, r), or callable x -> (p, r) array, optional
-        Observation noise matrix ``n(x)``; constant gives :class:`POLBSWithLinNoise`, a
-        function gives :class:`POLBSWithNonLinNoise`. ``None`` with ``C`` means a noise-free sensor.
+        Observation noise factor ``n(x)`` (the noise covariance is ``n(x) n(x)'``); constant
+        gives :class:`POLBSWithLinNoise`, a function gives :class:`POLBSWithNonLinNoise` (its
+        values are checked at every evaluation). ``None`` with ``C`` means a noise-free sensor.
     V_floor : float or array_like of shape (p, p), optional
         For a callable ``V``: a declared lower bound on ``R(x) = n(x) n(x)'`` over every state (a
         number ``s`` means ``s^2 I``). It lets the solver prove that a confidence is out of reach
@@ -362,7 +661,36 @@ def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None, V_floor: Any = 
     Returns
     -------
     LBS, POLBSWithLinNoise or POLBSWithNonLinNoise
+
+    Raises
+    ------
+    DimensionError
+        For shapes that disagree or empty matrices.
+    InvalidArgumentError
+        For non-finite entries, ``V`` without ``C``, ``V_floor`` without a callable ``V``, or a
+        state-space system in continuous time or with a non-zero ``D``.
+    InvalidTypeError
+        When ``B`` or ``W`` is missing, or ``B`` / ``C`` is given with a state-space system.
     """
+    if _is_state_space(A):
+        if B is not None or C is not None:
+            which = "B" if B is not None else "C"
+            raise InvalidTypeError(
+                f"mk_lbs: {which} comes from the state-space system; pass the system and W, V"
+            )
+        A, B, C_ss, D = _state_space_matrices(A, "mk_lbs")
+        if np.any(D != 0):
+            raise InvalidArgumentError(
+                f"mk_lbs: the state-space system's D must be zero (outputs y = C x + n(x) v have no "
+                f"feedthrough), got D = {D.tolist()}"
+            )
+        C = C_ss if C_ss.shape[0] > 0 else None
+    if B is None:
+        raise InvalidTypeError("mk_lbs needs B, the input matrix of shape (n, m)")
+    if W is None:
+        raise InvalidTypeError(
+            "mk_lbs needs W, the process noise factor of shape (n, w) (np.zeros((n, n)) for none)"
+        )
     if V_floor is not None and not callable(V):
         raise InvalidArgumentError("V_floor is only for a state-dependent (callable) V")
     if C is None:
@@ -378,7 +706,27 @@ def mk_lbs(A: Any, B: Any, W: Any, C: Any = None, V: Any = None, V_floor: Any = 
 
 
 def mk_switched_sys(system_modes: Any) -> SwitchedSystem:
-    """Switched system from a list (or object array) of modes."""
+    """Switched system from a list (or object array) of modes (paper ``mk_switched_sys``).
+
+    Parameters
+    ----------
+    system_modes : sequence of LCS, or a single LCS
+        The modes, made by :func:`mk_lcs` / :func:`mk_lbs`; the plan picks one at every step
+        (mode ``q`` is ``system_modes[q]``). All must share the state and input dimensions.
+
+    Returns
+    -------
+    SwitchedSystem
+
+    Raises
+    ------
+    InvalidArgumentError
+        Without modes.
+    InvalidTypeError
+        For an entry that is not a mode.
+    DimensionError
+        For modes whose dimensions disagree.
+    """
     return SwitchedSystem(system_modes)
 
 

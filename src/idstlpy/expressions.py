@@ -6,12 +6,17 @@ and constant vectors keeps them linear, and comparisons build :class:`LinearPred
 ``h' x + c <= 0``. ``prob(pred) >= 1 - eps`` lifts a linear predicate to a chance constraint on a
 Gaussian belief (:class:`ProbabilisticLinearPredicate`). ``q == k`` on a
 :class:`DiscreteVariable` builds a :class:`DiscretePredicate` about the system mode.
+
+Predicates and mode formulas are values: they compare and hash structurally (two predicates
+with the same coefficients, constant, confidence and variable name and size are equal).
+Variables and expressions are not (``==`` on an expression is a predicate constructor, and
+refused on real-valued ones).
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -110,7 +115,7 @@ class LinearExpression:
         i = int(index) % k
         return LinearExpression(self._coef[i : i + 1], self._const[i : i + 1], self._variable)
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[LinearExpression]:
         return (self[i] for i in range(len(self)))
 
     # -- arithmetic -----------------------------------------------------------------------------
@@ -187,7 +192,18 @@ class LinearExpression:
     __rmatmul__ = __matmul__
 
     def dot(self, weights: Any) -> LinearExpression:
-        """Inner product ``w' (H x + c)`` as a scalar expression."""
+        """Inner product ``w' (H x + c)`` as a scalar expression (the same as ``weights @ self``).
+
+        Parameters
+        ----------
+        weights : array_like, shape (k,)
+            One weight per component (a scalar is broadcast).
+
+        Returns
+        -------
+        LinearExpression
+            A scalar expression.
+        """
         return self @ weights
 
     # -- comparisons build predicates -----------------------------------------------------------
@@ -224,7 +240,7 @@ class LinearExpression:
             "use >= (closed half-spaces); strict > is not a linear predicate here"
         )
 
-    def __eq__(self, other: object) -> bool:  # type: ignore[override]
+    def __eq__(self, other: object) -> bool:
         raise InvalidTypeError(
             "equality on real-valued expressions is not a PrSTL predicate; "
             "use two inequalities (<= and >=)"
@@ -270,12 +286,19 @@ class RealValuedVariable(LinearExpression):
     """A real-valued vector variable ``x in R^n``; also the vector of expressions ``x[i]``.
 
     Create it with :func:`mk_variable` (``dtype=float``).
+
+    Parameters
+    ----------
+    size : int
+        Dimension ``n >= 1``.
+    name : str, optional
+        Name used when printing (an identifier; default ``"x"``).
     """
 
     def __init__(self, size: int, name: str | None = None) -> None:
         self._size = as_int(size, "size", minimum=1)
         self._id = next(_ids)
-        self.name = name if name is not None else "x"
+        self.name = _as_name(name, "x")
         super().__init__(np.eye(self._size), np.zeros(self._size), self)
 
     @property
@@ -292,11 +315,18 @@ class DiscreteVariable:
 
     Create it with :func:`mk_variable` (``dtype=int``); ``q == k`` builds a
     :class:`DiscretePredicate`.
+
+    Parameters
+    ----------
+    size : int
+        Number of values (modes) ``>= 1``.
+    name : str
+        Name used when printing (an identifier; default ``"q"``).
     """
 
     def __init__(self, size: int, name: str = "q") -> None:
         self._size = as_int(size, "size", minimum=1)
-        self.name = name
+        self.name = _as_name(name, "q")
 
     @property
     def size(self) -> int:
@@ -316,6 +346,14 @@ class DiscreteVariable:
         return f"DiscreteVariable(size={self._size}, name={self.name!r})"
 
 
+def _as_name(name: Any, default: str) -> str:
+    if name is None:
+        return default
+    if not isinstance(name, str) or not name.isidentifier():
+        raise InvalidArgumentError(f"name must be an identifier such as {default!r}, got {name!r}")
+    return name
+
+
 def mk_variable(size: int, dtype: type = float, name: str | None = None) -> Any:
     """Declare a variable (paper Section IV-B).
 
@@ -333,6 +371,13 @@ def mk_variable(size: int, dtype: type = float, name: str | None = None) -> Any:
     Returns
     -------
     RealValuedVariable or DiscreteVariable
+
+    Raises
+    ------
+    InvalidArgumentError
+        For a size below 1 or a name that is not an identifier.
+    InvalidTypeError
+        For a size that is not an integer or another ``dtype``.
     """
     if dtype is float or dtype is np.float64:
         return RealValuedVariable(size, name=name if name is not None else "x")
@@ -348,13 +393,16 @@ class ConvexConstraint:
 
 
 class LinearPredicate(ConvexConstraint):
-    """The half-space ``h' x + c <= 0``.
+    """The half-space ``h' x + c <= 0`` (usually built by comparing expressions: ``x[0] <= 1``).
 
     Parameters
     ----------
     h : array_like, shape (n,)
+        Coefficients (finite).
     c : float
+        Constant (finite).
     variable : RealValuedVariable
+        The variable ``x`` (dimension ``n``).
     """
 
     def __init__(self, h: Any, c: float, variable: RealValuedVariable) -> None:
@@ -385,12 +433,42 @@ class LinearPredicate(ConvexConstraint):
             "a predicate has no truth value; combine predicates with logical_and / logical_or"
         )
 
+    def _key(self) -> tuple[Any, ...]:
+        return (
+            tuple(float(v) for v in self.h),
+            self.c,
+            self.variable.name,
+            self.variable.size,
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if self is other:
+            return True
+        if not isinstance(other, LinearPredicate) or type(other) is not type(self):
+            return False
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash((type(self).__name__, self._key()))
+
 
 class ProbabilisticLinearPredicate(LinearPredicate):
     """The chance constraint ``prob(h' x + c <= 0) >= 1 - eps`` on a Gaussian belief.
 
     A belief ``N(m, S)`` satisfies it iff ``h' m + c + Phi^-1(1 - eps) sqrt(h' S h) <= 0``.
-    ``eps`` must lie in ``[0, 0.5]``; ``eps = 0`` demands zero variance along ``h``.
+    Usually built with :func:`prob`: ``prob(x[0] <= 1) >= 0.95``.
+
+    Parameters
+    ----------
+    h : array_like, shape (n,)
+        Coefficients (finite).
+    c : float
+        Constant (finite).
+    variable : RealValuedVariable
+        The variable ``x`` (dimension ``n``).
+    eps : float
+        Allowed violation probability in ``[0, 0.5]``; ``eps = 0`` demands zero variance
+        along ``h``.
     """
 
     def __init__(self, h: Any, c: float, variable: RealValuedVariable, eps: float) -> None:
@@ -405,6 +483,9 @@ class ProbabilisticLinearPredicate(LinearPredicate):
     def __str__(self) -> str:
         affine = format_affine(self.h, self.c, self.variable.name)
         return f"P[{affine} <= 0] >= {_fmt_num(1 - self.eps)}"
+
+    def _key(self) -> tuple[Any, ...]:
+        return (*super()._key(), self.eps)
 
     def __repr__(self) -> str:
         return f"ProbabilisticLinearPredicate({self})"
@@ -466,7 +547,8 @@ def prob(pred: LinearPredicate) -> _Probability:
     Parameters
     ----------
     pred : LinearPredicate or ConvexRegion
-        ``h' x + c <= 0`` (or a conjunction of them, which gives one chance constraint per face).
+        ``h' x + c <= 0`` (or a conjunction of them, which gives one chance constraint per face);
+        for example ``x[0] <= 1``.
 
     Returns
     -------
@@ -478,11 +560,32 @@ def prob(pred: LinearPredicate) -> _Probability:
 
 
 class DiscreteFormula:
-    """A Boolean formula over discrete predicates, kept as the set of modes that satisfy it."""
+    """A Boolean formula over discrete predicates, kept as the set of modes that satisfy it.
+
+    Built by ``q == k``, ``q != k`` and :func:`~idstlpy.formulas.logical_or` over them; compares
+    and hashes by its set of modes and number of values.
+
+    Parameters
+    ----------
+    modes : iterable of int
+        The modes that satisfy the formula.
+    num_values : int
+        Number of values of the mode variable.
+    """
 
     def __init__(self, modes: Iterable[int], num_values: int) -> None:
-        self.modes = frozenset(int(m) for m in modes)
-        self.num_values = int(num_values)
+        self.num_values = as_int(num_values, "num_values", minimum=1)
+        self.modes = frozenset(
+            as_int(m, "modes entry", minimum=0, maximum=self.num_values - 1) for m in modes
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, DiscreteFormula):
+            return False
+        return (self.modes, self.num_values) == (other.modes, other.num_values)
+
+    def __hash__(self) -> int:
+        return hash((self.modes, self.num_values))
 
     def __str__(self) -> str:
         if not self.modes:
@@ -501,7 +604,15 @@ class DiscreteFormula:
 
 
 class DiscretePredicate(DiscreteFormula):
-    """``q == value``: the mode used to arrive at a step is ``value``."""
+    """``q == value``: the mode used to arrive at a step is ``value`` (built by ``q == value``).
+
+    Parameters
+    ----------
+    variable : DiscreteVariable
+        The mode variable ``q``.
+    value : int
+        The mode, in ``0 .. variable.size - 1``.
+    """
 
     def __init__(self, variable: DiscreteVariable, value: Any) -> None:
         if isinstance(value, bool) or not isinstance(value, int | np.integer):

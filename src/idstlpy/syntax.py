@@ -6,7 +6,7 @@ Grammar (whitespace is free)::
     binary   := "(" formula (("&" | "|") formula)+ ")"        (one operator per group)
               | "(" formula ("U" | "R") interval formula ")"
     unary    := ("F" | "G") interval formula
-    interval := "[" INT "," INT "]"
+    interval := "[" INT "," INT "]"                             (0 <= start <= end <= 2**53)
     atom     := NAME | "true" | "false" | "{" [item ("&" item)*] "}"
     item     := "P[" affine "<=" "0" "]" ">=" NUMBER | "(" mode ("|" mode)+ ")" | mode | "false"
     mode     := "q" "==" INT
@@ -33,10 +33,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InvalidArgumentError
-from .expressions import ProbabilisticLinearPredicate, RealValuedVariable, _fmt_num, format_affine
+from .errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
+from .expressions import ProbabilisticLinearPredicate, RealValuedVariable
 from .formulas import (
     FALSE,
+    MAX_BOUND,
     TRUE,
     STLAnd,
     STLAtomicProposition,
@@ -44,6 +45,8 @@ from .formulas import (
     STLOr,
     STLRelease,
     STLUntil,
+    format_atom,
+    format_formula,
 )
 
 __all__ = [
@@ -58,72 +61,6 @@ RESERVED_NAMES = frozenset({"true", "false", "F", "G", "U", "R", "P", "q"})
 """Words of the syntax that cannot name an atomic proposition in text."""
 
 
-def format_atom(ap: STLAtomicProposition, use_name: bool = True) -> str:
-    """Text of an atomic proposition: its name, or its definition in braces.
-
-    Parameters
-    ----------
-    ap : STLAtomicProposition
-    use_name : bool
-        Print a named proposition by name (default) or by its definition.
-
-    Returns
-    -------
-    str
-    """
-    if ap._constant is True:
-        return "true"
-    if ap._constant is False:
-        return "false"
-    if use_name and ap.name is not None:
-        return ap.name
-    items = [
-        f"P[{format_affine(p.h, p.c, p.variable.name)} <= 0] >= {_fmt_num(1.0 - p.eps)}"
-        for p in ap.predicates
-    ]
-    if ap.modes is not None:
-        if not ap.modes:
-            items.append("false")
-        else:
-            modes = " | ".join(f"q == {m}" for m in sorted(ap.modes))
-            items.append(f"({modes})" if len(ap.modes) > 1 else modes)
-    return "{" + " & ".join(items) + "}"
-
-
-def format_formula(formula: STLFormula) -> str:
-    """The text of ``formula`` (named propositions print by name).
-
-    Parameters
-    ----------
-    formula : STLFormula
-
-    Returns
-    -------
-    str
-        Text that :func:`parse_formula` reads back to a formula printing identically.
-    """
-    if isinstance(formula, STLAtomicProposition):
-        return format_atom(formula)
-    if isinstance(formula, STLAnd | STLOr):
-        op = " & " if isinstance(formula, STLAnd) else " | "
-        return "(" + op.join(format_formula(c) for c in formula.children) + ")"
-    if isinstance(formula, STLUntil):
-        if isinstance(formula.left, STLAtomicProposition) and formula.left._constant is True:
-            return f"F[{formula.a},{formula.b}] {format_formula(formula.right)}"
-        return (
-            f"({format_formula(formula.left)} U[{formula.a},{formula.b}] "
-            f"{format_formula(formula.right)})"
-        )
-    if isinstance(formula, STLRelease):
-        if isinstance(formula.left, STLAtomicProposition) and formula.left.is_false:
-            return f"G[{formula.a},{formula.b}] {format_formula(formula.right)}"
-        return (
-            f"({format_formula(formula.left)} R[{formula.a},{formula.b}] "
-            f"{format_formula(formula.right)})"
-        )
-    raise TypeError(f"cannot format {type(formula).__name__}")
-
-
 # ------------------------------------------------------------------------------------------------
 # parsing
 # ------------------------------------------------------------------------------------------------
@@ -131,6 +68,18 @@ def format_formula(formula: STLFormula) -> str:
 
 class FormulaSyntaxError(InvalidArgumentError):
     """Formula text that does not follow the grammar of :mod:`idstlpy.syntax`.
+
+    The message names the column and shows the text (around the error, for long texts) with a
+    caret under the offending character.
+
+    Parameters
+    ----------
+    text : str
+        The formula text.
+    position : int
+        0-based offset of the offending character in ``text``.
+    detail : str
+        What was expected (without the position).
 
     Attributes
     ----------
@@ -147,11 +96,18 @@ class FormulaSyntaxError(InvalidArgumentError):
         self.position = position
         self.detail = detail
         line = text.replace("\n", " ").replace("\t", " ")
+        start = max(0, position - _CONTEXT)
+        end = min(len(line), position + _CONTEXT)
+        shown = ("..." if start else "") + line[start:end] + ("..." if end < len(line) else "")
+        caret = position - start + (3 if start else 0)
         super().__init__(
-            f"formula syntax error at column {position + 1}: {detail}\n    {line}\n    "
-            + " " * position
+            f"formula syntax error at column {position + 1}: {detail}\n    {shown}\n    "
+            + " " * caret
             + "^"
         )
+
+
+_CONTEXT = 60  # characters shown on each side of a syntax error
 
 
 @dataclass(frozen=True)
@@ -172,6 +128,7 @@ _TOKEN_RE = re.compile(
 )
 
 _MAX_DEPTH = 200
+_MAX_INT = 2**63 - 1  # integers of the text (modes, indices) fit int64
 
 
 def _tokenize(text: str) -> list[_Token]:
@@ -238,12 +195,19 @@ class _Parser:
             return True
         return False
 
-    def integer(self, what: str) -> int:
+    def integer(self, what: str, maximum: int | None = None) -> int:
         tok = self.tok
         if tok.kind != "int":
             raise self.error(f"expected {what} (a non-negative integer), got {self._show(tok)}")
+        limit = maximum if maximum is not None else _MAX_INT
+        # compare the digits before int(): Python refuses to convert more than 4300 of them
+        digits = tok.text.lstrip("0") or "0"
+        if len(digits) > len(str(limit)) or int(digits) > limit:
+            shown = digits if len(digits) <= 40 else f"{digits[:20]}... ({len(digits)} digits)"
+            bound = "2**53" if limit == MAX_BOUND else "2**63 - 1"
+            raise self.error(f"{what} {shown} is too large: it must be <= {bound} = {limit}", tok)
         self.i += 1
-        return int(tok.text)
+        return int(digits)
 
     def number(self, what: str) -> float:
         tok = self.tok
@@ -277,9 +241,8 @@ class _Parser:
                     self.i += 1
                     a, b = self.interval()
                     body = self.formula()
-                    return STLUntil(TRUE, a, b, body) if tok.text == "F" else STLRelease(
-                        FALSE, a, b, body
-                    )
+                    cls = STLUntil if tok.text == "F" else STLRelease
+                    return self.build(tok, cls, TRUE if tok.text == "F" else FALSE, a, b, body)
                 return self.named_atom()
             raise self.error(
                 "expected a formula: '(', '{', F[a,b], G[a,b] or a proposition name, "
@@ -288,12 +251,27 @@ class _Parser:
         finally:
             self.depth -= 1
 
+    def build(
+        self,
+        tok: _Token,
+        cls: type[STLUntil] | type[STLRelease],
+        left: STLFormula,
+        a: int,
+        b: int,
+        right: STLFormula,
+    ) -> STLFormula:
+        """The temporal formula of operator ``tok``; a rejected one is an error at ``tok``."""
+        try:
+            return cls(left, a, b, right)
+        except IdstlpyError as exc:  # e.g. nested bounds whose sum exceeds 2**53
+            raise self.error(str(exc), tok) from exc
+
     def interval(self) -> tuple[int, int]:
         start = self.tok
         self.expect("[")
-        a = self.integer("interval start")
+        a = self.integer("interval start", MAX_BOUND)
         self.expect(",")
-        b = self.integer("interval end")
+        b = self.integer("interval end", MAX_BOUND)
         self.expect("]")
         if a > b:
             raise self.error(f"interval [{a},{b}] needs start <= end", start)
@@ -309,7 +287,7 @@ class _Parser:
             second = self.formula()
             self.expect(")")
             cls = STLUntil if tok.text == "U" else STLRelease
-            return cls(first, a, b, second)
+            return self.build(tok, cls, first, a, b, second)
         if tok.kind == "op" and tok.text in ("&", "|"):
             op = tok.text
             children = [first]
@@ -438,7 +416,7 @@ class _Parser:
             else:
                 return h, 0.0 if c is None else c
 
-    def _state_variable(self):
+    def _state_variable(self) -> RealValuedVariable:
         if self.variable is None:
             raise self.error("this formula refers to a state variable, but none was given", self.tok)
         return self.variable
@@ -493,5 +471,5 @@ def parse_formula(
         (an :class:`~idstlpy.errors.InvalidArgumentError`) with the column of the first error.
     """
     if not isinstance(text, str):
-        raise InvalidArgumentError(f"formula text must be a str, got {type(text).__name__}")
+        raise InvalidTypeError(f"text (the formula) must be a str, got {type(text).__name__}")
     return _Parser(text, atoms or {}, state_variable, num_modes).parse()
