@@ -66,12 +66,12 @@ re-roll under the problem's dynamics before the saved plan is rejected."""
 class Job:
     """One unit of work, as plain data.
 
-    Attributes
+    Parameters
     ----------
     kind : {"solve", "validate"}
         ``solve``: load, build, ``solve_result``. ``validate``: the same (or, with ``plan``,
         check the saved plan instead of solving), then execute the plan on the real system
-        (:func:`idstlpy.execution.validate.validate`).
+        (:func:`idstlpy.validate`).
     problem_text : str
         The problem file's text (shipped as is to workers: they need no shared filesystem).
     problem_name : str
@@ -390,7 +390,7 @@ def _validate(
     problem: Any, trajectory: Any, execution: ExecutionSettings, seed: int, seed_from_job: bool
 ) -> dict[str, Any]:
     """Execute the plan ``execution.runs`` times in this process; returns the report as data."""
-    from ..execution.validate import validate
+    from ..execution import validate
 
     if execution.lqr is not None:
         for mode in problem.switched_system.system_modes:

@@ -1,4 +1,23 @@
-"""Sweeps: a grid or a list of overrides over one problem file, each job with a spawned seed."""
+"""Sweeps: a grid or a list of overrides over one problem file, each job with a spawned seed.
+
+A sweep file (TOML; the reference is ``docs/sweeps.md``)::
+
+    problem = "light_dark.toml"       # the base problem file, relative to the sweep file
+    kind = "solve"                    # or "validate"
+    seed = 2024                       # every job's seed is spawned from it
+    repeats = 2                       # jobs per parameter combination (default 1)
+
+    [grid]                            # the cartesian product of these values ...
+    "solver.goal_bias" = [0.1, 0.25]
+    "solver.rrt_timeout" = [1, 5]
+
+    [[cases]]                         # ... for each of these override sets (default: one, empty)
+    "initial_belief.mean" = [0.0, 2.5]
+
+The seed of repeat ``r`` of combination ``i`` is drawn from
+``numpy.random.SeedSequence(seed, spawn_key=(i, r))``: appending combinations or repeats does not
+change the seeds (and so the result files) of the existing jobs.
+"""
 
 from __future__ import annotations
 
@@ -26,9 +45,9 @@ SWEEP_KEYS = ("name", "description", "problem", "kind", "seed", "repeats", "grid
 
 @dataclass(frozen=True)
 class Sweep:
-    """A parameter sweep over one problem file (see the module docstring for the file format).
+    """A parameter sweep over one problem file (the file format is in ``docs/sweeps.md``).
 
-    Attributes
+    Parameters
     ----------
     problem_name : str
         Path of the base problem file.
@@ -53,7 +72,17 @@ class Sweep:
     name: str = "sweep"
 
     def jobs(self, seed: int | None = None) -> list[Job]:
-        """The jobs, combination-major; ``seed`` replaces the sweep's root seed."""
+        """The jobs, combination-major.
+
+        Parameters
+        ----------
+        seed : int, optional
+            Replaces the sweep's root seed.
+
+        Returns
+        -------
+        list of Job
+        """
         root = self.seed if seed is None else seed
         out = []
         for i, overrides in enumerate(self.combinations):

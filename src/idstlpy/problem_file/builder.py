@@ -58,7 +58,7 @@ class SpecData(Protocol):
 class ExecutionSettings:
     """How a plan is executed and validated (the ``[execution]`` and ``[validation]`` tables).
 
-    Attributes
+    Parameters
     ----------
     real_system : SwitchedSystem
         The system the plan runs on (default: the planning model itself).

@@ -52,7 +52,15 @@ _ALLOWED = "numbers, x[i], + - * / **, parentheses, sqrt, exp, abs, min, max"
 
 
 class ExpressionError(Exception):
-    """An expression outside the whitelist (``column``: 0-based offset, when known)."""
+    """An expression outside the whitelist.
+
+    Parameters
+    ----------
+    message : str
+        What is not allowed.
+    column : int, optional
+        0-based offset in the expression, when known.
+    """
 
     def __init__(self, message: str, column: int | None = None) -> None:
         super().__init__(message)

@@ -39,7 +39,7 @@ class ProblemSpec:
     Create it with :func:`load_problem`; it pickles cheaply and builds the solver objects on
     demand with :meth:`build`.
 
-    Attributes
+    Parameters
     ----------
     data : dict
         The parsed TOML (with overrides applied).
