@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
+import pickle
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
@@ -13,7 +15,12 @@ import pytest
 import idstlpy as stl
 from idstlpy.errors import InvalidArgumentError, InvalidTypeError
 from idstlpy.execution import ValidationReport, validate, wilson_interval
-from idstlpy.scenarios import LIGHT_DARK_REAL_INITIAL_STATE, light_dark, light_dark_real_system
+from idstlpy.scenarios import (
+    LIGHT_DARK_REAL_INITIAL_STATE,
+    light_dark,
+    light_dark_noise,
+    light_dark_real_system,
+)
 
 
 def detour_plan(problem):
@@ -64,12 +71,27 @@ def test_same_seed_same_report_for_any_executor(light_dark_case):
     assert len(serial.predicate_violations) == 8
 
 
-def test_factory_path_when_nothing_can_pickle_the_problem(light_dark_case, monkeypatch):
+def test_factory_path_when_nothing_can_pickle_the_problem(light_dark_case, monkeypatch, caplog):
     problem, plan = light_dark_case
+    # The listing's form: a lambda noise, which plain pickle refuses (scenarios.light_dark pickles).
+    mode = problem.switched_system.mode(0)
+    listing = stl.Problem(
+        stl.mk_switched_sys(
+            [stl.mk_lbs(A=mode.A, B=mode.B, W=np.zeros((2, 2)), C=mode.C, V=lambda s: light_dark_noise(s))]
+        ),
+        problem.control_domain,
+        problem.initial_state,
+        problem.stl_formula,
+    )
+    with pytest.raises(Exception, match="lambda"):
+        pickle.dumps(listing)
+    pickle.dumps(problem)
     monkeypatch.setitem(sys.modules, "cloudpickle", None)  # import cloudpickle -> ImportError
-    args = (problem, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE)
-    factory = validate(*args, runs=4, seed=1, problem_factory=functools.partial(light_dark, 60, 40))
-    fallback = validate(*args, runs=4, seed=1)  # no factory: runs in-process
+    args = (listing, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE)
+    with caplog.at_level(logging.DEBUG, logger="idstlpy.execution.validation"):
+        factory = validate(*args, runs=4, seed=1, problem_factory=functools.partial(light_dark, 60, 40))
+        fallback = validate(*args, runs=4, seed=1)  # no factory: runs in-process
+    assert "running in-process" in caplog.text
     assert factory == fallback == validate(*args, runs=4, seed=1, executor="serial")
 
 

@@ -17,6 +17,7 @@ from .synthesis.problem import Problem
 __all__ = [
     "light_dark",
     "light_dark_real_system",
+    "light_dark_noise",
     "LIGHT_DARK_REAL_INITIAL_STATE",
     "double_integrator",
     "reach_avoid",
@@ -24,6 +25,24 @@ __all__ = [
 
 LIGHT_DARK_REAL_INITIAL_STATE = np.array([0.5, 2.75])
 """True start of the robot in the paper's execution (the belief's mean is [0, 2.5])."""
+
+
+def light_dark_noise(state: np.ndarray) -> np.ndarray:
+    """The paper's sensor noise ``n(x) = (0.1 (5 - x_0)^2 + 0.001) I``: the light is at ``x_0 = 5``.
+
+    A module-level function (not the listing's lambda), so that the problem pickles.
+
+    Parameters
+    ----------
+    state : ndarray, shape (2,)
+        Where the observation is taken.
+
+    Returns
+    -------
+    ndarray, shape (2, 2)
+        The square-root factor of the observation noise covariance.
+    """
+    return ((1 / 10) * (5 - state[0]) ** 2 + 0.001) * np.identity(2)
 
 
 def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
@@ -39,9 +58,8 @@ def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
     Returns
     -------
     Problem
-        Its noise function is a lambda: plain ``pickle`` refuses the problem (use
-        ``functools.partial(light_dark, deadline, hold)`` to rebuild it elsewhere); its plans
-        pickle and serialise (:meth:`~idstlpy.ProbabilisticTSTrajectory.to_dict`).
+        Picklable (its noise is :func:`light_dark_noise`, the listing's lambda as a module-level
+        function), so process pools take it as it is.
     """
     q = mk_variable(size=1, dtype=int)
     x = mk_variable(size=2, dtype=float)
@@ -54,7 +72,7 @@ def light_dark(deadline: int = 240, hold: int = 40) -> Problem:
                     B=0.25 * np.eye(x.size, u.size),
                     W=np.zeros((2, 2)),
                     C=np.identity(2),
-                    V=lambda state: ((1 / 10) * (5 - state[0]) ** 2 + 0.001) * np.identity(2),
+                    V=light_dark_noise,
                 ),
             ]
         ),
