@@ -150,6 +150,92 @@ def quiet_stdout() -> Iterator[None]:
         os.close(saved)
 
 
+def _highs_core() -> Any:
+    """SciPy's bundled HiGHS bindings (``None`` when this SciPy has none)."""
+    try:
+        from scipy.optimize._highspy import _core
+    except ImportError:  # pragma: no cover - depends on the SciPy build
+        return None
+    return _core if hasattr(_core, "_Highs") and hasattr(_core, "HighsLp") else None
+
+
+def _highs_direct(model: LinearModel, limit: float) -> BackendSolution | None:
+    """Solve through SciPy's HiGHS bindings directly; ``None`` when they are unavailable."""
+    core = _highs_core()
+    if core is None:
+        return None
+    inf = core.kHighsInf
+    A = model.A.tocsc()
+    lp = core.HighsLp()
+    lp.num_col_ = model.num_vars
+    lp.num_row_ = model.num_rows
+    lp.col_cost_ = np.asarray(model.c, dtype=float)
+    lp.col_lower_ = np.where(np.isfinite(model.lb), model.lb, -inf)
+    lp.col_upper_ = np.where(np.isfinite(model.ub), model.ub, inf)
+    lp.row_lower_ = np.where(np.isfinite(model.row_lo), model.row_lo, -inf)
+    lp.row_upper_ = np.where(np.isfinite(model.row_hi), model.row_hi, inf)
+    lp.a_matrix_.format_ = core.MatrixFormat.kColwise
+    lp.a_matrix_.num_col_ = model.num_vars
+    lp.a_matrix_.num_row_ = model.num_rows
+    lp.a_matrix_.start_ = A.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = A.indices.astype(np.int32)
+    lp.a_matrix_.value_ = A.data.astype(float)
+    mip = model.is_mip
+    if mip:
+        assert model.integrality is not None
+        kinds = core.HighsVarType
+        lp.integrality_ = [kinds.kInteger if v else kinds.kContinuous for v in model.integrality]
+    h = core._Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("time_limit", float(limit))
+    with quiet_stdout():
+        h.passModel(lp)
+        h.run()
+    st = h.getModelStatus()
+    ms = core.HighsModelStatus
+    info = h.getInfo()
+    sol = h.getSolution()
+    has_x = info.primal_solution_status == core.SolutionStatus.kSolutionStatusFeasible.value or (
+        st == ms.kOptimal
+    )
+    x = np.asarray(sol.col_value, dtype=float) if has_x and model.num_vars else None
+    if x is not None and x.shape[0] != model.num_vars:
+        x = None
+    status: SolutionStatus
+    if st == ms.kOptimal or (st == ms.kModelEmpty and model.num_vars == 0):
+        status = "optimal"
+    elif st == ms.kInfeasible:
+        status = "infeasible"
+    elif st == ms.kUnbounded:
+        status = "unbounded"
+    elif st == ms.kUnboundedOrInfeasible:
+        # Without an objective nothing is unbounded; otherwise ask again without presolve.
+        if not np.any(model.c):
+            status = "infeasible"
+        else:
+            h.setOptionValue("presolve", "off")
+            with quiet_stdout():
+                h.run()
+            st = h.getModelStatus()
+            status = {ms.kInfeasible: "infeasible", ms.kUnbounded: "unbounded"}.get(st, "error")  # type: ignore[assignment]
+    elif st in (ms.kTimeLimit, ms.kIterationLimit, ms.kInterrupt, ms.kHighsInterrupt, ms.kSolutionLimit):
+        status = "time_limit"
+    else:
+        status = "error"
+    if status == "infeasible":
+        x = None
+    fun = float(info.objective_function_value) if x is not None else float("nan")
+    duals = None
+    if status == "optimal" and not mip:
+        duals = np.asarray(sol.row_dual, dtype=float)
+        if duals.shape[0] != model.num_rows:
+            duals = None
+    bound = float(info.mip_dual_bound) if mip else float("nan")
+    if status == "optimal" and not np.isfinite(bound):
+        bound = fun
+    return BackendSolution(status, x, fun, duals, f"HiGHS: {h.modelStatusToString(st)}", bound)
+
+
 class HighsBackend:
     """HiGHS through :func:`scipy.optimize.linprog` (LPs, with duals) and :func:`~scipy.optimize.milp`."""
 
@@ -163,8 +249,16 @@ class HighsBackend:
         return True
 
     def solve(self, model: LinearModel, time_limit: float) -> BackendSolution:
-        """Solve ``model`` (see :class:`Backend`)."""
+        """Solve ``model`` (see :class:`Backend`).
+
+        Goes straight to the HiGHS that SciPy ships (one model, no input re-validation: about
+        0.3 ms per small LP instead of 3 ms); falls back to :func:`~scipy.optimize.linprog` /
+        :func:`~scipy.optimize.milp` when that module is not there.
+        """
         limit = max(float(time_limit), 1e-3)
+        direct = _highs_direct(model, limit)
+        if direct is not None:
+            return direct
         if model.is_mip:
             return self._milp(model, limit)
         return self._lp(model, limit)

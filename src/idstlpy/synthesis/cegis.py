@@ -34,7 +34,7 @@ from ..monitor import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
-from .milp import solve_milp
+from .milp import solve_milp, switch_to_eager
 from .objectives import better, objective_value, refine
 from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness
@@ -151,7 +151,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 return run.done(
                     "budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}"
                 )
-            if eager and stats.candidates >= lazy_budget:
+            if eager and switch_to_eager(
+                proposer.hard, stats.candidates, lazy_budget, options.lazy_conflict_size
+            ):
                 result = _eager(run, proposer, abstraction, scaling)
                 if result is not None:
                     return _optimise(run, result, proposer, abstraction, scaling, "milp")

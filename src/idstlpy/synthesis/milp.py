@@ -28,6 +28,7 @@ rows normalised as in the plan LP (:mod:`.plan_lp`), so tolerances are relative 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -41,7 +42,7 @@ from .bmc import BMCEncoder
 from .interfaces import Budget
 from .plan_lp import Scaling, build_plan_rows
 
-__all__ = ["MILPOutcome", "solve_milp"]
+__all__ = ["MILPOutcome", "solve_milp", "switch_to_eager"]
 
 logger = logging.getLogger(__name__)
 
@@ -85,6 +86,49 @@ class MILPOutcome:
         self.value = float("nan")
         self.bound = float("nan")
         self.proven = False
+
+
+def switch_to_eager(
+    conflicts: Sequence[Sequence[Any]], candidates: int, min_candidates: int, conflict_size: float
+) -> bool:
+    """Whether the lazy loop should hand an LP-exact, single-mode problem to the eager MILP.
+
+    A deterministic rule that follows the lazy loop's convergence (it reads only the proven
+    conflicts, never the clock):
+
+    - never before ``min_candidates`` candidates (``SolverOptions.lazy_candidates``);
+    - then, as soon as the median size (requirements per conflict) of the last
+      ``min_candidates`` conflicts exceeds ``conflict_size``
+      (``SolverOptions.lazy_conflict_size``): large conflicts each exclude little, the lazy
+      loop is enumerating combinations and the MILP's branch and bound does that better;
+      small ones (a step or two at the frontier of reach) mean it is converging, so it stays;
+    - in any case after ``10 * min_candidates`` candidates.
+
+    ``conflict_size <= 0`` gives the fixed count ``min_candidates``. Measured in BENCHMARKS.md
+    ("Noise-free reach-avoid: the LP path"): the one-obstacle double integrator's conflicts have
+    two requirements each and it converges lazily at 16 candidates; stlpy's scenarios' grow to
+    5-11 requirements within 10-20 candidates and need hundreds lazily.
+
+    Parameters
+    ----------
+    conflicts : sequence of sequences
+        The proven conflicts so far, oldest first (``BMCProposer.hard``).
+    candidates : int
+        Candidates tried so far.
+    min_candidates : int
+    conflict_size : float
+
+    Returns
+    -------
+    bool
+    """
+    if candidates < min_candidates:
+        return False
+    window = max(min_candidates, 1)
+    if conflict_size <= 0 or candidates >= 10 * window:
+        return True
+    recent = [len(c) for c in conflicts[-window:]]
+    return not recent or float(np.median(recent)) > conflict_size
 
 
 def _support_points(U: Any) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:

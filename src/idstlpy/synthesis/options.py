@@ -92,8 +92,13 @@ class SolverOptions:
         Sampler iterations per candidate (the work budget that decides the search); default
         ``ceil(ITERATIONS_PER_SECOND * rrt_timeout)``.
     lazy_candidates : int
-        Candidates the lazy loop may try on an LP-exact single-mode problem before the eager
-        MILP takes over.
+        Candidates the lazy loop tries at least on an LP-exact single-mode problem before the
+        eager MILP may take over.
+    lazy_conflict_size : float
+        After ``lazy_candidates``, the eager MILP takes over once the median size of the last
+        ``lazy_candidates`` proven conflicts exceeds this (the lazy loop is no longer
+        converging; see :func:`~idstlpy.synthesis.milp.switch_to_eager`), and in any case after
+        ``10 * lazy_candidates`` candidates. ``0`` switches after exactly ``lazy_candidates``.
     max_plan_length : int
         Longest plan (in steps) the proposer may unroll; a formula that needs a longer one ends
         ``budget_exhausted`` with that reason.
@@ -130,6 +135,7 @@ class SolverOptions:
     max_candidates: int | None = None
     sampler_iterations: int | None = None
     lazy_candidates: int = 10
+    lazy_conflict_size: float = 3.0
     max_plan_length: int = 100_000
     max_pruning_lps: int = 400
     polish_rounds: int = 4
@@ -159,6 +165,7 @@ class SolverOptions:
             if getattr(self, key) is not None:
                 put(self, key, as_int(getattr(self, key), key, minimum=1))
         put(self, "lazy_candidates", as_int(self.lazy_candidates, "lazy_candidates", minimum=0))
+        put(self, "lazy_conflict_size", as_float(self.lazy_conflict_size, "lazy_conflict_size", 0.0))
         put(self, "max_plan_length", as_int(self.max_plan_length, "max_plan_length", minimum=1))
         put(self, "max_pruning_lps", as_int(self.max_pruning_lps, "max_pruning_lps", minimum=0))
         put(self, "polish_rounds", as_int(self.polish_rounds, "polish_rounds", minimum=0))
