@@ -1,0 +1,48 @@
+"""The lazy -> eager switch rule and the eager MILP's invariant rows."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import idstlpy as stl
+from idstlpy.backends import HighsBackend, LinearModel
+from idstlpy.scenarios import reach_avoid
+from idstlpy.synthesis.milp import switch_to_eager
+
+
+def test_switch_follows_conflict_sizes():
+    small = [[1, 2]] * 30
+    large = [[1, 2, 3, 4, 5]] * 30
+    assert not switch_to_eager(small, 9, 10, 3.0)  # never before lazy_candidates
+    assert not switch_to_eager(small[:10], 10, 10, 3.0)  # converging: small conflicts
+    assert switch_to_eager(large[:10], 10, 10, 3.0)  # large conflicts: enumerating
+    assert switch_to_eager(small + large[:10], 40, 10, 3.0)  # the recent window decides
+    assert switch_to_eager(small * 4, 100, 10, 3.0)  # hard cap at 10x
+    assert switch_to_eager(small, 10, 10, 0.0)  # 0: the fixed count
+    assert switch_to_eager([], 0, 0, 3.0)  # lazy_candidates = 0: eager at once
+
+
+def test_one_obstacle_reach_avoid_stays_lazy_and_is_verified():
+    problem = reach_avoid(40)
+    result = problem.solve_result(seed=0, time_limit=60)
+    assert result.status == "found"
+    assert result.stats.milp_calls == 0 and "plan LP" in result.reason
+    assert stl.satisfies(result.trajectory, problem.stl_formula)
+    fixed = problem.solve_result(seed=0, time_limit=60, lazy_conflict_size=0)
+    assert fixed.status == "found" and fixed.stats.milp_calls == 1 and fixed.stats.candidates == 10
+    assert stl.satisfies(fixed.trajectory, problem.stl_formula)
+
+
+def test_highs_direct_path_matches_linprog_fallback():
+    from scipy.sparse import csr_matrix
+
+    rng = np.random.default_rng(0)
+    A = rng.normal(size=(6, 4))
+    model = LinearModel(
+        rng.normal(size=4), csr_matrix(A), np.full(6, -np.inf), np.ones(6), -np.ones(4), np.ones(4)
+    )
+    direct = HighsBackend().solve(model, 10)
+    fallback = HighsBackend._lp(model, 10)
+    assert direct.status == fallback.status == "optimal"
+    assert direct.objective == fallback.objective or abs(direct.objective - fallback.objective) < 1e-9
+    assert np.allclose(direct.row_duals, fallback.row_duals, atol=1e-9)
