@@ -167,7 +167,7 @@ class LCS(DynamicalSystem):
         -------
         ndarray, shape (n,)
         """
-        return self.A @ x + self.B @ u  # type: ignore[no-any-return]
+        return self.A @ x + self.B @ u
 
     def compute_finite_horizon_lqr(
         self, horizon: int, Q_final: Any, Q: Any, R: Any
@@ -327,7 +327,7 @@ class POLBSWithNonLinNoise(POLBS):
                 f"noise function V{self._where()} returned R(x) = n(x) n(x)' = {_show(R)} below its "
                 f"declared V_floor at x={_show(x)}"
             )
-        return R  # type: ignore[no-any-return]
+        return R
 
     @property
     def has_state_dependent_noise(self) -> bool:
@@ -447,7 +447,7 @@ class SwitchedSystem(DynamicalSystem):
             raise OutOfRangeError(
                 f"mode {q!r} is out of range: the system has modes 0..{self.num_modes - 1}"
             )
-        return self.system_modes[int(q)]  # type: ignore[no-any-return]
+        return self.system_modes[int(q)]
 
     def simulate(
         self,
@@ -489,7 +489,7 @@ class SwitchedSystem(DynamicalSystem):
         """
         import inspect
 
-        from .execution.simulate import simulate
+        from .execution import simulate
 
         known = {
             name
@@ -502,7 +502,7 @@ class SwitchedSystem(DynamicalSystem):
                 f"simulate got an unexpected keyword argument {', '.join(map(repr, unknown))}; "
                 f"its options are {', '.join(sorted(known))}"
             )
-        return simulate(  # type: ignore[no-any-return]
+        return simulate(
             self,
             reference_trajectory,
             num_of_steps,

@@ -147,10 +147,10 @@ class STLFormula:
 
     # -- operators ----------------------------------------------------------------------------
     def __and__(self, other: Any) -> STLFormula:
-        return logical_and(self, other)  # type: ignore[no-any-return]
+        return logical_and(self, other)
 
     def __or__(self, other: Any) -> STLFormula:
-        return logical_or(self, other)  # type: ignore[no-any-return]
+        return logical_or(self, other)
 
     def __bool__(self) -> bool:
         raise InvalidTypeError("a formula has no truth value; evaluate it on a trajectory")
