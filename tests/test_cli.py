@@ -192,6 +192,25 @@ def test_plot_a_result_file(tmp_path, capsys, solved):
     assert "not an idstlpy result file" in capsys.readouterr().err
 
 
+def test_plot_kinds_and_one_state_problems(tmp_path, solved):
+    path, _ = solved
+    assert main(["plot", str(path), "--kind", "time-series", "--out", str(tmp_path / "ts.png")]) == EXIT_OK
+    assert (tmp_path / "ts.png").stat().st_size > 0
+    one = tmp_path / "one.toml"
+    one.write_text(
+        'formula = "F[0,10] goal"\n[[modes]]\nA = [[1.0]]\nB = [[1.0]]\nW = [[0.05]]\n[control_domain]\n'
+        "low = [-1.0]\nhigh = [1.0]\n[initial_belief]\nmean = [0.0]\ncov = [0.01]\n[propositions.goal]\n"
+        'confidence = 0.9\nconstraints = ["2 <= x[0] <= 3"]\n[solver]\nrrt_timeout = 2\nseed = 0\n'
+    )
+    figure = tmp_path / "one.svg"
+    assert (
+        main(["solve", str(one), "--out", str(tmp_path / "r"), "--quiet", "--plot", str(figure)]) == EXIT_OK
+    )
+    assert figure.stat().st_size > 0  # one state: the time series
+    (result,) = (tmp_path / "r").glob("*.json")
+    assert main(["plot", str(result), "--kind", "workspace"]) == EXIT_USAGE
+
+
 def test_plot_of_a_result_without_plan(tmp_path):
     assert main(["solve", str(UNSAT), "--out", str(tmp_path), "--quiet"]) == EXIT_NO_PLAN
     (path,) = tmp_path.glob("*.json")

@@ -11,9 +11,10 @@ from typing import Any
 
 from ..errors import InvalidArgumentError
 
-__all__ = ["FIGURE_FORMATS", "check_figure_path", "save_plan_figure"]
+__all__ = ["FIGURE_FORMATS", "FIGURE_KINDS", "check_figure_path", "save_plan_figure"]
 
 FIGURE_FORMATS = ("png", "pdf", "svg")
+FIGURE_KINDS = ("auto", "workspace", "time-series")
 
 
 def check_figure_path(path: str | os.PathLike[str]) -> Path:
@@ -45,13 +46,10 @@ def check_figure_path(path: str | os.PathLike[str]) -> Path:
     return out
 
 
-def save_plan_figure(problem: Any, plan: Any, path: str | os.PathLike[str], title: str = "") -> Path:
-    """Draw ``plan`` over ``problem``'s workspace and save it (format from the extension).
-
-    A problem with at least two states is drawn by :func:`idstlpy.plotting.plot_light_dark`
-    (the sensing quality, the propositions' regions, the planned means and covariance
-    ellipses); a one-state problem by ``idstlpy.plotting.plot_time_series`` when the plotting
-    module has it.
+def save_plan_figure(
+    problem: Any, plan: Any, path: str | os.PathLike[str], title: str = "", kind: str = "auto"
+) -> Path:
+    """Draw ``plan`` over ``problem`` and save it (format from the extension).
 
     Parameters
     ----------
@@ -61,7 +59,13 @@ def save_plan_figure(problem: Any, plan: Any, path: str | os.PathLike[str], titl
     path : path
         ``.png``, ``.pdf`` or ``.svg``.
     title : str
-        The axes' title.
+        The (first) axes' title.
+    kind : {"auto", "workspace", "time-series"}
+        ``"workspace"``: :func:`idstlpy.plotting.plot_light_dark` in the plane of ``x[0]`` and
+        ``x[1]`` (the sensing quality, the propositions' regions, the planned means and
+        covariance ellipses); ``"time-series"``: :func:`idstlpy.plotting.plot_time_series`
+        (each state's mean with a 2-sigma band, the inputs, the modes); ``"auto"``: the
+        workspace for two or more states, else the time series.
 
     Returns
     -------
@@ -74,20 +78,22 @@ def save_plan_figure(problem: Any, plan: Any, path: str | os.PathLike[str], titl
 
     from .. import plotting
 
+    if kind not in FIGURE_KINDS:
+        raise InvalidArgumentError(f"figure kind must be one of {', '.join(FIGURE_KINDS)}, got {kind!r}")
     out = check_figure_path(path)
     n = problem.switched_system.n
-    if n >= 2:
+    if kind == "auto":
+        kind = "workspace" if n >= 2 else "time-series"
+    if kind == "workspace":
+        if n < 2:
+            raise InvalidArgumentError(f"a workspace figure needs two or more states, the problem has {n}")
         fig, ax = plt.subplots(figsize=(6.5, 5.5))
         plotting.plot_light_dark(problem, plan, ax=ax)
     else:
-        time_series = getattr(plotting, "plot_time_series", None)
-        if time_series is None or plan is None:
-            raise InvalidArgumentError(
-                "figures of one-state problems need idstlpy.plotting.plot_time_series and a plan"
-            )
-        art = time_series(problem, plan)
-        fig = art.figure
-        ax = getattr(art, "ax", None) or fig.axes[0]
+        if plan is None:
+            raise InvalidArgumentError("a time-series figure needs a plan")
+        art = plotting.plot_time_series(problem, plan)
+        fig, ax = art.figure, art.ax
     if title:
         ax.set_title(title, fontsize="small")
     try:

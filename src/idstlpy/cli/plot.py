@@ -15,7 +15,7 @@ from typing import Any
 from ..batch.records import plan_from_record, plan_steps, problem_from_record, read_record
 from ..problem_file import apply_overrides, load_problem, text_sha256
 from .exit_codes import EXIT_NO_PLAN, EXIT_OK
-from .figures import FIGURE_FORMATS, check_figure_path, save_plan_figure
+from .figures import FIGURE_FORMATS, FIGURE_KINDS, check_figure_path, save_plan_figure
 
 __all__ = ["register"]
 
@@ -49,6 +49,13 @@ def register(subparsers: Any) -> None:
         default=None,
         help="the problem file (default: the problem text recorded in the result)",
     )
+    plot.add_argument(
+        "--kind",
+        choices=FIGURE_KINDS,
+        default="auto",
+        help="workspace (the plane of x[0], x[1]) or time-series (every state, inputs, modes); "
+        "default: the workspace for two or more states",
+    )
     plot.set_defaults(func=_cmd_plot)
 
 
@@ -70,6 +77,9 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     else:
         spec = problem_from_record(record, str(result_path))
     plan = plan_from_record(record, str(result_path))
+    if plan is None and args.kind == "time-series":
+        print(f"idstlpy plot: {result_path} has no plan (status {record.get('status')!r})", file=sys.stderr)
+        return EXIT_NO_PLAN
     status = record.get("status")
     title = f"{spec.title}: {status}"
     steps = plan_steps(record.get("plan"))
@@ -78,6 +88,6 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         margin = record.get("margin")
         if isinstance(margin, float):
             title += f", margin {margin:.3g}"
-    save_plan_figure(spec.build().problem, plan, figure, title)
+    save_plan_figure(spec.build().problem, plan, figure, title, kind=args.kind)
     print(f"figure: {figure}")
     return EXIT_OK if plan is not None else EXIT_NO_PLAN
