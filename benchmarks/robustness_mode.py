@@ -1,6 +1,6 @@
 """Robustness mode (issue 13): ``objective="margin"`` against stlpy's MICP maximising robustness.
 
-``python -m benchmarks.robustness_mode [--scenarios ...] [--T 25] [--timeout 120] [--peers highs,scip,gurobi]``
+``python -m benchmarks.robustness_mode [--scenarios ...] [--T 25] [--timeout 120] [--peers ...]``
 
 For each stlpy scenario (translated automatically, as in the main benchmark), idstlpy solves with
 ``objective="margin"`` and stlpy's MICP maximises its robustness ``rho`` with each open solver
@@ -34,7 +34,12 @@ def idstlpy_margin(name: str, T: int, time_limit: float) -> dict[str, Any]:
     problem, _ = make_problem(spec, sysm.A, sysm.B, sysm.C, sysm.D, x0, *d.u_box, T, *d.x_box)
     res = problem.solve_result(seed=0, time_limit=time_limit, objective="margin")
     e2e = time.perf_counter() - t0
-    out: dict[str, Any] = {"status": res.status, "e2e_s": e2e, "optimal": res.optimal, "scope": res.optimal_scope}
+    out: dict[str, Any] = {
+        "status": res.status,
+        "e2e_s": e2e,
+        "optimal": res.optimal,
+        "scope": res.optimal_scope,
+    }
     if res.trajectory is not None:
         out["value"] = float(I.robustness(res.trajectory, problem.stl_formula))
         out["bound"] = res.objective_bound
@@ -63,29 +68,40 @@ def main(argv: list[str] | None = None) -> None:
                 r = {"status": "error", "detail": f"{type(exc).__name__}: {exc}"}
             peers[backend] = r
         rows.append((name, ours, peers))
-        print(name, ours, {b: (p.get("status"), p.get("stlpy_robustness"), p.get("e2e_s")) for b, p in peers.items()},
-              flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+        print(
+            name,
+            ours,
+            {b: (p.get("status"), p.get("stlpy_robustness"), p.get("e2e_s")) for b, p in peers.items()},
+            flush=True,
+        )
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    ).stdout.strip()
     lines = [
-        "# Robustness mode: idstlpy `objective=\"margin\"` vs stlpy's MICP (maximise rho)",
+        '# Robustness mode: idstlpy `objective="margin"` vs stlpy\'s MICP (maximise rho)',
         "",
-        f"Command: `python -m benchmarks.robustness_mode --T {a.T} --timeout {a.timeout:g} --peers {a.peers}`; "
+        f"Command: `python -m benchmarks.robustness_mode --T {a.T} --timeout {a.timeout:g} "
+        f"--peers {a.peers}`; "
         f"{datetime.date.today()}, nproc {os.cpu_count()}, commit {commit}. One run; times are end to end "
         "(model building included). `rho` is the optimum each found (stlpy's: its own robustness of its "
         "solution; idstlpy's: the monitor's robustness of its plan).",
         "",
-        "| scenario | idstlpy rho | proven | idstlpy s | peer | peer status | peer rho | peer s | rho diff | time ratio |",
+        "| scenario | idstlpy rho | proven | idstlpy s | peer | peer status | peer rho | peer s | rho diff "
+        "| time ratio |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, ours, peers in rows:
         for backend, p in peers.items():
             pr, ps = p.get("stlpy_robustness"), p.get("e2e_s")
-            diff = (ours.get("value", float("nan")) - pr) if pr is not None and "value" in ours else float("nan")
+            diff = (
+                (ours.get("value", float("nan")) - pr) if pr is not None and "value" in ours else float("nan")
+            )
             ratio = ours["e2e_s"] / ps if ps else float("nan")
             lines.append(
                 f"| {name} | {ours.get('value', float('nan')):.6g} | {ours['optimal']} ({ours['scope']}) | "
                 f"{ours['e2e_s']:.3g} | {backend} | {p.get('status')} | "
-                f"{pr if pr is None else f'{pr:.6g}'} | {ps if ps is None else f'{ps:.3g}'} | {diff:.2g} | {ratio:.3g} |"
+                f"{pr if pr is None else f'{pr:.6g}'} | {ps if ps is None else f'{ps:.3g}'} | "
+                f"{diff:.2g} | {ratio:.3g} |"
             )
     with open(a.out, "w") as fh:
         fh.write("\n".join(lines) + "\n")
