@@ -267,3 +267,22 @@ def test_repr_html_shows_text_horizon_and_definitions(xq):
     assert "(free U[0,240] G[0,40] target)" in html and "horizon 280 steps" in html
     assert "<code>target</code>" in html and "&lt;= 0] &gt;= 0.95 &amp; q == 0" in html
     assert html.count("<code>free</code>") == 1
+
+
+def test_equality_and_hash_of_deep_and_shared_formulas():
+    def chain(depth):
+        f = stl.TRUE
+        for _ in range(depth):
+            f = stl.eventually(0, 1, f)
+        return f
+
+    a, b = chain(3000), chain(3000)  # deeper than the recursion limit
+    assert a == b and hash(a) == hash(b) and a != chain(2999)
+
+    def shared(depth):
+        f = stl.eventually(0, 1, stl.TRUE)
+        for _ in range(depth):
+            f = stl.STLAnd([f, f])  # a DAG whose tree has 2**depth leaves
+        return f
+
+    assert shared(60) == shared(60) and hash(shared(60)) == hash(shared(60))

@@ -121,23 +121,47 @@ class STLFormula:
             stack.extend(reversed(node.children))
 
     # -- structural equality ------------------------------------------------------------------
-    def _structure(self) -> tuple[Any, ...]:
-        """The fields that define the formula (children as formula objects)."""
+    # Both walk the tree with an explicit stack: deep formulas do not hit the recursion limit.
+    def _local(self) -> tuple[Any, ...]:
+        """The fields that define the node itself (its children aside)."""
         raise NotImplementedError
 
     def __eq__(self, other: object) -> bool:
-        if self is other:
-            return True
-        if not isinstance(other, STLFormula) or type(other) is not type(self):
+        if not isinstance(other, STLFormula):
             return False
-        return hash(self) == hash(other) and self._structure() == other._structure()
+        pairs: list[tuple[STLFormula, STLFormula]] = [(self, other)]
+        seen: set[tuple[int, int]] = set()  # shared sub-formulas are compared once
+        while pairs:
+            f, g = pairs.pop()
+            if f is g or (id(f), id(g)) in seen:
+                continue
+            seen.add((id(f), id(g)))
+            if (
+                type(f) is not type(g)
+                or hash(f) != hash(g)
+                or len(f.children) != len(g.children)
+                or f._local() != g._local()
+            ):
+                return False
+            pairs.extend(zip(f.children, g.children, strict=True))
+        return True
 
     def __hash__(self) -> int:
         cached = self.__dict__.get("_hash")
-        if cached is None:
-            cached = hash((type(self).__name__, self._structure()))
-            self.__dict__["_hash"] = cached
-        return cached
+        if cached is not None:
+            return int(cached)
+        stack: list[STLFormula] = [self]
+        while stack:  # post-order: a node is hashed once its children are
+            node = stack[-1]
+            pending = [c for c in node.children if "_hash" not in c.__dict__]
+            if pending:
+                stack.extend(pending)
+                continue
+            stack.pop()
+            node.__dict__["_hash"] = hash(
+                (type(node).__name__, node._local(), tuple(c.__dict__["_hash"] for c in node.children))
+            )
+        return int(self.__dict__["_hash"])
 
     def __getstate__(self) -> dict[str, Any]:
         # str hashes are salted per process: a cached hash must not travel with a pickle.
@@ -276,7 +300,7 @@ class STLAtomicProposition(STLFormula):
         """Always 0: a state formula looks at the current step only."""
         return 0
 
-    def _structure(self) -> tuple[Any, ...]:
+    def _local(self) -> tuple[Any, ...]:
         return (
             self._constant,
             self.name,
@@ -327,8 +351,8 @@ class _Junction(STLFormula):
         """The largest horizon of the operands."""
         return self._horizon
 
-    def _structure(self) -> tuple[Any, ...]:
-        return self.children
+    def _local(self) -> tuple[Any, ...]:
+        return ()
 
 
 class STLAnd(_Junction):
@@ -388,8 +412,8 @@ class STLTemporalFormula(STLFormula):
         """``b`` plus the larger horizon of the operands."""
         return self._horizon
 
-    def _structure(self) -> tuple[Any, ...]:
-        return (self.a, self.b, self.left, self.right)
+    def _local(self) -> tuple[Any, ...]:
+        return (self.a, self.b)
 
 
 def _as_bound(value: Any, name: str) -> int:
