@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ._checks import as_int
+from .chance import slack
 from .errors import DimensionError, InvalidTypeError
 from .formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from .trajectory import ProbabilisticTSTrajectory
@@ -61,13 +62,7 @@ def atom_margins(
                 f"proposition {ap.name or ap} is over a {cone.dim}-dimensional variable, "
                 f"the trajectory has state dimension {means.shape[1]}"
             )
-        var = np.einsum("fi,kij,fj->kf", cone.H, covs, cone.H)
-        sd = np.sqrt(np.maximum(var, 0.0))
-        with np.errstate(invalid="ignore"):
-            terms = cone.z[None, :] * sd
-        terms = np.where(np.isinf(cone.z)[None, :] & (sd <= 0), 0.0, terms)
-        slack = -(means @ cone.H.T + cone.c[None, :] + terms)
-        out = np.min(slack, axis=1)
+        out = np.min(slack(cone.H, cone.c, cone.z, means, covs), axis=1)
     if ap.modes is not None and L > 1:
         allowed = np.isin(actions, np.fromiter(ap.modes, dtype=int, count=len(ap.modes)))
         out[1:] = np.where(allowed, out[1:], _NEG)
