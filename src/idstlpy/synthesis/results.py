@@ -224,7 +224,14 @@ class SolveResult:
             )
         status = data.get("status")
         if status not in STATUSES:
-            raise InvalidArgumentError(f"result status must be one of {STATUSES}, got {status!r}")
+            # Result records of the CLI and sweeps share the schema; a failed or rejected run
+            # has no solver result to rebuild.
+            why = data.get("error") or data.get("reason") or ""
+            raise InvalidArgumentError(
+                f"this record holds no solver result: its run ended with status {status!r}"
+                + (f" ({why})" if why else "")
+                + f"; a result's status is one of {', '.join(STATUSES)}"
+            )
         plan = data.get("plan")
         traj = None if plan is None else _trajectory_from_dict(plan)
 
