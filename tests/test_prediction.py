@@ -242,6 +242,9 @@ def test_success_bound_below_model_estimate(integrator_case):
         (pred.belief_success_bound, pred.belief_success_estimate),
     ):
         assert 0.0 <= bound <= est + Z99 * se
+    assert pred.state_success_sampled_bound <= pred.state_success_estimate
+    assert pred.belief_success_sampled_bound <= pred.belief_success_estimate
+    assert pred.state_success_estimate - pred.state_success_sampled_bound < 0.01
     assert pred.witness  # the bound names the (proposition, step) pairs it relies on
     d = pred.as_dict()
     assert d["samples"] == 20000 and set(d["predicate_violations"]) == {c.name for c in pred.constraints}
@@ -328,8 +331,10 @@ def test_exact_case_agrees_with_monte_carlo(case, request):
         (pred.belief_success_estimate, rep.belief_success_rate),
     ):
         assert _inside(np.array(p_hat), np.array(meas), runs, pred.samples)
-    assert pred.state_success_bound <= rep.state_ci[1]
-    assert pred.belief_success_bound <= rep.belief_ci[1]
+    for reading in ("state", "belief"):
+        hi = getattr(rep, f"{reading}_ci")[1]
+        assert getattr(pred, f"{reading}_success_bound") <= hi
+        assert getattr(pred, f"{reading}_success_sampled_bound") <= hi
     # Per step and constraint: the closed-form probabilities.
     state_ok, belief_ok = _mc_steps(rep.executions, pred)
     p_state = np.array([c.state_probability for c in pred.constraints]).T

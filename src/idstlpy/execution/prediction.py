@@ -247,6 +247,10 @@ class ClosedLoopPrediction:
         the true states satisfy the formula (NaN without a formula).
     belief_success_estimate, state_success_estimate : float
         Point estimates of the same probabilities by sampling the model (NaN without samples).
+    belief_success_sampled_bound, state_success_sampled_bound : float
+        One-sided Clopper-Pearson lower bounds (confidence 0.999 over the model sampling) on the
+        same probabilities: statistical, not deterministic, but far tighter than the analytic
+        bound when the formula needs many events (NaN without samples).
     samples : int
         Model samples behind the estimates.
     witness : tuple of (str, int)
@@ -272,6 +276,8 @@ class ClosedLoopPrediction:
     state_success_bound: float = float("nan")
     belief_success_estimate: float = float("nan")
     state_success_estimate: float = float("nan")
+    belief_success_sampled_bound: float = float("nan")
+    state_success_sampled_bound: float = float("nan")
     samples: int = 0
     witness: tuple[tuple[str, int], ...] = ()
 
@@ -353,6 +359,8 @@ class ClosedLoopPrediction:
             "state_success_bound": num(self.state_success_bound),
             "belief_success_estimate": num(self.belief_success_estimate),
             "state_success_estimate": num(self.state_success_estimate),
+            "belief_success_sampled_bound": num(self.belief_success_sampled_bound),
+            "state_success_sampled_bound": num(self.state_success_sampled_bound),
             "max_clip_probability": float(self.clip_probability.max()) if self.clip_probability.size else 0.0,
             "proposition_violations": {
                 k: {r: num(v) for r, v in d.items()} for k, d in self.proposition_violation.items()
@@ -938,7 +946,7 @@ def _success_bound(
     for w in candidates:
         if any(not mode_ok[i, k] for i, k in w):
             continue
-        events = [(f, k) for i, k in w for f in np.flatnonzero(faces.atom == i)]
+        events = [(int(f), k) for i, k in w for f in np.flatnonzero(faces.atom == i)]
         fail = _hunter_failure(events, faces, reading, loop) if events else 0.0
         if fail < best:
             best, best_w = fail, sorted(w, key=lambda t: (t[1], t[0]))
@@ -951,21 +959,71 @@ def _success_bound(
 # Sampling the Gaussian model
 
 
-def _sample_events(loop: _Loop, faces: _Faces, samples: int, seed: Any) -> dict[str, np.ndarray]:
-    """Face truth on trajectories sampled from the model, per reading a bool array (S, L, F)."""
-    rng = np.random.default_rng(seed)
+def _clopper_pearson_lower(rate: float, trials: int, confidence: float = 0.999) -> float:
+    """One-sided Clopper-Pearson lower bound of a binomial proportion (NaN without trials)."""
+    if not trials or not np.isfinite(rate):
+        return float("nan")
+    from scipy.stats import beta
+
+    k = int(round(rate * trials))
+    return 0.0 if k == 0 else float(beta.ppf(1.0 - confidence, k, trials - k + 1))
+
+
+def _sample_events(
+    loop: _Loop, faces: _Faces, size: int, rng: np.random.Generator, roots: list[np.ndarray]
+) -> dict[str, np.ndarray]:
+    """Face truth on ``size`` trajectories sampled from the model, per reading a bool array (S, L, F)."""
     L, D = loop.mean.shape
     nF = faces.H.shape[0]
-    ok = {r: np.empty((samples, L, nF), dtype=bool) for r in ("state", "belief")}
+    ok = {r: np.empty((size, L, nF), dtype=bool) for r in ("state", "belief")}
     const = {r: faces.mu[r] - np.einsum("kfd,kd->kf", faces.a[r], loop.mean) for r in ok}
-    z = loop.mean[0] + rng.standard_normal((samples, D)) @ _sqrt_psd(loop.cov[0]).T
+    z = loop.mean[0] + rng.standard_normal((size, D)) @ roots[0].T
     for k in range(L):
         if k:
-            noise = rng.standard_normal((samples, D)) @ _sqrt_psd(loop.Q[k - 1]).T
-            z = z @ loop.F[k - 1].T + loop.g[k - 1] + noise
+            z = z @ loop.F[k - 1].T + loop.g[k - 1] + rng.standard_normal((size, D)) @ roots[k].T
         for r in ok:
             ok[r][:, k] = z @ faces.a[r][k].T + const[r][k] <= 0
     return ok
+
+
+def _sample_rates(
+    loop: _Loop,
+    faces: _Faces,
+    samples: int,
+    seed: Any,
+    formula: STLFormula,
+    aps: list[STLAtomicProposition],
+    mode_ok: np.ndarray,
+    plan_truth: np.ndarray,
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float]]:
+    """Model-sampled rates, in chunks of bounded memory: per reading, each face broken at some
+    promised step (F,), each proposition broken at some promised step (A,), the formula's success."""
+    rng = np.random.default_rng(seed)
+    L = loop.mean.shape[0]
+    nF = faces.H.shape[0]
+    roots = [_sqrt_psd(loop.cov[0])] + [_sqrt_psd(Q) for Q in loop.Q]
+    promised = plan_truth[faces.atom].T[None]  # (1, L, F)
+    readings = ("state", "belief")
+    face_n = {r: np.zeros(nF) for r in readings}
+    prop_n = {r: np.zeros(len(aps)) for r in readings}
+    ok_n = {r: 0.0 for r in readings}
+    chunk = max(1, min(samples, 4_000_000 // max(1, L * max(nF, 1))))
+    done = 0
+    while done < samples:
+        size = min(chunk, samples - done)
+        ok = _sample_events(loop, faces, size, rng, roots)
+        for r in readings:
+            broken = ~ok[r] & promised  # (S, L, F)
+            face_n[r] += np.sum(np.any(broken, axis=1), axis=0)
+            for i in range(len(aps)):
+                prop_n[r][i] += np.sum(np.any(broken[:, :, faces.atom == i], axis=(1, 2)))
+            ok_n[r] += _formula_rate(formula, aps, ok[r], faces, mode_ok) * size
+        done += size
+    return (
+        {r: face_n[r] / samples for r in readings},
+        {r: prop_n[r] / samples for r in readings},
+        {r: ok_n[r] / samples for r in readings},
+    )
 
 
 def _formula_rate(
@@ -1188,17 +1246,12 @@ def predict_closed_loop(
     prop_violation = {nm: {"belief": float("nan"), "state": float("nan")} for nm in names}
     estimate = {"state": float("nan"), "belief": float("nan")}
     if samples:
-        ok = _sample_events(loop, faces, samples, seed)
-        promised = plan_truth[faces.atom].T[None]  # (1, L, F)
-        for r in ok:
-            viol[r] = np.mean(np.any(~ok[r] & promised, axis=1), axis=0)
-            estimate[r] = _formula_rate(formula, aps, ok[r], faces, mode_ok)
-        for i, nm in enumerate(names):
-            cols = faces.atom == i
-            mask = plan_truth[i][None, :, None]
-            prop_violation[nm] = {
-                r: float(np.mean(np.any(~ok[r][:, :, cols] & mask, axis=(1, 2)))) for r in ("belief", "state")
-            }
+        viol, prop_rates, estimate = _sample_rates(
+            loop, faces, samples, seed, formula, aps, mode_ok, plan_truth
+        )
+        prop_violation = {
+            nm: {r: float(prop_rates[r][i]) for r in ("belief", "state")} for i, nm in enumerate(names)
+        }
 
     constraints = []
     j = 0
@@ -1239,6 +1292,8 @@ def predict_closed_loop(
         state_success_bound=float(state_bound),
         belief_success_estimate=estimate["belief"],
         state_success_estimate=estimate["state"],
+        belief_success_sampled_bound=_clopper_pearson_lower(estimate["belief"], samples),
+        state_success_sampled_bound=_clopper_pearson_lower(estimate["state"], samples),
         samples=samples,
         witness=tuple((names[i], int(k)) for i, k in witness),
     )

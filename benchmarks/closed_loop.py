@@ -1,0 +1,388 @@
+"""Predicted vs measured execution: does :func:`predict_closed_loop` say what ``validate`` finds?
+
+Run: ``python -m benchmarks.closed_loop [--runs 1000] [--seeds 5] [--problems a,b,...] [--out FILE]``.
+
+For every problem the plan is solved, executed ``runs`` times by :func:`idstlpy.validate` (Kalman
+filter, receding-horizon LQR, inputs clipped to the domain unless the row says otherwise) and
+predicted once by :func:`idstlpy.execution.prediction.predict_closed_loop` with the same options.
+Reported per problem:
+
+- *per step*: for every (step, chance constraint) pair, the predicted probability that the true
+  state (resp. the executed belief) satisfies the constraint against the measured frequency: the
+  largest absolute difference, and the fraction of pairs whose prediction lies in the measured
+  Wilson 95% interval (over all pairs, and over the non-trivial ones, where the prediction or
+  the measurement is neither 0 nor 1);
+- *per predicate*: validate's rates (the constraint broken at some promised step) against the
+  predicted ones (Gaussian-model sampling, 20000 samples): largest difference, fraction inside;
+- *formula*: the predicted analytic lower bound, sampled (Clopper-Pearson, 0.999) lower bound and
+  estimate of the success rate against the measured rate (true state and executed belief).
+
+Problems: ``light_dark`` (the paper's listing, planner seeds ``0..seeds-1``, true start
+[0.5, 2.75], noise-free real system); ``light_dark_far`` (the same plans from a farther true start
+[1.0, 3.25]); ``light_dark_disturbed`` (the real system adds a disturbance W = 0.02 I);
+``linear`` (2-D, one sensing mode with constant noise and process noise; unclipped and clipped);
+``integrator`` (4-D double integrator, position sensor, process noise on the velocities;
+unclipped and clipped); ``two_modes`` (examples/two_modes.toml: a sensing mode and a blind one).
+Writes a Markdown table (with command, date, nproc, git revision) to ``--out`` (default
+``benchmarks/closed_loop_results.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import idstlpy as stl
+from idstlpy.chance import quantile, std_terms
+from idstlpy.execution import wilson_interval
+from idstlpy.execution.prediction import ClosedLoopPrediction, predict_closed_loop
+from idstlpy.scenarios import LIGHT_DARK_REAL_INITIAL_STATE, light_dark, light_dark_real_system
+
+from .report import machine
+
+ROOT = Path(__file__).resolve().parent.parent
+PROBLEMS = ("light_dark", "light_dark_far", "light_dark_disturbed", "linear", "integrator", "two_modes")
+_LISTING = {"rrt_timeout": 60, "delta_near": 2, "delta_drain": 0.5, "goal_bias": 0.25,
+            "min_num_of_steps": 3, "max_num_of_steps": 15}
+
+
+@dataclass
+class Case:
+    """One execution setting: a problem, its plan and how it is executed."""
+
+    name: str
+    problem: Any
+    plan: Any
+    real_system: Any
+    x0: np.ndarray
+    clip: bool = True
+    process_noise: str = "model"
+    solve_s: float = 0.0
+
+
+def _p(pred: Any, eps: float) -> Any:
+    return stl.prob(pred) >= 1 - eps
+
+
+def _box(u: Any, a: float) -> Any:
+    return stl.logical_and(u[0] >= -a, u[0] <= a, u[1] >= -a, u[1] <= a).region
+
+
+def _linear() -> tuple[Any, np.ndarray]:
+    x, u = stl.mk_variable(2), stl.mk_variable(2, name="u")
+    A = np.array([[1.0, 0.1], [0.0, 0.98]])
+    system = stl.mk_switched_sys(
+        [stl.mk_lbs(A=A, B=0.25 * np.eye(2), W=0.03 * np.eye(2), C=np.eye(2), V=0.15 * np.eye(2))])
+    goal = stl.logical_and(_p(x[0] >= 1.6, 0.1), _p(x[0] <= 2.4, 0.1), _p(x[1] >= 1.6, 0.1),
+                           _p(x[1] <= 2.4, 0.1), name="goal")
+    safe = stl.logical_and(_p(x[0] <= 3, 0.05), _p(x[1] >= -0.5, 0.05), name="safe")
+    formula = stl.logical_and(stl.always(0, 20, safe), stl.eventually(5, 20, stl.always(0, 3, goal)))
+    problem = stl.Problem(system, _box(u, 1.0), stl.to_belief([0, 0], np.diag([0.05, 0.05])), formula)
+    return problem, np.array([0.3, -0.2])
+
+
+def _integrator() -> tuple[Any, np.ndarray]:
+    x, u = stl.mk_variable(4), stl.mk_variable(2, name="u")
+    A = np.eye(4)
+    A[0, 2] = A[1, 3] = 1.0
+    B = np.zeros((4, 2))
+    B[2, 0] = B[3, 1] = 1.0
+    C = np.hstack([np.eye(2), np.zeros((2, 2))])
+    system = stl.mk_switched_sys(
+        [stl.mk_lbs(A=A, B=B, W=np.diag([0.0, 0.0, 0.03, 0.03]), C=C, V=0.2 * np.eye(2))])
+    goal = stl.logical_and(_p(x[0] >= 7, 0.1), _p(x[0] <= 9, 0.1), _p(x[1] >= 7, 0.1),
+                           _p(x[1] <= 9, 0.1), name="goal")
+    avoid = stl.logical_or(_p(x[0] <= 3, 0.05), _p(x[0] >= 5, 0.05), _p(x[1] <= 4, 0.05),
+                           _p(x[1] >= 6, 0.05))
+    formula = stl.logical_and(stl.always(0, 20, avoid), stl.eventually(0, 20, stl.always(0, 2, goal)))
+    prior = stl.to_belief([1, 1, 0, 0], np.diag([0.05, 0.05, 0.01, 0.01]))
+    return stl.Problem(system, _box(u, 0.5), prior, formula), np.array([1.2, 0.9, 0.0, 0.0])
+
+
+def _timed_solve(problem: Any, **kw: Any) -> tuple[Any, float]:
+    t0 = time.perf_counter()
+    plan = problem.solve(**kw)
+    return plan, time.perf_counter() - t0
+
+
+def cases(names: tuple[str, ...], seeds: int) -> Iterator[Case]:
+    """The execution settings of the benchmark, in order."""
+    if {"light_dark", "light_dark_far", "light_dark_disturbed"} & set(names):
+        disturbed = stl.mk_switched_sys(
+            [stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.02 * np.eye(2))])
+        for seed in range(seeds):
+            problem = light_dark()
+            plan, solve_s = _timed_solve(problem, **_LISTING, seed=seed)
+            if plan is None:
+                continue
+            for mode in problem.switched_system.system_modes:
+                mode.compute_finite_horizon_lqr(horizon=5, Q_final=np.eye(2), Q=np.eye(2), R=0.05 * np.eye(2))
+            if "light_dark" in names:
+                yield Case(f"light_dark seed {seed}", problem, plan, light_dark_real_system(),
+                           LIGHT_DARK_REAL_INITIAL_STATE, solve_s=solve_s)
+            if "light_dark_far" in names:
+                yield Case(f"light_dark_far seed {seed}", problem, plan, light_dark_real_system(),
+                           np.array([1.0, 3.25]), solve_s=solve_s)
+            if "light_dark_disturbed" in names:
+                yield Case(f"light_dark_disturbed seed {seed}", problem, plan, disturbed,
+                           LIGHT_DARK_REAL_INITIAL_STATE, process_noise="real", solve_s=solve_s)
+    builders: dict[str, Callable[[], tuple[Any, np.ndarray]]] = {"linear": _linear, "integrator": _integrator}
+    for name in ("linear", "integrator"):
+        if name in names:
+            problem, x0 = builders[name]()
+            plan, solve_s = _timed_solve(problem, rrt_timeout=10, seed=0, max_num_of_steps=40)
+            if plan is None:
+                continue
+            for clip in (False, True):
+                yield Case(f"{name} ({'clipped' if clip else 'unclipped'})", problem, plan,
+                           problem.switched_system, x0, clip=clip, solve_s=solve_s)
+    if "two_modes" in names:
+        built = stl.load_problem(ROOT / "examples" / "two_modes.toml").build()
+        problem = getattr(built, "problem", built)
+        plan, solve_s = _timed_solve(problem, rrt_timeout=10, seed=0)
+        if plan is not None:
+            yield Case("two_modes", problem, plan, problem.switched_system, np.array([0.5, -0.5]),
+                       solve_s=solve_s)
+
+
+def _inside(pred: np.ndarray, hits: np.ndarray, runs: int) -> np.ndarray:
+    """Whether each prediction lies in the Wilson 95% interval of ``hits`` out of ``runs``."""
+    out = np.empty(pred.shape, dtype=bool)
+    for idx in np.ndindex(pred.shape):
+        lo, hi = wilson_interval(int(hits[idx]), runs)
+        out[idx] = lo - 1e-12 <= pred[idx] <= hi + 1e-12
+    return out
+
+
+def compare(case: Case, runs: int, seed: int = 0) -> dict[str, Any]:
+    """Validate and predict one case; the comparison numbers as a row."""
+    rep = stl.validate(case.problem, case.plan, case.real_system, case.x0, runs=runs, seed=seed,
+                       clip_controls=case.clip, process_noise=case.process_noise, keep_trajectories=runs)
+    t0 = time.perf_counter()
+    pred: ClosedLoopPrediction = predict_closed_loop(
+        case.problem, case.plan, case.real_system, case.x0, control_domain="problem" if case.clip else None,
+        process_noise=case.process_noise, samples=20000, seed=seed)
+    predict_s = time.perf_counter() - t0
+    H = np.array([c.h for c in pred.constraints])
+    c = np.array([c.c for c in pred.constraints])
+    z = quantile([c.eps for c in pred.constraints])
+    states = np.array([real.get_state() for _, real in rep.executions])
+    hits = {
+        "state": np.sum(states @ H.T + c <= 0, axis=0),
+        "belief": np.sum([sim.get_mean() @ H.T + c + std_terms(H, z, sim.get_cov()) <= 0
+                          for sim, _ in rep.executions], axis=0),
+    }
+    row: dict[str, Any] = {"case": case.name, "steps": case.plan.num_of_steps, "runs": runs,
+                           "solve_s": case.solve_s, "validate_s": rep.elapsed, "predict_s": predict_s,
+                           "max_clip": float(pred.clip_probability.max()) if pred.num_of_steps else 0.0}
+    if any(m.p and m.has_state_dependent_noise for m in case.problem.switched_system.system_modes):
+        row["linearisation"] = linearisation(case, rep, hits, states, runs)
+    for reading in ("state", "belief"):
+        p = np.array([getattr(cp, f"{reading}_probability") for cp in pred.constraints]).T  # (L, F)
+        meas = hits[reading] / runs
+        inside = _inside(p, hits[reading], runs)
+        nontrivial = ((p > 1e-3) & (p < 1 - 1e-3)) | ((meas > 0) & (meas < 1))
+        row[f"step_{reading}_maxdiff"] = float(np.abs(p - meas).max())
+        row[f"step_{reading}_inside"] = float(inside.mean())
+        row[f"step_{reading}_nontrivial"] = int(nontrivial.sum())
+        row[f"step_{reading}_inside_nontrivial"] = (
+            float(inside[nontrivial].mean()) if nontrivial.any() else 1.0
+        )
+        pv = np.array([pred.predicate_violation[k][reading] for k in rep.predicate_violations])
+        mv = np.array([rep.predicate_violations[k][reading] for k in rep.predicate_violations])
+        row[f"pred_{reading}_maxdiff"] = float(np.abs(pv - mv).max())
+        row[f"pred_{reading}_inside"] = float(np.mean(_inside(pv, np.rint(mv * runs), runs)))
+        row[f"pred_{reading}_maxrate"] = float(mv.max())
+        row[f"{reading}_bound"] = getattr(pred, f"{reading}_success_bound")
+        row[f"{reading}_sampled_bound"] = getattr(pred, f"{reading}_success_sampled_bound")
+        row[f"{reading}_estimate"] = getattr(pred, f"{reading}_success_estimate")
+        row[f"{reading}_measured"] = getattr(rep, f"{reading}_success_rate")
+        row[f"{reading}_ci"] = getattr(rep, f"{reading}_ci")
+    return row
+
+
+VARIANTS = (("plan", False), ("plan", True), ("mean", True), ("expected", False), ("expected", True))
+"""(sensor_noise, filter_sensitivity) pairs compared on state-dependent noise."""
+
+
+def linearisation(case: Case, rep: Any, hits: dict[str, np.ndarray], states: np.ndarray, runs: int) -> dict:
+    """Per linearisation variant: per-step max |diff| (state, belief) and true-state moment errors."""
+    out = {}
+    for sensor, sens in VARIANTS:
+        pred = predict_closed_loop(
+            case.problem, case.plan, case.real_system, case.x0,
+            control_domain="problem" if case.clip else None, process_noise=case.process_noise,
+            sensor_noise=sensor, filter_sensitivity=sens, samples=0)  # fmt: skip
+        p_x = np.array([cp.state_probability for cp in pred.constraints]).T
+        p_b = np.array([cp.belief_probability for cp in pred.constraints]).T
+        sd = np.sqrt(np.diagonal(pred.state_cov, axis1=1, axis2=2))
+        out[f"{sensor}{'+sens' if sens else ''}"] = {
+            "state": float(np.abs(p_x - hits["state"] / runs).max()),
+            "belief": float(np.abs(p_b - hits["belief"] / runs).max()),
+            "mean_err": float(np.abs(states.mean(axis=0) - pred.state_mean).max()),
+            "sd_err": float(np.abs(states.std(axis=0) - sd).max()),
+        }
+    return out
+
+
+def linearisation_table(rows: list[dict[str, Any]]) -> str:
+    """Per state-dependent case and variant: per-step max |diff| state / belief, moment errors."""
+    names = [f"{s}{'+sens' if f else ''}" for s, f in VARIANTS]
+    head = "| case | " + " | ".join(f"{n}: step \\|diff\\| x / b; mean / sd err" for n in names) + " |"
+    lines = [head, "|---|" + "---|" * len(names)]
+    for r in rows:
+        lin = r.get("linearisation")
+        if not lin:
+            continue
+        cells = [
+            f"{lin[n]['state']:.3f} / {lin[n]['belief']:.3f}; "
+            f"{lin[n]['mean_err']:.4f} / {lin[n]['sd_err']:.4f}"
+            for n in names
+        ]
+        lines.append(f"| {r['case']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) if len(lines) > 2 else ""
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.1f}%"
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    """The rows as a Markdown table."""
+    head = ("| case | steps | max clip P | per step: max \\|diff\\| state / belief | "
+            "per step: inside 95% CI, all (non-trivial) state / belief | "
+            "per predicate: max \\|diff\\| state / belief (max rate) | "
+            "per predicate: inside | success, true state: bound / sampled bound / estimate / measured "
+            "[95% CI] | success, belief: bound / sampled bound / estimate / measured [95% CI] | "
+            "predict (s) | validate (s) |")
+    lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['case']} | {r['steps']} | {r['max_clip']:.2f} | "
+            f"{r['step_state_maxdiff']:.3f} / {r['step_belief_maxdiff']:.3f} | "
+            f"{_pct(r['step_state_inside'])} ({_pct(r['step_state_inside_nontrivial'])} of "
+            f"{r['step_state_nontrivial']}) / {_pct(r['step_belief_inside'])} "
+            f"({_pct(r['step_belief_inside_nontrivial'])} of {r['step_belief_nontrivial']}) | "
+            f"{r['pred_state_maxdiff']:.3f} / {r['pred_belief_maxdiff']:.3f} "
+            f"({r['pred_state_maxrate']:.3f} / {r['pred_belief_maxrate']:.3f}) | "
+            f"{_pct(r['pred_state_inside'])} / {_pct(r['pred_belief_inside'])} | "
+            f"{_pct(r['state_bound'])} / {_pct(r['state_sampled_bound'])} / {_pct(r['state_estimate'])} / "
+            f"{_pct(r['state_measured'])} "
+            f"[{_pct(r['state_ci'][0])}, {_pct(r['state_ci'][1])}] | "
+            f"{_pct(r['belief_bound'])} / {_pct(r['belief_sampled_bound'])} / {_pct(r['belief_estimate'])} / "
+            f"{_pct(r['belief_measured'])} "
+            f"[{_pct(r['belief_ci'][0])}, {_pct(r['belief_ci'][1])}] | "
+            f"{r['predict_s']:.2f} | {r['validate_s']:.1f} |")
+    return "\n".join(lines)
+
+
+def summary(rows: list[dict[str, Any]]) -> str:
+    """Pooled lines: worst differences and whether every bound stayed below its measured rate."""
+    out = []
+    for group, pick in (("light-dark (state-dependent noise)", lambda r: r["case"].startswith("light_dark")),
+                        ("constant noise, unclipped (exact)", lambda r: "unclipped" in r["case"]),
+                        ("constant noise, clipped / switching", lambda r: "(clipped)" in r["case"]
+                         or r["case"] == "two_modes")):
+        sel = [r for r in rows if pick(r)]
+        if not sel:
+            continue
+        below = sum(r[f"{k}_bound"] <= r[f"{k}_ci"][1] for r in sel for k in ("state", "belief"))
+        below_s = sum(r[f"{k}_sampled_bound"] <= r[f"{k}_ci"][1] for r in sel for k in ("state", "belief"))
+
+        def worst(key: str, fn: Callable[..., float] = max, sel: list[dict[str, Any]] = sel) -> float:
+            return fn(r[key] for r in sel)
+
+        out.append(
+            f"- {group}, {len(sel)} cases: per step max |diff| state {worst('step_state_maxdiff'):.3f}, "
+            f"belief {worst('step_belief_maxdiff'):.3f}; per predicate max |diff| state "
+            f"{worst('pred_state_maxdiff'):.3f}, belief {worst('pred_belief_maxdiff'):.3f}; "
+            f"non-trivial per-step pairs inside the 95% interval: state "
+            f"{_pct(worst('step_state_inside_nontrivial', min))} (worst case), belief "
+            f"{_pct(worst('step_belief_inside_nontrivial', min))}; success bound <= measured upper CI "
+            f"in {below}/{2 * len(sel)} (sampled bound: {below_s}/{2 * len(sel)})")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m benchmarks.closed_loop", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--runs", type=int, default=1000)
+    p.add_argument("--seeds", type=int, default=5, help="light-dark planner seeds 0..seeds-1")
+    p.add_argument("--problems", default=",".join(PROBLEMS), help=f"comma-separated subset of {PROBLEMS}")
+    p.add_argument("--out", default=str(ROOT / "benchmarks" / "closed_loop_results.md"),
+                   help="Markdown file to write ('-' for none)")
+    a = p.parse_args(argv)
+    names = tuple(s.strip() for s in a.problems.split(",") if s.strip())
+    unknown = set(names) - set(PROBLEMS)
+    if unknown:
+        p.error(f"unknown problems {sorted(unknown)}; choose from {PROBLEMS}")
+    rows = []
+    for case in cases(names, a.seeds):
+        row = compare(case, a.runs)
+        rows.append(row)
+        print(f"{row['case']}: per step max |diff| state {row['step_state_maxdiff']:.3f} belief "
+              f"{row['step_belief_maxdiff']:.3f}; success state bound {row['state_bound']:.3f} "
+              f"est {row['state_estimate']:.3f} measured {row['state_measured']:.3f}", flush=True)
+    md = table(rows)
+    summ = summary(rows)
+    lin = linearisation_table(rows)
+    print()
+    print(md)
+    print()
+    print(summ)
+    if lin:
+        print()
+        print(lin)
+    if a.out != "-":
+        mach = machine()
+        args = sys.argv[1:] if argv is None else argv
+        text = "\n".join([
+            "# Predicted vs measured closed loop",
+            "",
+            f"- command: `python -m benchmarks.closed_loop {' '.join(args)}`",
+            f"- date: {dt.datetime.now().astimezone().isoformat(timespec='seconds')}",
+            f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}; {mach['python']}",
+            f"- idstlpy revision: {mach['git']}",
+            "- prediction: `predict_closed_loop` defaults (sensor_noise='expected', "
+            "filter_sensitivity=True), 20000 Gaussian-model samples for the per-predicate and success "
+            "estimates; measured: "
+            "`validate` (Wilson 95% intervals), LQR horizon 5, Q = I, R = 0.05 I on light-dark, "
+            "the defaults elsewhere",
+            "",
+            md,
+            "",
+            summ,
+            "",
+            *(
+                [
+                    "## Linearisation of state-dependent sensor noise",
+                    "",
+                    "The same executions against the prediction under each linearisation: "
+                    "`sensor_noise` (`plan`: R at the planned mean; `mean`: at the predicted true-state "
+                    "mean; `expected`: E[R] over the predicted true state) and `+sens` "
+                    "(`filter_sensitivity`: the filter covariance's first-order variation carried along). "
+                    "Cells: per-step max |predicted - measured| probability for the true state / the "
+                    "executed belief; max error of the true state's mean / standard deviation.",
+                    "",
+                    lin,
+                    "",
+                ]
+                if lin
+                else []
+            ),
+        ])
+        Path(a.out).write_text(text)
+        print(f"\nwrote {a.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
