@@ -11,11 +11,11 @@ from scipy.sparse import csr_matrix
 import idstlpy as stl
 from idstlpy.backends import (
     LinearModel,
-    ScipBackend,
     available_backends,
     default_milp_backend,
     get_backend,
 )
+from idstlpy.backends_scip import ScipBackend
 from idstlpy.errors import InvalidArgumentError
 from idstlpy.scenarios import reach_avoid
 from idstlpy.synthesis.options import SolverOptions

@@ -34,6 +34,7 @@ from .errors import (
 from .execution import ValidationReport, finite_horizon_lqr, simulate, validate
 from .expressions import (
     ConvexConstraint,
+    ConvexRegion,
     DiscretePredicate,
     DiscreteVariable,
     LinearExpression,
@@ -64,7 +65,6 @@ from .monitor import MonitorReport, monitor, robustness, satisfies
 from .problem_file import ProblemSpec, apply_overrides, load_problem
 from .sets import (
     BeliefCone,
-    ConvexRegion,
     FullDimensionalBeliefCone,
     FullDimensionalPolytope,
     Polytope,

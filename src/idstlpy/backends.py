@@ -31,7 +31,6 @@ __all__ = [
     "BackendSolution",
     "HighsBackend",
     "LinearModel",
-    "ScipBackend",
     "available_backends",
     "default_milp_backend",
     "get_backend",
@@ -344,6 +343,17 @@ def _gap(model: LinearModel) -> float:
 
 _REGISTRY: dict[str, Any] = {}
 
+_OPTIONAL: dict[str, str] = {"scip": "idstlpy.backends_scip"}
+"""Back-ends of optional extras, by module: imported (and so registered) on first use. Their
+modules import this one, never the other way, and import their solver only when they solve."""
+
+
+def _registry() -> dict[str, Any]:
+    for name, module in _OPTIONAL.items():
+        if name not in _REGISTRY:
+            importlib.import_module(module)
+    return _REGISTRY
+
 
 def register_backend(cls: type) -> type:
     """Register a back-end class under ``cls.name`` (usable as a decorator)."""
@@ -371,7 +381,7 @@ def available_backends(integer: bool = False) -> list[str]:
     ``integer=True``: those that solve MILPs; ``integer=False``: those that serve as LP
     back-ends (with row duals).
     """
-    return [name for name, cls in sorted(_REGISTRY.items()) if _serves(cls, integer) and cls.is_available()]
+    return [name for name, cls in sorted(_registry().items()) if _serves(cls, integer) and cls.is_available()]
 
 
 MILP_PREFERENCE = ("scip", "highs")
@@ -382,7 +392,7 @@ the benchmarks (BENCHMARKS.md, "MILP back-ends"), HiGHS (always installed) other
 def default_milp_backend() -> str:
     """The first installed back-end of :data:`MILP_PREFERENCE` (what ``"auto"`` resolves to)."""
     for name in MILP_PREFERENCE:
-        cls = _REGISTRY.get(name)
+        cls = _registry().get(name)
         if cls is not None and cls.supports_integer and cls.is_available():
             return name
     return "highs"
@@ -397,10 +407,10 @@ def get_backend(name: str, integer: bool = False) -> Backend:
         When no back-end has that name, it is not installed, or it cannot solve MILPs and
         ``integer`` is asked for.
     """
-    cls = _REGISTRY.get(name)
+    cls = _registry().get(name)
     if cls is None:
         raise InvalidArgumentError(
-            f"unknown LP/MILP back-end {name!r}; registered: {', '.join(sorted(_REGISTRY))}"
+            f"unknown LP/MILP back-end {name!r}; registered: {', '.join(sorted(_registry()))}"
         )
     if integer and not cls.supports_integer:
         raise InvalidArgumentError(f"back-end {name!r} cannot solve MILPs")
@@ -419,8 +429,3 @@ def module_available(module: str) -> bool:
 
 register_backend(HighsBackend)
 
-
-# Back-ends of optional extras: their modules import the solver only when they solve.
-from .backends_scip import ScipBackend  # noqa: E402
-
-register_backend(ScipBackend)

@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .backends import BackendSolution, LinearModel, SolutionStatus, quiet_stdout
+from .backends import BackendSolution, LinearModel, SolutionStatus, quiet_stdout, register_backend
 
 __all__ = ["ScipBackend", "write_mps"]
 
@@ -177,3 +177,6 @@ def _solution(s: Any, xs: list[Any], model: LinearModel) -> BackendSolution:
     if status == "optimal":
         bound = obj
     return BackendSolution(status, x if status != "infeasible" else None, obj, None, f"SCIP: {st}", bound)
+
+
+register_backend(ScipBackend)

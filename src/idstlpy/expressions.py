@@ -16,15 +16,18 @@ refused on real-valued ones).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 
 from ._checks import as_float, as_int
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
+from .sets import Polytope, make_belief_cone, make_polytope
 
 __all__ = [
+    "ConvexRegion",
     "LinearExpression",
     "RealValuedVariable",
     "DiscreteVariable",
@@ -61,7 +64,7 @@ class LinearExpression:
     -----
     A scalar expression has ``k == 1``; comparisons on it build one :class:`LinearPredicate`.
     Comparing a vector expression builds the conjunction of its components (a
-    :class:`~idstlpy.sets.ConvexRegion`).
+    :class:`ConvexRegion`).
     """
 
     __array_ufunc__ = None  # numpy defers `array * expr` to our reflected operators
@@ -215,8 +218,6 @@ class LinearExpression:
             diff = -diff if not less else diff
         if diff.is_scalar:
             return LinearPredicate(diff._coef[0], float(diff._const[0]), diff._variable)
-        from .sets import ConvexRegion
-
         return ConvexRegion(
             [
                 LinearPredicate(h, float(c), diff._variable)
@@ -418,8 +419,6 @@ class LinearPredicate(ConvexConstraint):
     @property
     def region(self) -> Any:
         """The half-space as a :class:`~idstlpy.sets.Polytope`."""
-        from .sets import Polytope
-
         return Polytope(self.h[None, :], np.array([self.c]))
 
     def __str__(self) -> str:
@@ -495,8 +494,6 @@ class _Probability:
     """``prob(pred)``: waits for ``>= 1 - eps`` to become a chance constraint."""
 
     def __init__(self, pred: Any) -> None:
-        from .sets import ConvexRegion
-
         if isinstance(pred, ProbabilisticLinearPredicate):
             raise InvalidTypeError(
                 "prob() takes a LinearPredicate, got a chance constraint already"
@@ -521,8 +518,6 @@ class _Probability:
         ]
         if len(out) == 1:
             return out[0]
-        from .sets import ConvexRegion
-
         return ConvexRegion(out)
 
     def __ge__(self, level: Any) -> Any:
@@ -625,3 +620,63 @@ class DiscretePredicate(DiscreteFormula):
         super().__init__([int(value)], variable.size)
         self.variable = variable
         self.value = int(value)
+
+
+class ConvexRegion(ConvexConstraint):
+    """A conjunction of linear predicates (or of chance constraints) over one variable.
+
+    ``.region`` is a :class:`~idstlpy.sets.Polytope` for linear predicates and a
+    :class:`~idstlpy.sets.BeliefCone` for probabilistic ones.
+
+    Parameters
+    ----------
+    predicates : iterable of LinearPredicate
+        All linear, or all chance constraints, over the same variable (at least one).
+    name : str, optional
+        A name for the region.
+    """
+
+    def __init__(self, predicates: Iterable[LinearPredicate], name: str | None = None) -> None:
+        preds = list(predicates)
+        if not preds:
+            raise InvalidArgumentError("a convex region needs at least one predicate")
+        for p in preds:
+            if not isinstance(p, LinearPredicate):
+                raise InvalidTypeError(
+                    f"ConvexRegion takes linear predicates, got {type(p).__name__}"
+                )
+        kinds = {isinstance(p, ProbabilisticLinearPredicate) for p in preds}
+        if len(kinds) > 1:
+            raise InvalidTypeError(
+                "cannot mix linear predicates and chance constraints in one region; "
+                "wrap the linear ones with prob(...) >= 1 - eps"
+            )
+        variables = {id(p.variable) for p in preds}
+        if len(variables) > 1:
+            raise InvalidArgumentError("all predicates of a region must be over the same variable")
+        self.predicates: Sequence[LinearPredicate] = tuple(preds)
+        self.variable: RealValuedVariable = preds[0].variable
+        self.name = name
+
+    @property
+    def is_probabilistic(self) -> bool:
+        """True for a conjunction of chance constraints."""
+        return isinstance(self.predicates[0], ProbabilisticLinearPredicate)
+
+    @cached_property
+    def region(self) -> Any:
+        """The :class:`Polytope` (or :class:`BeliefCone`) the conjunction defines."""
+        H = np.array([p.h for p in self.predicates])
+        c = np.array([p.c for p in self.predicates])
+        if self.is_probabilistic:
+            return make_belief_cone(H, c, [p.eps for p in self.predicates])  # type: ignore[attr-defined]
+        return make_polytope(H, c)
+
+    def __str__(self) -> str:
+        return " & ".join(str(p) for p in self.predicates)
+
+    def __repr__(self) -> str:
+        return f"ConvexRegion({self})"
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("a region has no truth value; use logical_and / logical_or")

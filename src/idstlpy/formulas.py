@@ -39,6 +39,7 @@ import numpy as np
 from ._checks import as_int
 from .errors import InvalidArgumentError, InvalidTypeError
 from .expressions import (
+    ConvexRegion,
     DiscreteFormula,
     LinearPredicate,
     ProbabilisticLinearPredicate,
@@ -46,7 +47,7 @@ from .expressions import (
     _fmt_num,
     format_affine,
 )
-from .sets import BeliefCone, ConvexRegion, make_belief_cone
+from .sets import BeliefCone, make_belief_cone
 
 __all__ = [
     "STLFormula",

@@ -8,7 +8,6 @@ the box).
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
 from functools import cached_property
 from typing import Any
 
@@ -18,20 +17,13 @@ from scipy.sparse import csr_matrix
 from ._checks import as_covariance, as_matrix, as_vector
 from .backends import BackendSolution, HighsBackend, LinearModel
 from .chance import quantile, std_terms
-from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
-from .expressions import (
-    ConvexConstraint,
-    LinearPredicate,
-    ProbabilisticLinearPredicate,
-    RealValuedVariable,
-)
+from .errors import DimensionError, InvalidArgumentError
 
 __all__ = [
     "Polytope",
     "FullDimensionalPolytope",
     "BeliefCone",
     "FullDimensionalBeliefCone",
-    "ConvexRegion",
     "quantile",
 ]
 
@@ -337,56 +329,3 @@ def make_belief_cone(H: Any, c: Any, eps: Any) -> BeliefCone:
         full.__dict__.update(cone.__dict__)
         return full
     return cone
-
-
-class ConvexRegion(ConvexConstraint):
-    """A conjunction of linear predicates (or of chance constraints) over one variable.
-
-    ``.region`` is a :class:`Polytope` for linear predicates and a :class:`BeliefCone` for
-    probabilistic ones.
-    """
-
-    def __init__(self, predicates: Iterable[LinearPredicate], name: str | None = None) -> None:
-        preds = list(predicates)
-        if not preds:
-            raise InvalidArgumentError("a convex region needs at least one predicate")
-        for p in preds:
-            if not isinstance(p, LinearPredicate):
-                raise InvalidTypeError(
-                    f"ConvexRegion takes linear predicates, got {type(p).__name__}"
-                )
-        kinds = {isinstance(p, ProbabilisticLinearPredicate) for p in preds}
-        if len(kinds) > 1:
-            raise InvalidTypeError(
-                "cannot mix linear predicates and chance constraints in one region; "
-                "wrap the linear ones with prob(...) >= 1 - eps"
-            )
-        variables = {id(p.variable) for p in preds}
-        if len(variables) > 1:
-            raise InvalidArgumentError("all predicates of a region must be over the same variable")
-        self.predicates: Sequence[LinearPredicate] = tuple(preds)
-        self.variable: RealValuedVariable = preds[0].variable
-        self.name = name
-
-    @property
-    def is_probabilistic(self) -> bool:
-        """True for a conjunction of chance constraints."""
-        return isinstance(self.predicates[0], ProbabilisticLinearPredicate)
-
-    @cached_property
-    def region(self) -> Any:
-        """The :class:`Polytope` (or :class:`BeliefCone`) the conjunction defines."""
-        H = np.array([p.h for p in self.predicates])
-        c = np.array([p.c for p in self.predicates])
-        if self.is_probabilistic:
-            return make_belief_cone(H, c, [p.eps for p in self.predicates])  # type: ignore[attr-defined]
-        return make_polytope(H, c)
-
-    def __str__(self) -> str:
-        return " & ".join(str(p) for p in self.predicates)
-
-    def __repr__(self) -> str:
-        return f"ConvexRegion({self})"
-
-    def __bool__(self) -> bool:
-        raise InvalidTypeError("a region has no truth value; use logical_and / logical_or")

@@ -21,16 +21,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
 from ..belief import kalman_update
 from ..chance import std_terms
-from .abstraction import Abstraction
 from .interfaces import Budget
 from .plan import DiscretePlan
+
+if TYPE_CHECKING:  # plan_lp is imported by the abstraction (its covariance bounds)
+    from .abstraction import Abstraction
 
 __all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_jacobian", "covariance_schedule"]
 
