@@ -460,7 +460,7 @@ class SwitchedSystem(DynamicalSystem):
     ) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
         """Execute a plan against a real system with a Kalman filter and LQR tracking.
 
-        The paper's ``switched_system.simulate``; see :func:`idstlpy.execution.simulate.simulate`
+        The paper's ``switched_system.simulate``; see :func:`idstlpy.execution.simulation.simulate`
         for the details.
 
         Parameters
@@ -476,7 +476,7 @@ class SwitchedSystem(DynamicalSystem):
         seed : int or Generator, optional
             Randomness of the disturbances and measurement noises.
         **options
-            Keyword options of :func:`idstlpy.execution.simulate.simulate` (``control_domain``,
+            Keyword options of :func:`idstlpy.execution.simulation.simulate` (``control_domain``,
             ``process_noise``, ``lqr_gains``, ``default_lqr``, ``initial_belief``); an unknown
             keyword raises :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``).
 

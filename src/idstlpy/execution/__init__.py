@@ -17,9 +17,6 @@ Submodules (one job each; none is named like a function it defines):
 
 from __future__ import annotations
 
-import sys as _sys
-
-from . import simulation, validation
 from .lqr import finite_horizon_lqr
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval
@@ -31,11 +28,3 @@ __all__ = [
     "ValidationReport",
     "wilson_interval",
 ]
-
-# Transitional aliases of the old submodule names (``execution.simulate`` / ``execution.validate``,
-# renamed so that no function shadows its submodule) for importers not yet moved to the new names
-# (``dynamical_system.SwitchedSystem.simulate`` and ``batch.jobs``). Attribute access
-# (``idstlpy.execution.simulate``) gives the function; remove these two lines once every importer
-# uses ``.simulation`` / ``.validation``.
-_sys.modules.setdefault(f"{__name__}.simulate", simulation)
-_sys.modules.setdefault(f"{__name__}.validate", validation)
