@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import idstlpy as stl
-from idstlpy.monitor import formula_margins
+from idstlpy.semantics import formula_margins
 from idstlpy.synthesis.bmc import BMCEncoder
 from idstlpy.synthesis.plan import evaluate_bool, extract_witness
 

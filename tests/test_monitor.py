@@ -1,4 +1,4 @@
-"""The monitor (idstlpy.monitor) against the brute-force oracle of the paper's semantics."""
+"""The monitor (idstlpy.semantics) against the brute-force oracle of the paper's semantics."""
 
 from __future__ import annotations
 

@@ -61,8 +61,8 @@ from .formulas import (
     release,
     until,
 )
-from .monitor import MonitorReport, monitor, robustness, satisfies
 from .problem_file import ProblemSpec, apply_overrides, load_problem
+from .semantics import MonitorReport, monitor, robustness, satisfies
 from .sets import (
     BeliefCone,
     FullDimensionalBeliefCone,

@@ -1,6 +1,6 @@
 """Brute-force PrSTL evaluator written directly from the paper's definitions (Section II-C).
 
-Independent of :mod:`idstlpy.monitor`: it walks the formula recursively and loops over the
+Independent of :mod:`idstlpy.semantics`: it walks the formula recursively and loops over the
 indices ``k'`` and ``k''`` exactly as the bullet definitions do. Conventions:
 
 - strong finite reading: an index ``>= len(trace)`` satisfies nothing (not even ``true``);

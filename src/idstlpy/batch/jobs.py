@@ -325,7 +325,7 @@ def _check_saved_plan(job: Job, problem: Any, record: dict[str, Any]) -> Any:
     is rejected (the record's status is then ``"rejected"``).
     """
     from ..belief import rollout
-    from ..monitor import robustness
+    from ..semantics import robustness
 
     saved = job.plan or {}
     traj = plan_from_record(saved, "plan")

@@ -78,7 +78,7 @@ from ..chance import std_terms
 from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
-from ..monitor import atom_margins
+from ..semantics import atom_margins
 from ..sets import Polytope
 from ..trajectory import ProbabilisticTSTrajectory
 from .simulation import mode_gains

@@ -52,7 +52,7 @@ from .._checks import as_int
 from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAtomicProposition, STLFormula
-from ..monitor import atom_margins, robustness
+from ..semantics import atom_margins, robustness
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import mode_gains, simulate
 

@@ -30,7 +30,7 @@ import numpy as np
 
 from ..backends import get_backend
 from ..belief import rollout
-from ..monitor import robustness
+from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown

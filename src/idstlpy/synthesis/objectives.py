@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ..belief import rollout
-from ..monitor import robustness
+from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .plan import DiscretePlan, extract_witness

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..belief import belief_step, rollout, rollout_arrays
-from ..monitor import robustness
+from ..semantics import robustness
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Unknown, Verdict
 from .plan import DiscretePlan, evaluate_bool, extract_witness

@@ -26,7 +26,7 @@ from scipy.sparse import csr_matrix, hstack, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
-from ..monitor import robustness
+from ..semantics import robustness
 from .abstraction import Abstraction
 from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan
