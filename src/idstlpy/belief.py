@@ -38,10 +38,15 @@ __all__ = [
 class GaussianBelief:
     """A Gaussian belief ``N(mean, cov)``.
 
-    Attributes
+    The constructor stores its arguments as given (no validation); use :func:`to_belief` to
+    build a checked belief.
+
+    Parameters
     ----------
     mean : ndarray, shape (n,)
+        Mean of the belief.
     cov : ndarray, shape (n, n)
+        Covariance of the belief (symmetric positive semi-definite).
     """
 
     mean: np.ndarray
@@ -53,7 +58,19 @@ class GaussianBelief:
         return self.mean.shape[0]
 
     def sample(self, size: int | None = None, seed: int | np.random.Generator | None = None) -> np.ndarray:
-        """Draw states from the belief, shape (size, n) (or (n,) without ``size``)."""
+        """Draw states from the belief, shape (size, n) (or (n,) without ``size``).
+
+        Parameters
+        ----------
+        size : int, optional
+            Number of states to draw; ``None`` draws a single state of shape (n,).
+        seed : int or numpy.random.Generator, optional
+            Seed or generator passed to :func:`numpy.random.default_rng`.
+
+        Returns
+        -------
+        ndarray, shape (size, n) or (n,)
+        """
         rng = np.random.default_rng(seed)
         return rng.multivariate_normal(self.mean, self.cov, size=size, method="eigh")
 
@@ -92,7 +109,24 @@ def _is_numeric(value: Any) -> bool:
 
 
 def predict(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Prediction step: ``(A mean + B u, A cov A' + W W')``."""
+    """Prediction step: ``(A mean + B u, A cov A' + W W')``.
+
+    Parameters
+    ----------
+    mode : LCS
+        The mode whose ``A``, ``B`` and process noise covariance ``W W'`` are used.
+    mean : ndarray, shape (n,)
+        Current mean.
+    cov : ndarray, shape (n, n)
+        Current covariance.
+    u : ndarray, shape (m,)
+        Control input applied at this step.
+
+    Returns
+    -------
+    mean_pred, P : ndarray
+        Predicted mean (n,) and covariance (n, n).
+    """
     A = mode.A
     return A @ mean + mode.B @ u, A @ cov @ A.T + mode.process_cov
 
@@ -150,7 +184,27 @@ def kalman_update(
 
 
 def belief_step(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One MLO belief transition of ``mode`` under input ``u``; returns ``(mean', cov')``."""
+    """One MLO belief transition of ``mode`` under input ``u``; returns ``(mean', cov')``.
+
+    Prediction (:func:`predict`) followed by the maximum-likelihood-observation measurement
+    update (:func:`kalman_update` with ``y=None``).
+
+    Parameters
+    ----------
+    mode : LCS
+        The mode applied at this step.
+    mean : ndarray, shape (n,)
+        Current mean.
+    cov : ndarray, shape (n, n)
+        Current covariance.
+    u : ndarray, shape (m,)
+        Control input applied at this step.
+
+    Returns
+    -------
+    mean, cov : ndarray
+        Mean (n,) and covariance (n, n) after the step.
+    """
     mean_pred, P = predict(mode, mean, cov, u)
     return kalman_update(mode, mean_pred, P)
 

@@ -49,7 +49,22 @@ def atom_margins(
 ) -> np.ndarray:
     """Margin of one atomic proposition at every step, shape (L,).
 
-    ``means`` (L, n), ``covs`` (L, n, n), ``actions`` (L-1,).
+    Parameters
+    ----------
+    ap : STLAtomicProposition
+        The proposition (chance constraints and/or a mode set).
+    means : ndarray, shape (L, n)
+        Belief means along the trajectory.
+    covs : ndarray, shape (L, n, n)
+        Belief covariances along the trajectory.
+    actions : ndarray of int, shape (L-1,)
+        Mode applied at each step (the mode used to arrive at step ``k`` is ``actions[k-1]``).
+
+    Returns
+    -------
+    ndarray, shape (L,)
+        The smallest chance-constraint slack at each step (``+inf`` without predicates),
+        ``-inf`` where the arriving mode is not allowed or the proposition is false.
     """
     L = means.shape[0]
     if ap.is_false:
@@ -153,6 +168,19 @@ def robustness(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: in
     """Quantitative margin of ``formula`` at step ``k`` (``>= 0`` iff satisfied).
 
     ``k`` must be ``>= 0``; a step past the end of the trajectory satisfies nothing (``-inf``).
+
+    Parameters
+    ----------
+    trajectory : ProbabilisticTSTrajectory
+        The belief trajectory to monitor.
+    formula : STLFormula
+        The formula whose margin is computed.
+    k : int, default 0
+        Step at which the formula is evaluated.
+
+    Returns
+    -------
+    float
     """
     k = as_int(k, "k", minimum=0)
     L = trajectory.num_of_steps + 1
@@ -162,7 +190,22 @@ def robustness(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: in
 
 
 def satisfies(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: int = 0) -> bool:
-    """Whether the trajectory satisfies ``formula`` at step ``k`` (paper: ``beta |=_k phi``)."""
+    """Whether the trajectory satisfies ``formula`` at step ``k`` (paper: ``beta |=_k phi``).
+
+    Parameters
+    ----------
+    trajectory : ProbabilisticTSTrajectory
+        The belief trajectory to monitor.
+    formula : STLFormula
+        The formula to check.
+    k : int, default 0
+        Step at which the formula is evaluated (``>= 0``).
+
+    Returns
+    -------
+    bool
+        ``robustness(trajectory, formula, k) >= 0``.
+    """
     return robustness(trajectory, formula, k) >= 0.0
 
 
@@ -170,9 +213,10 @@ def satisfies(trajectory: ProbabilisticTSTrajectory, formula: STLFormula, k: int
 class MonitorReport:
     """Outcome of monitoring a trajectory.
 
-    Attributes
+    Parameters
     ----------
     satisfied : bool
+        Whether the formula holds at step 0.
     margin : float
         Robustness at step 0.
     atom_margins : dict[str, ndarray]
@@ -185,7 +229,19 @@ class MonitorReport:
 
 
 def monitor(trajectory: ProbabilisticTSTrajectory, formula: STLFormula) -> MonitorReport:
-    """Decide satisfaction and report the margins behind the verdict."""
+    """Decide satisfaction and report the margins behind the verdict.
+
+    Parameters
+    ----------
+    trajectory : ProbabilisticTSTrajectory
+        The belief trajectory to monitor.
+    formula : STLFormula
+        The formula checked at step 0.
+
+    Returns
+    -------
+    MonitorReport
+    """
     aps: Sequence[STLAtomicProposition] = formula.atomic_propositions()
     atoms = _trajectory_atoms(trajectory, formula)
     L = trajectory.num_of_steps + 1

@@ -69,13 +69,38 @@ class Polytope:
 
     @classmethod
     def from_inequalities(cls, A: Any, b: Any) -> Polytope:
-        """Build ``{x : A x <= b}``."""
+        """Build ``{x : A x <= b}``.
+
+        Parameters
+        ----------
+        A : array_like, shape (k, n)
+            One row per inequality.
+        b : array_like, shape (k,)
+            Right-hand sides.
+
+        Returns
+        -------
+        Polytope
+            ``Polytope(A, -b)``.
+        """
         A = as_matrix(A, "A")
         return cls(A, -as_vector(b, "b", A.shape[0]))
 
     @classmethod
     def box(cls, low: Any, high: Any) -> Polytope:
-        """The axis-aligned box ``low <= x <= high``."""
+        """The axis-aligned box ``low <= x <= high``.
+
+        Parameters
+        ----------
+        low : array_like, shape (n,)
+            Lower bounds.
+        high : array_like, shape (n,)
+            Upper bounds, element-wise ``>= low``.
+
+        Returns
+        -------
+        Polytope
+        """
         low = as_vector(low, "low")
         high = as_vector(high, "high", low.shape[0])
         if np.any(low > high):
@@ -99,7 +124,19 @@ class Polytope:
         return -self.c
 
     def contains(self, x: Any, tol: float = 1e-9) -> bool:
-        """Whether the point ``x`` (shape (n,)) satisfies every inequality (within ``tol``)."""
+        """Whether the point ``x`` (shape (n,)) satisfies every inequality (within ``tol``).
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The point.
+        tol : float, default 1e-9
+            Allowed violation: the test is ``H x + c <= tol``.
+
+        Returns
+        -------
+        bool
+        """
         x = as_vector(x, "x", self.dim)
         return bool(np.all(self.H @ x + self.c <= tol))
 
@@ -148,7 +185,17 @@ class Polytope:
         return center is not None and radius > _INTERIOR_TOL
 
     def support(self, direction: Any) -> float:
-        """``max_{x in P} d' x`` (``inf`` when unbounded, ``-inf`` when empty)."""
+        """``max_{x in P} d' x`` (``inf`` when unbounded, ``-inf`` when empty).
+
+        Parameters
+        ----------
+        direction : array_like, shape (n,)
+            The direction ``d``.
+
+        Returns
+        -------
+        float
+        """
         d = as_vector(direction, "direction", self.dim)
         res = _lp(-d, self.H, -self.c)
         if res.status == "infeasible":
@@ -181,6 +228,15 @@ class Polytope:
 
         Computed from the half-space intersection of the (irredundant) faces around the
         Chebyshev centre (scipy / Qhull).
+
+        Parameters
+        ----------
+        num_directions : int, default 0
+            Not used: the vertices are computed exactly whatever its value.
+
+        Returns
+        -------
+        ndarray, shape (v, 2)
         """
         if self.dim != 2:
             raise DimensionError(f"vertices_2d needs a 2-D polytope, got dimension {self.dim}")
@@ -213,7 +269,18 @@ class Polytope:
         return pts[keep]
 
     def intersect(self, other: Polytope) -> Polytope:
-        """The intersection with another polytope of the same dimension."""
+        """The intersection with another polytope of the same dimension.
+
+        Parameters
+        ----------
+        other : Polytope
+            A polytope of the same dimension ``n``.
+
+        Returns
+        -------
+        Polytope
+            A :class:`FullDimensionalPolytope` when the intersection has interior.
+        """
         if other.dim != self.dim:
             raise DimensionError(
                 f"cannot intersect polytopes of dimensions {self.dim} and {other.dim}"
@@ -225,7 +292,15 @@ class Polytope:
 
 
 class FullDimensionalPolytope(Polytope):
-    """A polytope with a non-empty interior."""
+    """A polytope with a non-empty interior.
+
+    Parameters
+    ----------
+    H : array_like, shape (k, n)
+        One row per half-space.
+    c : array_like, shape (k,)
+        Offsets.
+    """
 
 
 def make_polytope(H: Any, c: Any) -> Polytope:
@@ -279,15 +354,49 @@ class BeliefCone:
         """``Phi^-1(1-eps_i) sqrt(h_i' S h_i)`` per face, shape (k,).
 
         ``eps = 0`` with positive variance gives inf.
+
+        Parameters
+        ----------
+        cov : ndarray, shape (n, n)
+            Covariance ``S`` of the belief.
+
+        Returns
+        -------
+        ndarray, shape (k,)
         """
         return std_terms(self.H, self.z, cov)
 
     def slack(self, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
-        """Per face, the distance of the deterministic equivalent from its bound (>= 0: holds)."""
+        """Per face, the distance of the deterministic equivalent from its bound (>= 0: holds).
+
+        Parameters
+        ----------
+        mean : ndarray, shape (n,)
+            Mean of the belief.
+        cov : ndarray, shape (n, n)
+            Covariance of the belief.
+
+        Returns
+        -------
+        ndarray, shape (k,)
+            ``-(H mean + c + std_terms(cov))``.
+        """
         return -(self.H @ mean + self.c + self.std_terms(cov))
 
     def margin(self, mean: Any, cov: Any) -> float:
-        """Smallest face slack (``inf`` for a cone with no faces); >= 0 iff the belief is inside."""
+        """Smallest face slack (``inf`` for a cone with no faces); >= 0 iff the belief is inside.
+
+        Parameters
+        ----------
+        mean : array_like, shape (n,)
+            Mean of the belief.
+        cov : array_like, shape (n, n)
+            Covariance of the belief (symmetric positive semi-definite).
+
+        Returns
+        -------
+        float
+        """
         if self.num_faces == 0:
             mean = as_vector(mean, "mean", self.dim or None)
             as_covariance(cov, "cov", mean.shape[0])
@@ -297,11 +406,33 @@ class BeliefCone:
         return float(np.min(self.slack(mean, cov)))
 
     def contains(self, mean: Any, cov: Any) -> bool:
-        """Whether ``N(mean, cov)`` satisfies every chance constraint."""
+        """Whether ``N(mean, cov)`` satisfies every chance constraint.
+
+        Parameters
+        ----------
+        mean : array_like, shape (n,)
+            Mean of the belief.
+        cov : array_like, shape (n, n)
+            Covariance of the belief.
+
+        Returns
+        -------
+        bool
+        """
         return self.margin(mean, cov) >= 0.0
 
     def mean_polytope(self, cov: Any) -> Polytope:
-        """The means that satisfy the cone for a fixed covariance (a polytope)."""
+        """The means that satisfy the cone for a fixed covariance (a polytope).
+
+        Parameters
+        ----------
+        cov : array_like, shape (n, n)
+            The fixed covariance.
+
+        Returns
+        -------
+        Polytope
+        """
         cov = as_covariance(cov, "cov", self.dim)
         return make_polytope(self.H, self.c + self.std_terms(cov))
 
@@ -315,7 +446,17 @@ class BeliefCone:
 
 
 class FullDimensionalBeliefCone(BeliefCone):
-    """A belief cone whose zero-covariance region has interior."""
+    """A belief cone whose zero-covariance region has interior.
+
+    Parameters
+    ----------
+    H : array_like, shape (k, n)
+        Face normals ``h_i'``.
+    c : array_like, shape (k,)
+        Offsets ``c_i``.
+    eps : array_like, shape (k,)
+        Tolerances ``eps_i`` in ``[0, 0.5]``.
+    """
 
 
 def make_belief_cone(H: Any, c: Any, eps: Any) -> BeliefCone:
