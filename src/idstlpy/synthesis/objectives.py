@@ -39,7 +39,23 @@ OBJECTIVES: tuple[str, ...] = ("effort", "time", "margin")
 def objective_value(
     name: str, traj: ProbabilisticTSTrajectory, formula: Any, weights: np.ndarray | None = None
 ) -> float:
-    """The value of objective ``name`` on a plan (see the module docstring)."""
+    """The value of objective ``name`` on a plan (see the module docstring).
+
+    Parameters
+    ----------
+    name : {"effort", "time", "margin"}
+        The objective; any other name raises ``ValueError``.
+    traj : ProbabilisticTSTrajectory
+        The plan.
+    formula : STLFormula
+        The formula whose robustness is the ``"margin"`` objective (unused by the others).
+    weights : ndarray, shape (m,), optional
+        Per-input weights of ``"effort"`` (default: all ones; unused by the others).
+
+    Returns
+    -------
+    float
+    """
     if name == "effort":
         w = np.ones(traj.get_control().shape[1]) if weights is None else np.asarray(weights, dtype=float)
         return float(np.sum(np.abs(traj.get_control()) @ w))
@@ -51,7 +67,21 @@ def objective_value(
 
 
 def better(name: str, a: float, b: float) -> bool:
-    """Whether value ``a`` improves on ``b`` (by more than a relative 1e-9)."""
+    """Whether value ``a`` improves on ``b`` (by more than a relative 1e-9).
+
+    Parameters
+    ----------
+    name : str
+        The objective: ``"margin"`` is maximised, every other objective minimised.
+    a : float
+        The candidate value.
+    b : float
+        The value to beat.
+
+    Returns
+    -------
+    bool
+    """
     tol = 1e-9 * max(1.0, abs(b))
     return a > b + tol if name == "margin" else a < b - tol
 

@@ -32,7 +32,9 @@ RESULT_SCHEMA = "idstlpy.result/1"
 class SolveStats:
     """How the solver spent its effort.
 
-    Attributes
+    Every field is a constructor argument with a zero / empty default; the loop updates them.
+
+    Parameters
     ----------
     candidates : int
         Discrete plans proposed by the BMC proposer.
@@ -53,6 +55,7 @@ class SolveStats:
     sampler_iterations : int
         Sampler iterations (the work budget that decides the search).
     sat_calls, lp_calls, milp_calls : int
+        Number of SAT, LP and MILP solver calls.
     time_total, time_bmc, time_lp, time_sampling : float
         Seconds (measured, never used to decide the search).
     caps_hit : list of str
@@ -85,7 +88,14 @@ class SolveStats:
 
     @contextmanager
     def clock(self, name: str) -> Iterator[None]:
-        """Add the wall-clock time of the ``with`` block to the attribute ``name``."""
+        """Add the wall-clock time of the ``with`` block to the attribute ``name``.
+
+        Parameters
+        ----------
+        name : str
+            A float field, e.g. ``"time_lp"``; the elapsed seconds are added to it even when
+            the block raises.
+        """
         t0 = time.perf_counter()
         try:
             yield
@@ -102,7 +112,17 @@ class SolveStats:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> SolveStats:
-        """Inverse of :meth:`to_dict` (unknown keys are ignored, missing ones take defaults)."""
+        """Inverse of :meth:`to_dict` (unknown keys are ignored, missing ones take defaults).
+
+        Parameters
+        ----------
+        data : dict
+            Field name to value, as :meth:`to_dict` writes it.
+
+        Returns
+        -------
+        SolveStats
+        """
         known = {f.name for f in fields(cls)}
         kw = {k: v for k, v in data.items() if k in known}
         if "improvements" in kw:
@@ -118,7 +138,7 @@ def _finite_or_none(x: float) -> float | None:
 class SolveResult:
     """Outcome of :meth:`Problem.solve_result`.
 
-    Attributes
+    Parameters
     ----------
     status : {"found", "infeasible", "budget_exhausted"}
         ``found``: the plan passed the exact monitor. ``infeasible``: a proof that no plan
@@ -132,6 +152,7 @@ class SolveResult:
     margin : float
         Monitor robustness of the returned plan (``nan`` without a plan).
     stats : SolveStats
+        How the solver spent its effort.
     formula : str
         The formula's text (``str(formula)``), for result files.
     objective : str or None
@@ -212,6 +233,15 @@ class SolveResult:
     def from_dict(cls, data: dict[str, Any]) -> SolveResult:
         """Rebuild a result from :meth:`to_dict` output.
 
+        Parameters
+        ----------
+        data : dict
+            The JSON data of schema :data:`RESULT_SCHEMA`.
+
+        Returns
+        -------
+        SolveResult
+
         Raises
         ------
         InvalidArgumentError
@@ -254,7 +284,17 @@ class SolveResult:
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write :meth:`to_dict` as JSON (strict: no NaN) to ``path``; returns the path."""
+        """Write :meth:`to_dict` as JSON (strict: no NaN) to ``path``; returns the path.
+
+        Parameters
+        ----------
+        path : str or path-like
+            The file to write (overwritten if it exists).
+
+        Returns
+        -------
+        pathlib.Path
+        """
         out = Path(path)
         out.write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False) + "\n")
         return out
