@@ -31,7 +31,14 @@ from .errors import (
     OutOfRangeError,
     ProblemFileError,
 )
-from .execution import ValidationReport, finite_horizon_lqr, simulate, validate
+from .execution import (
+    ClosedLoopPrediction,
+    ValidationReport,
+    finite_horizon_lqr,
+    predict_closed_loop,
+    simulate,
+    validate,
+)
 from .expressions import (
     ConvexConstraint,
     ConvexRegion,
@@ -137,6 +144,8 @@ __all__ = [
     "finite_horizon_lqr",
     "simulate",
     "validate",
+    "predict_closed_loop",
+    "ClosedLoopPrediction",
     "ValidationReport",
     # problem files and text syntax
     "load_problem",

@@ -18,11 +18,15 @@ Submodules (one job each; none is named like a function it defines):
 from __future__ import annotations
 
 from .lqr import finite_horizon_lqr
+from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval
 
 __all__ = [
+    "ClosedLoopPrediction",
+    "ConstraintPrediction",
     "finite_horizon_lqr",
+    "predict_closed_loop",
     "simulate",
     "validate",
     "ValidationReport",
