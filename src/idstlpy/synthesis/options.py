@@ -194,7 +194,22 @@ class SolverOptions:
 
     @classmethod
     def make(cls, **kw: Any) -> SolverOptions:
-        """Validated options from keywords; an unknown keyword is an error naming it."""
+        """Validated options from keywords; an unknown keyword is an error naming it.
+
+        Parameters
+        ----------
+        **kw
+            Option name to value: any of the class's parameters (see :class:`SolverOptions`).
+
+        Returns
+        -------
+        SolverOptions
+
+        Raises
+        ------
+        InvalidArgumentError
+            For an unknown keyword (the message names it and lists the known ones).
+        """
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(kw) - known)
         if unknown:
@@ -204,7 +219,22 @@ class SolverOptions:
         return cls(**kw)
 
     def with_(self, **kw: Any) -> SolverOptions:
-        """A validated copy with some options replaced."""
+        """A validated copy with some options replaced.
+
+        Parameters
+        ----------
+        **kw
+            Option name to new value: any of the class's parameters (see :class:`SolverOptions`).
+
+        Returns
+        -------
+        SolverOptions
+
+        Raises
+        ------
+        InvalidArgumentError
+            For an unknown keyword (the message names it).
+        """
         known = {f.name for f in fields(self)}
         unknown = sorted(set(kw) - known)
         if unknown:
