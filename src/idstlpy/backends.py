@@ -46,13 +46,16 @@ SolutionStatus = Literal["optimal", "infeasible", "unbounded", "time_limit", "er
 class LinearModel:
     """``min c'x`` subject to ``row_lo <= A x <= row_hi`` and ``lb <= x <= ub``.
 
-    Attributes
+    Parameters
     ----------
     c : ndarray, shape (nvar,)
+        Objective coefficients.
     A : scipy.sparse.csr_matrix, shape (nrow, nvar)
+        Constraint matrix.
     row_lo, row_hi : ndarray, shape (nrow,)
-        ``-inf`` / ``inf`` for one-sided rows; equal for equalities.
+        Row bounds: ``-inf`` / ``inf`` for one-sided rows; equal for equalities.
     lb, ub : ndarray, shape (nvar,)
+        Variable bounds (``-inf`` / ``inf`` where free).
     integrality : ndarray of int, shape (nvar,), optional
         1 for integer variables (a MILP), 0 for continuous ones.
     mip_rel_gap : float, optional
@@ -89,7 +92,7 @@ class LinearModel:
 class BackendSolution:
     """What a back-end returns.
 
-    Attributes
+    Parameters
     ----------
     status : {"optimal", "infeasible", "unbounded", "time_limit", "error"}
         ``infeasible`` is the solver's proof of infeasibility; ``time_limit`` and ``error`` are
@@ -97,10 +100,12 @@ class BackendSolution:
     x : ndarray, shape (nvar,), or None
         A solution (for ``time_limit``, the best feasible one found, if any).
     objective : float
+        Objective value of ``x`` (``nan`` without a solution).
     row_duals : ndarray, shape (nrow,), or None
         LP duals of the rows, sign convention ``d objective / d row bound`` (``<= 0`` on an
         active upper bound of a minimisation).
     message : str
+        The solver's own status message.
     bound : float
         For a MILP, the best proven lower bound on the objective (``nan`` when unknown); equal
         to ``objective`` at a proven optimum.
@@ -115,7 +120,17 @@ class BackendSolution:
 
 
 class Backend(Protocol):
-    """The interface every LP / MILP back-end implements."""
+    """The interface every LP / MILP back-end implements.
+
+    A :class:`typing.Protocol`: it is never instantiated itself (calling it raises ``TypeError``);
+    back-ends such as :class:`HighsBackend` implement it structurally, and :func:`get_backend`
+    builds them with no arguments.
+
+    Parameters
+    ----------
+    *args, **kwargs
+        The placeholder signature ``typing.Protocol`` gives the class; any call is rejected.
+    """
 
     name: ClassVar[str]
     supports_integer: ClassVar[bool]
@@ -126,7 +141,19 @@ class Backend(Protocol):
         ...
 
     def solve(self, model: LinearModel, time_limit: float) -> BackendSolution:
-        """Solve ``model`` within ``time_limit`` seconds."""
+        """Solve ``model`` within ``time_limit`` seconds.
+
+        Parameters
+        ----------
+        model : LinearModel
+            The LP or MILP (a MILP when ``model.is_mip``).
+        time_limit : float
+            Wall-clock cap in seconds.
+
+        Returns
+        -------
+        BackendSolution
+        """
         ...
 
 
@@ -253,6 +280,18 @@ class HighsBackend:
         Goes straight to the HiGHS that SciPy ships (one model, no input re-validation: about
         0.3 ms per small LP instead of 3 ms); falls back to :func:`~scipy.optimize.linprog` /
         :func:`~scipy.optimize.milp` when that module is not there.
+
+        Parameters
+        ----------
+        model : LinearModel
+            The LP or MILP (a MILP when ``model.is_mip``).
+        time_limit : float
+            Wall-clock cap in seconds (at least 1e-3 is used).
+
+        Returns
+        -------
+        BackendSolution
+            With row duals for an optimal LP.
         """
         limit = max(float(time_limit), 1e-3)
         direct = _highs_direct(model, limit)
@@ -380,6 +419,16 @@ def available_backends(integer: bool = False) -> list[str]:
 
     ``integer=True``: those that solve MILPs; ``integer=False``: those that serve as LP
     back-ends (with row duals).
+
+    Parameters
+    ----------
+    integer : bool, default False
+        List MILP back-ends (True) or LP back-ends (False).
+
+    Returns
+    -------
+    list of str
+        Sorted names.
     """
     return [name for name, cls in sorted(_registry().items()) if _serves(cls, integer) and cls.is_available()]
 
@@ -400,6 +449,18 @@ def default_milp_backend() -> str:
 
 def get_backend(name: str, integer: bool = False) -> Backend:
     """An instance of the back-end registered as ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A registered back-end name (see :func:`available_backends`), e.g. ``"highs"``.
+    integer : bool, default False
+        True when the back-end must solve MILPs; False when it must serve as an LP back-end
+        (report row duals).
+
+    Returns
+    -------
+    Backend
 
     Raises
     ------
