@@ -11,7 +11,8 @@ the names of its signature with the names of its docstring's ``Parameters`` sect
 - an entry naming no argument of the signature is an error too (stale documentation).
 
 Every public callable in these modules that takes ``**kwargs`` must also reject an unknown keyword
-with a ``TypeError`` (see :data:`KWARGS_CALLS`).
+(see :data:`KWARGS_CALLS`): with a ``TypeError``, or with the error :data:`KWARGS_ERRORS` names
+for it (the solver options reject an unknown option with ``InvalidArgumentError``, a ``ValueError``).
 
 Owners of other modules: add your module to :data:`DOCUMENTED_MODULES` once its docstrings pass.
 """
@@ -27,6 +28,9 @@ import numpy as np
 import pytest
 
 import idstlpy
+from idstlpy.backends import Backend
+from idstlpy.errors import InvalidArgumentError
+from idstlpy.synthesis.options import SolverOptions
 
 DOCUMENTED_MODULES: list[str] = [
     "idstlpy.expressions",
@@ -34,6 +38,15 @@ DOCUMENTED_MODULES: list[str] = [
     "idstlpy.syntax",
     "idstlpy.dynamical_system",
     "idstlpy.errors",
+    "idstlpy.chance",
+    "idstlpy.belief",
+    "idstlpy.semantics",
+    "idstlpy.sets",
+    "idstlpy.synthesis.problem",
+    "idstlpy.synthesis.options",
+    "idstlpy.synthesis.results",
+    "idstlpy.synthesis.objectives",
+    "idstlpy.backends",
 ]
 """Modules whose public callables must document every argument. Extend it module by module."""
 
@@ -177,10 +190,42 @@ def _simulate_with_unknown_keyword() -> None:
     system.simulate(plan, 1, [0.0], system, no_such_option=1)
 
 
-KWARGS_CALLS: dict[str, Callable[[], None]] = {
+def _problem() -> idstlpy.Problem:
+    x = idstlpy.mk_variable(1)
+    u = idstlpy.mk_variable(1, name="u")
+    system = idstlpy.mk_switched_sys([idstlpy.mk_lbs([[1.0]], [[1.0]], [[0.0]])])
+    domain = idstlpy.logical_and(u[0] >= -1, u[0] <= 1).region
+    goal = idstlpy.logical_and(idstlpy.prob(x[0] >= 1) >= 0.9, name="goal")
+    return idstlpy.Problem(system, domain, idstlpy.to_belief([0], [[0.0]]), idstlpy.eventually(0, 5, goal))
+
+
+KWARGS_CALLS: dict[str, Callable[[], object]] = {
     "idstlpy.dynamical_system.SwitchedSystem.simulate": _simulate_with_unknown_keyword,
+    "idstlpy.synthesis.options.SolverOptions.make": lambda: SolverOptions.make(no_such_option=1),
+    "idstlpy.synthesis.options.SolverOptions.with_": lambda: SolverOptions().with_(no_such_option=1),
+    "idstlpy.synthesis.problem.Problem.solve": lambda: _problem().solve(seed=0, no_such_option=1),
+    "idstlpy.synthesis.problem.Problem.solve_result": (
+        lambda: _problem().solve_result(seed=0, no_such_option=1)
+    ),
+    "idstlpy.backends.Backend": lambda: Backend(no_such_option=1),  # type: ignore[misc, call-arg]
 }
-"""Per callable taking ``**kwargs``: a call with an unknown keyword (it must raise TypeError)."""
+"""Per callable taking ``**kwargs``: a call with an unknown keyword (it must raise TypeError, unless
+:data:`KWARGS_ERRORS` names another error for it)."""
+
+_UNKNOWN_OPTION = (InvalidArgumentError, r"unknown solver option\(s\) no_such_option")
+
+KWARGS_ERRORS: dict[str, tuple[type[Exception], str]] = {
+    # SolverOptions rejects an unknown option with InvalidArgumentError (a ValueError), and
+    # Problem.solve / solve_result forward their **more to it.
+    "idstlpy.synthesis.options.SolverOptions.make": _UNKNOWN_OPTION,
+    "idstlpy.synthesis.options.SolverOptions.with_": _UNKNOWN_OPTION,
+    "idstlpy.synthesis.problem.Problem.solve": _UNKNOWN_OPTION,
+    "idstlpy.synthesis.problem.Problem.solve_result": _UNKNOWN_OPTION,
+    # A typing.Protocol: its (*args, **kwargs) is typing's placeholder, and every call is refused.
+    "idstlpy.backends.Backend": (TypeError, "Protocols cannot be instantiated"),
+}
+"""The entries of :data:`KWARGS_CALLS` that reject the unknown keyword with another error than
+``TypeError: ... unexpected keyword argument``: ``(exception type, regular expression)``."""
 
 
 def test_every_kwargs_callable_has_an_unknown_keyword_check():
@@ -190,9 +235,11 @@ def test_every_kwargs_callable_has_an_unknown_keyword_check():
         if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in inspect.signature(obj).parameters.values())
     }
     assert with_kwargs == set(KWARGS_CALLS)
+    assert set(KWARGS_ERRORS) <= set(KWARGS_CALLS)
 
 
 @pytest.mark.parametrize("name", sorted(KWARGS_CALLS))
 def test_unknown_keyword_raises(name):
-    with pytest.raises(TypeError, match="unexpected keyword argument 'no_such_option'"):
+    error, pattern = KWARGS_ERRORS.get(name, (TypeError, "unexpected keyword argument 'no_such_option'"))
+    with pytest.raises(error, match=pattern):
         KWARGS_CALLS[name]()
