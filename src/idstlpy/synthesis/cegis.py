@@ -320,8 +320,12 @@ def _retime(
     controls: np.ndarray,
     objective: str | None,
     weights: np.ndarray | None,
+    room: float = 0.0,
 ) -> tuple[ProbabilisticTSTrajectory, float] | None:
-    """Verify a MILP's plan, first re-solved by the plan LP on its witness (exact re-timing)."""
+    """Verify a MILP's plan, first re-solved by the plan LP on its witness (exact re-timing).
+
+    ``room`` is the least margin (state units) the re-timing leaves inside the required faces.
+    """
     problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
     init, system = problem.initial_state, problem.switched_system
     actions = np.zeros(controls.shape[0], dtype=int)
@@ -337,7 +341,7 @@ def _retime(
                 init.cov,
                 abstraction,
                 plan,
-                execution_margin(system, init, abstraction, plan),
+                max(execution_margin(system, init, abstraction, plan), room),
                 scaling=scaling,
                 backend=get_backend(options.lp_backend),
                 time_limit=max(budget.remaining(), 1e-3),
@@ -424,26 +428,8 @@ def _eager(
     if checked is None and options.objective is None:
         # A re-timed plan can graze a face by rounding (-4e-15): re-time it once more with room
         # of 1e-5 of the largest state unit inside every required face, then check it again.
-        witness = extract_witness(problem.stl_formula, claims, abstraction.index, prefer_late=True)
-        if witness is not None:
-            required, L = witness
-            plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
-            with stats.clock("time_lp"):
-                lp = solve_plan_lp(
-                    system,
-                    problem.control_domain,
-                    init.mean,
-                    init.cov,
-                    abstraction,
-                    plan,
-                    max(execution_margin(system, init, abstraction, plan), 1e-5 * float(np.max(scaling.dx))),
-                    scaling=scaling,
-                    backend=get_backend(options.lp_backend),
-                    time_limit=max(budget.remaining(), 1e-3),
-                )
-            stats.lp_calls += 1
-            if lp.feasible and lp.controls is not None:
-                checked = _verify(problem, np.zeros(L - 1, dtype=int), lp.controls)
+        room = 1e-5 * float(np.max(scaling.dx))
+        checked = _retime(run, abstraction, scaling, claims, controls, None, weights, room)
     if checked is None:
         return None
     traj, margin = checked
