@@ -148,6 +148,13 @@ def _common(parser: argparse.ArgumentParser, single: bool) -> None:
             default=None,
             help="also draw the plan into FIGURE (.png, .pdf or .svg: the extension gives the format)",
         )
+        parser.add_argument(
+            "--objective",
+            choices=("effort", "time", "margin"),
+            default=None,
+            help="optimise the plan: least input effort, fewest steps or largest robustness margin "
+            "(the same as --set solver.objective=...)",
+        )
 
 
 def _positive_int(text: str) -> int:
@@ -316,7 +323,10 @@ def _seed_warning(args: argparse.Namespace, spec: ProblemSpec) -> None:
 
 def _single(args: argparse.Namespace, kind: str) -> int:
     figure = check_figure_path(args.plot) if args.plot else None
-    overrides = parse_set_option(args.overrides)
+    sets = list(args.overrides)
+    if getattr(args, "objective", None):
+        sets.append(f'solver.objective="{args.objective}"')
+    overrides = parse_set_option(sets)
     spec = apply_overrides(load_problem(args.file), overrides)
     saved = None
     plan_path = getattr(args, "plan", None)
