@@ -366,21 +366,27 @@ def patrol(size: str = "full"):
 # ------------------------------------------------------------------------------------------------
 # (d) hold under process noise
 
-NOISY_HOLD_W = 0.04
-NOISY_TARGET = ((2.75, -0.25), (3.25, 0.25))
+NOISY_HOLD_W = 0.05
+NOISY_TARGET = ((3.0, -0.5), (4.0, 0.5))
 
 
 def noisy_hold(size: str = "full"):
-    """(d) Hold a target under process noise ``W = 0.04 I`` (10 / 40 steps): re-sensing inside the hold.
+    """(d) Hold a target under process noise ``W = 0.05 I`` (10 / 40 steps): sensing inside the hold.
 
-    The target is ``[2.75, 3.25] x [-0.25, 0.25]`` (95% per face: a standard deviation of at most
-    0.152, i.e. a variance of at most 0.0231, at its centre). Every step adds ``w = W W' = 0.0016``
-    per axis, so a belief that stopped sensing would leave the target's confidence within 5 steps
-    of the steady state below: the hold is kept by sensing during it. The steady-state variance of
-    the scalar Riccati recursion ``P = (P + w) R / (P + w + R)`` is ``(-w + sqrt(w^2 + 4 w R)) / 2``:
-    0.0195 at the target's left edge (x = 2.75, R = 0.257), 0.0153 at its centre (R = 0.161), 0.0115
-    at its right edge (R = 0.094), and 0.0992 in the paper's dark target (x = 0, R = 6.26), where no
-    hold is possible. The witness holds at the centre (monitor margin 0.047 with the exact roll-out).
+    The target is ``[3, 4] x [-0.5, 0.5]`` (95% per face: a standard deviation of at most 0.304,
+    i.e. a variance of at most 0.0924, at its centre). Every step adds ``w = W W' = 0.0025`` per
+    axis. The steady-state variance of the scalar Riccati recursion ``P = (P + w) R / (P + w + R)``
+    is ``(-w + sqrt(w^2 + 4 w R)) / 2``: 0.0188 at the target's left edge (x = 3, R = 0.161),
+    0.0101 at its centre (x = 3.5, R = 0.0511), 0.0040 at its right edge (x = 4, R = 0.0102), and
+    0.1238 in the paper's dark target (x = 0, R = 6.26), where no hold is possible. From the
+    centre's steady state a belief that stopped sensing would lose the target's confidence after
+    ``(0.0924 - 0.0101) / 0.0025 = 33`` steps, fewer than the full hold: the hold is kept by sensing
+    during it. The witness holds at the centre (monitor margin 0.26; executed with the suite's
+    settings, 200 runs, seed 0: belief 91%, true state 96.5%).
+
+    A first version (``W = 0.04 I``, target ``[2.75, 3.25] x [-0.25, 0.25]``) was feasible too, but
+    its best plan (hold at the centre, margin 0.047) held in 0% (belief) / 22% (true state) of
+    executions: per-step 95% confidence does not make a 40-step hold under process noise succeed.
     """
     hold = _hold(size)
     x = stl.mk_variable(size=2, dtype=float)
@@ -394,7 +400,7 @@ def noisy_hold(size: str = "full"):
         stl.until(free, 0, 240, stl.always(0, hold, target)),
     )
     s = Script(problem)
-    s.goto([3.5, 2.0]).goto([3.0, 0.0]).wait(hold)
+    s.goto([3.5, 2.0]).goto([3.5, 0.0]).wait(hold)
     return problem, s.plan()
 
 
