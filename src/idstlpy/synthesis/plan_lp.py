@@ -312,25 +312,29 @@ def build_plan_rows(
                 if cone.c[f] + terms[f] > 0:
                     impossible.append((k, i))
                 continue
-            coef = np.zeros((k, n))
-            coef[k - 1] = cone.H[f]
             base = cone.c[f] + terms[f]
-            if slope is not None:
-                coef += slope[f]
+            if slope is None:
+                # The face reads the mean at step k only: one block of n coefficients (O(n), not
+                # O(k n): a plan of K steps builds its rows in O(K)).
+                gf = float(g[f])
+                nz = np.array([k - 1])
+                block = (G[f] / gf)[None, :]
+            else:
+                coef = slope[f].copy()
+                coef[k - 1] += cone.H[f]
                 base -= float(np.sum(slope[f] * linearisation[1][1 : k + 1]))  # type: ignore[index]
-            scaled = coef * dx[None, :]
-            gf = float(np.linalg.norm(scaled[k - 1])) if g[f] > 0 else float(np.linalg.norm(scaled))
-            if gf == 0:
-                if base > 0:
-                    impossible.append((k, i))
-                continue
-            nz = np.nonzero(np.any(scaled != 0, axis=1))[0] if slope is not None else np.array([k - 1])
+                scaled = coef * dx[None, :]
+                gf = float(np.linalg.norm(scaled[k - 1])) if g[f] > 0 else float(np.linalg.norm(scaled))
+                if gf == 0:
+                    if base > 0:
+                        impossible.append((k, i))
+                    continue
+                nz = np.nonzero(np.any(scaled != 0, axis=1))[0]
+                block = scaled[nz] / gf
             rows.append(np.full(nz.size * n, r))
             cols.append((nz[:, None] * n + np.arange(n)[None, :]).ravel())
-            vals.append((scaled[nz] / gf).ravel())
+            vals.append(block.ravel())
             off.append(base / gf)
-            g = g.copy()
-            g[f] = gf
             norms.append(np.linalg.norm(cone.H[f]) / gf)
             units.append(1.0 / gf)
             owner.append(idx)
