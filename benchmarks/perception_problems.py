@@ -384,23 +384,44 @@ def noisy_hold(size: str = "full"):
     during it. The witness holds at the centre (monitor margin 0.26; executed with the suite's
     settings, 200 runs, seed 0: belief 91%, true state 96.5%).
 
-    A first version (``W = 0.04 I``, target ``[2.75, 3.25] x [-0.25, 0.25]``) was feasible too, but
-    its best plan (hold at the centre, margin 0.047) held in 0% (belief) / 22% (true state) of
-    executions: per-step 95% confidence does not make a 40-step hold under process noise succeed.
+    :func:`noisy_hold_narrow` is a tighter variant whose best plan cannot meet the execution goal.
     """
+    return _noisy_hold(size, NOISY_HOLD_W, NOISY_TARGET, [3.5, 0.0])
+
+
+NARROW_HOLD_W = 0.04
+NARROW_TARGET = ((2.75, -0.25), (3.25, 0.25))
+
+
+def noisy_hold_narrow(size: str = "full"):
+    """(d') A tight hold under process noise: ``W = 0.04 I``, target ``[2.75, 3.25] x [-0.25, 0.25]``.
+
+    95% per face needs a variance of at most 0.0231 at the target's centre; ``w = 0.0016`` per step.
+    Steady-state variances (see :func:`noisy_hold`): 0.0195 at the left edge (x = 2.75), 0.0153 at
+    the centre, 0.0115 at the right edge (x = 3.25), 0.0992 in the dark (x = 0); blind, the centre's
+    margin lasts ``(0.0231 - 0.0153) / 0.0016 < 5`` steps. Feasible (the witness holds at the centre,
+    monitor margin 0.047, about the best: nearer the light the offset costs more than the sharper
+    belief gains), but that plan holds in 0% (belief) / 22% (true state) of executions (200 runs,
+    seed 0): per-step 95% confidence does not make a 40-step hold under process noise succeed. It
+    measures the search, not the execution goal (the first version of :func:`noisy_hold`).
+    """
+    return _noisy_hold(size, NARROW_HOLD_W, NARROW_TARGET, [3.0, 0.0])
+
+
+def _noisy_hold(size: str, W: float, target_box, hold_at: Sequence[float]):
     hold = _hold(size)
     x = stl.mk_variable(size=2, dtype=float)
     u = stl.mk_variable(size=2, dtype=float, name="u")
     free, _ = _paper_atoms(x)
-    target = box(x, *NOISY_TARGET, 0.95, "target")
+    target = box(x, *target_box, 0.95, "target")
     problem = stl.Problem(
-        _light_dark_system(W=NOISY_HOLD_W),
+        _light_dark_system(W=W),
         _unit_box(u, 2),
         _paper_prior(),
         stl.until(free, 0, 240, stl.always(0, hold, target)),
     )
     s = Script(problem)
-    s.goto([3.5, 2.0]).goto([3.5, 0.0]).wait(hold)
+    s.goto([3.5, 2.0]).goto(hold_at).wait(hold)
     return problem, s.plan()
 
 
@@ -614,6 +635,7 @@ KINDS: dict[str, Kind] = {
         Kind("sequence", "(c) sequence A then B (nested until)", sequence, "feasible"),
         Kind("patrol", "(c) patrol G(F A & F B)", patrol, "feasible"),
         Kind("noisy_hold", "(d) hold under process noise", noisy_hold, "feasible"),
+        Kind("noisy_hold_narrow", "(d') tight hold under process noise", noisy_hold_narrow, "feasible"),
         Kind("sensor_switching", "(e) sensor switching, narrow door", sensor_switching, "feasible"),
         Kind("light_dark_3d", "(f) 3-D light-dark", light_dark_3d, "feasible", positions=3),
         Kind("long_horizon", "(g) long horizon U[0,1000] G[0,200]", long_horizon, "feasible"),

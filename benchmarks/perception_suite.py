@@ -73,6 +73,7 @@ FIELDS = (
     "mc_state_rate",
     "mc_s",
     "error",
+    "commit",
 )
 
 
@@ -84,11 +85,19 @@ def _gains(problem: Any) -> None:
         )
 
 
-def run_job(kind: str, size: str, seed: int, time_limit: float, runs: int) -> dict[str, Any]:
+def run_job(
+    kind: str, size: str, seed: int, time_limit: float, runs: int, commit: str = ""
+) -> dict[str, Any]:
     """Solve one instance with one seed, execute the plan; one CSV row (never raises)."""
     import idstlpy as stl
 
-    row: dict[str, Any] = {"kind": kind, "size": size, "seed": seed, "expected": pp.KINDS[kind].expected}
+    row: dict[str, Any] = {
+        "kind": kind,
+        "size": size,
+        "seed": seed,
+        "expected": pp.KINDS[kind].expected,
+        "commit": commit,
+    }
     row.update({k: "" for k in FIELDS if k not in row})
     try:
         problem, _ = pp.build(kind, size)
@@ -301,11 +310,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs = [(k, s) for k in args.kinds for s in range(args.seeds) if (k, s) not in done]
     started = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     t0 = time.perf_counter()
-    write_header = not (args.resume and csv_path.exists())
-    with csv_path.open("a" if not write_header else "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=FIELDS)
-        if write_header:
-            writer.writeheader()
+    with csv_path.open("w", newline="") as fh:
+        # rewritten with the current columns (rows kept by --resume first)
+        writer = csv.DictWriter(fh, fieldnames=FIELDS, restval="", extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
 
         def record(row: dict[str, Any]) -> None:
             rows.append(row)
@@ -321,13 +330,16 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         if args.jobs <= 1:
             for kind, seed in jobs:
-                record(run_job(kind, args.size, seed, args.time_limit, args.runs))
+                record(run_job(kind, args.size, seed, args.time_limit, args.runs, args.commit))
         else:
             with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-                futures = [pool.submit(run_job, k, args.size, s, args.time_limit, args.runs) for k, s in jobs]
+                futures = [
+                    pool.submit(run_job, k, args.size, s, args.time_limit, args.runs, args.commit)
+                    for k, s in jobs
+                ]
                 for fut in as_completed(futures):
                     record(fut.result())
-    rows = [r for r in rows if r["kind"] in args.kinds]
+    rows = [r for r in rows if r["kind"] in args.kinds and int(r["seed"]) < args.seeds]
     summary = summarise(rows)
     text = (
         f"# Active-perception suite, size {args.size}\n\n"

@@ -28,7 +28,7 @@ FEASIBLE = [name for name, kind in pp.KINDS.items() if kind.expected == "feasibl
 
 
 def test_every_kind_of_the_issue_is_there():
-    assert len(pp.KINDS) == 12
+    assert len(pp.KINDS) == 13
     assert {k.expected for k in pp.KINDS.values()} <= {"feasible", "infeasible", "unknown"}
     assert [k for k, v in pp.KINDS.items() if v.expected == "infeasible"] == ["noise_floor"]
 
@@ -66,6 +66,15 @@ def test_noisy_hold_needs_sensing_during_the_hold():
     traj = stl.rollout(problem.switched_system, problem.initial_state, actions, controls)
     # held at the centre, the variance settles at the steady state
     assert traj.get_cov()[-1][0, 0] == pytest.approx(p_centre, rel=0.02)
+
+
+def test_narrow_noisy_hold_arithmetic():
+    w = pp.NARROW_HOLD_W**2
+    noise = pp.LightNoise()
+    p_centre, required = pp.noise_floor_arithmetic(w=w, r_min=noise([3.0])[0, 0] ** 2)
+    p_dark, _ = pp.noise_floor_arithmetic(w=w, r_min=noise([0.0])[0, 0] ** 2)
+    assert p_centre < required < p_dark
+    assert (required - p_centre) / w < 5
 
 
 @pytest.mark.parametrize("size", pp.SIZES)
