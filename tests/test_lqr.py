@@ -8,7 +8,7 @@ from scipy.linalg import solve_discrete_are
 
 import idstlpy as stl
 from idstlpy.errors import DimensionError, InvalidArgumentError
-from idstlpy.execution.lqr import finite_horizon_lqr, riccati_costs
+from idstlpy.tracking import finite_horizon_lqr, riccati_costs
 
 
 def test_scalar_gains_match_hand_recursion():

@@ -18,7 +18,7 @@ MODULES = [
     "idstlpy.plotting",
     "idstlpy.scenarios",
     "idstlpy.execution",
-    "idstlpy.execution.lqr",
+    "idstlpy.tracking",
     "idstlpy.execution.simulation",
     "idstlpy.execution.validation",
 ]

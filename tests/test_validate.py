@@ -213,7 +213,7 @@ def test_no_function_shadows_its_submodule():
 
     import idstlpy.execution as execution
 
-    for name in ("lqr", "simulation", "validation"):
+    for name in ("prediction", "simulation", "validation"):
         assert isinstance(importlib.import_module(f"idstlpy.execution.{name}"), types.ModuleType)
     assert execution.simulate is stl.simulate and callable(execution.simulate)
     assert execution.validate is stl.validate and callable(execution.validate)

@@ -191,7 +191,7 @@ class LCS(DynamicalSystem):
             Gains ``K_0 .. K_{h-1}``; ``u = u_plan - K_0 (x - x_plan)``. Also stored on the mode
             as :attr:`lqr_gains` for :meth:`SwitchedSystem.simulate`.
         """
-        from .execution.lqr import finite_horizon_lqr
+        from .tracking import finite_horizon_lqr
 
         self.lqr_gains = finite_horizon_lqr(self.A, self.B, horizon, Q_final, Q, R)
         return self.lqr_gains

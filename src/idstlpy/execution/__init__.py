@@ -9,7 +9,8 @@ Functions (re-exported at the top level as ``idstlpy.finite_horizon_lqr``, ``ids
 
 Submodules (one job each; none is named like a function it defines):
 
-- :mod:`idstlpy.execution.lqr`: the finite-horizon Riccati recursion;
+- :mod:`idstlpy.tracking` (model layer, shared with the planner): the finite-horizon Riccati
+  recursion and the tracking law;
 - :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
   control domain);
 - :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals.
@@ -17,7 +18,7 @@ Submodules (one job each; none is named like a function it defines):
 
 from __future__ import annotations
 
-from .lqr import finite_horizon_lqr
+from ..tracking import finite_horizon_lqr
 from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval

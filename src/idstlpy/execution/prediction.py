@@ -80,8 +80,8 @@ from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from ..semantics import atom_margins
 from ..sets import Polytope
+from ..tracking import mode_gains
 from ..trajectory import ProbabilisticTSTrajectory
-from .simulation import mode_gains
 
 __all__ = [
     "ClosedLoopPrediction",

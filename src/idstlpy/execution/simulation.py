@@ -17,7 +17,7 @@ own predicted mean. ``K`` is ``K_0`` of the mode's finite-horizon gains (recedin
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -27,121 +27,14 @@ from ..belief import GaussianBelief, kalman_update, predict
 from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..sets import Polytope
+from ..tracking import control_projector, mode_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .lqr import finite_horizon_lqr
 
-__all__ = ["simulate", "DEFAULT_LQR", "control_projector", "mode_gains"]
-
-logger = logging.getLogger(__name__)
-
-DEFAULT_LQR: dict[str, Any] = {"horizon": 5, "Q_final": 1.0, "Q": 1.0, "R": 0.05}
-"""Weights used for a mode without gains: the paper's ``h = 5``, ``Q_final = Q = I``, ``R = 0.05 I``
-(scalars multiply the identity)."""
+__all__ = ["simulate"]
 
 ProcessNoise = Literal["model", "real", "none"]
 
-
-def _weight(value: Any, size: int) -> Any:
-    if np.isscalar(value):
-        return float(value) * np.eye(size)  # type: ignore[arg-type]
-    return value
-
-
-def mode_gains(
-    mode: LCS, override: Sequence[np.ndarray] | None = None, default_lqr: Mapping[str, Any] | None = None
-) -> list[np.ndarray]:
-    """Tracking gains of one mode: ``override``, else ``mode.lqr_gains``, else computed defaults.
-
-    Parameters
-    ----------
-    mode : LCS
-    override : sequence of ndarray (m, n), optional
-    default_lqr : mapping, optional
-        ``horizon``, ``Q_final``, ``Q``, ``R`` for :func:`finite_horizon_lqr` (scalars mean a
-        multiple of the identity); default :data:`DEFAULT_LQR`.
-
-    Returns
-    -------
-    list of ndarray, each shape (m, n)
-    """
-    gains = override if override is not None else getattr(mode, "lqr_gains", None)
-    if gains is None:
-        cfg = dict(DEFAULT_LQR)
-        if default_lqr is not None:
-            unknown = set(default_lqr) - set(DEFAULT_LQR)
-            if unknown:
-                raise InvalidArgumentError(
-                    f"default_lqr has unknown keys {sorted(unknown)}; expected {sorted(DEFAULT_LQR)}"
-                )
-            cfg.update(default_lqr)
-        gains = finite_horizon_lqr(
-            mode.A,
-            mode.B,
-            cfg["horizon"],
-            _weight(cfg["Q_final"], mode.n),
-            _weight(cfg["Q"], mode.n),
-            _weight(cfg["R"], mode.m),
-        )
-    out = [np.asarray(K, dtype=float) for K in gains]
-    if not out:
-        raise InvalidArgumentError("lqr gains must contain at least one gain")
-    for j, K in enumerate(out):
-        if K.shape != (mode.m, mode.n):
-            raise DimensionError(f"lqr gain {j} must have shape ({mode.m}, {mode.n}), got {K.shape}")
-    return out
-
-
-def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray], np.ndarray]:
-    """A function mapping an input to its Euclidean projection on ``domain`` (identity for None).
-
-    Boxes (every face touches one coordinate) are clipped exactly; other polytopes use a small
-    quadratic program (SLSQP) only when the input lies outside.
-
-    Parameters
-    ----------
-    domain : Polytope or None
-        Admissible inputs ``{u : H u + c <= 0}`` of dimension ``m``.
-    m : int
-        Input dimension.
-    """
-    if domain is None:
-        return lambda u: u
-    if not isinstance(domain, Polytope):
-        raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
-    if domain.dim != m:
-        raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
-    H, c = domain.H, domain.c
-    nz = np.abs(H) > 0
-    if H.shape[0] and np.all(nz.sum(axis=1) == 1):
-        low, high = np.full(m, -np.inf), np.full(m, np.inf)
-        for row, cst in zip(H, c, strict=True):
-            i = int(np.flatnonzero(row)[0])
-            bound = -cst / row[i]
-            if row[i] > 0:
-                high[i] = min(high[i], bound)
-            else:
-                low[i] = max(low[i], bound)
-        if np.any(low > high):
-            raise InvalidArgumentError("control_domain is empty: no admissible input")
-        return lambda u: np.clip(u, low, high)
-
-    from scipy.optimize import minimize
-
-    def project(u: np.ndarray) -> np.ndarray:
-        if np.all(H @ u + c <= 1e-12):
-            return u
-        start = domain.chebyshev_center()[0]
-        res = minimize(
-            lambda z: 0.5 * float((z - u) @ (z - u)),
-            start,
-            jac=lambda z: z - u,
-            constraints=[{"type": "ineq", "fun": lambda z: -(H @ z + c), "jac": lambda z: -H}],
-            method="SLSQP",
-        )
-        return np.asarray(res.x, dtype=float)
-
-    return project
-
+logger = logging.getLogger(__name__)
 
 def _real_modes(real_system: Any, n: int, m: int, needed: np.ndarray) -> list[LCS]:
     if isinstance(real_system, LCS):

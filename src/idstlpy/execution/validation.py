@@ -53,8 +53,9 @@ from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins, robustness
+from ..tracking import mode_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .simulation import mode_gains, simulate
+from .simulation import simulate
 
 __all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory"]
 

@@ -1,0 +1,229 @@
+"""The executor's tracking law: finite-horizon discrete-time LQR around a plan (the paper's Section IV-E).
+
+This is a model-layer module because both the planner (``guarantee="closed_loop"`` plans against
+the executor's predicted closed loop) and the executor (:func:`idstlpy.simulate`) use it; one home
+for the gains means the planner predicts exactly the loop that runs.
+
+For ``x_{k+1} = A x_k + B u_k`` and the cost
+``J = x_h' Q_final x_h + sum_{k<h} x_k' Q x_k + u_k' R u_k`` the backward Riccati recursion is::
+
+    P_h = Q_final
+    K_k = (R + B' P_{k+1} B)^{-1} B' P_{k+1} A
+    P_k = Q + A' P_{k+1} (A - B K_k)
+
+and the optimal input is ``u_k = -K_k x_k``. Used to track a plan, ``x`` is the deviation of the
+estimated mean from the planned mean: ``u = u_plan - K_0 (x_est - x_plan)``; in receding horizon
+only ``K_0`` is applied at every step (``K_j`` when only ``h - j`` plan steps remain).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from ._checks import as_covariance, as_int, as_matrix
+from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
+from .sets import Polytope
+
+if TYPE_CHECKING:  # dynamical_system builds gains through this module (no runtime cycle)
+    from .dynamical_system import LCS
+
+__all__ = ["DEFAULT_LQR", "control_projector", "finite_horizon_lqr", "mode_gains", "riccati_costs"]
+
+
+def _validate(
+    A: Any, B: Any, horizon: Any, Q_final: Any, Q: Any, R: Any
+) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray, np.ndarray]:
+    A = as_matrix(A, "A")
+    if A.shape[0] != A.shape[1]:
+        raise DimensionError(f"A must be square, got shape {A.shape}")
+    n = A.shape[0]
+    B = as_matrix(B, "B", (n, None))
+    m = B.shape[1]
+    if m == 0:
+        raise DimensionError("B must have at least one column (the system has no input)")
+    horizon = as_int(horizon, "horizon", minimum=1)
+    Q_final = as_covariance(Q_final, "Q_final", n)
+    Q = as_covariance(Q, "Q", n)
+    R = as_covariance(R, "R", m)
+    if float(np.linalg.eigvalsh(R)[0]) <= 1e-12 * max(1.0, float(np.max(np.abs(R)))):
+        raise InvalidArgumentError(
+            f"R must be positive definite; its smallest eigenvalue is {float(np.linalg.eigvalsh(R)[0]):.3g}"
+        )
+    return A, B, horizon, Q_final, Q, R
+
+
+def riccati_costs(
+    A: Any, B: Any, horizon: int, Q_final: Any, Q: Any, R: Any
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Gains and cost-to-go matrices of the backward Riccati recursion.
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+    horizon : int
+        Number of steps ``h >= 1``.
+    Q_final, Q : array_like, shape (n, n)
+        Terminal and stage state weights (symmetric positive semi-definite).
+    R : array_like, shape (m, m)
+        Input weight (symmetric positive definite).
+
+    Returns
+    -------
+    gains : list of ndarray, each shape (m, n)
+        ``K_0 .. K_{h-1}``.
+    costs : list of ndarray, each shape (n, n)
+        ``P_0 .. P_h`` (``P_h = Q_final``); ``x' P_0 x`` is the optimal cost from ``x``.
+    """
+    A, B, h, Q_final, Q, R = _validate(A, B, horizon, Q_final, Q, R)
+    P = Q_final
+    gains: list[np.ndarray] = [np.empty(0)] * h
+    costs: list[np.ndarray] = [np.empty(0)] * (h + 1)
+    costs[h] = P
+    for k in range(h - 1, -1, -1):
+        S = R + B.T @ P @ B
+        K = np.linalg.solve(S, B.T @ P @ A)
+        P = Q + A.T @ P @ (A - B @ K)
+        P = 0.5 * (P + P.T)
+        gains[k] = K
+        costs[k] = P
+    return gains, costs
+
+
+def finite_horizon_lqr(A: Any, B: Any, horizon: int, Q_final: Any, Q: Any, R: Any) -> list[np.ndarray]:
+    """Gains of the finite-horizon discrete LQR (backward Riccati recursion).
+
+    Parameters
+    ----------
+    A : array_like, shape (n, n)
+    B : array_like, shape (n, m)
+    horizon : int
+        Number of steps ``h >= 1`` of the receding horizon.
+    Q_final, Q : array_like, shape (n, n)
+        Terminal and stage state weights (symmetric positive semi-definite).
+    R : array_like, shape (m, m)
+        Input weight (symmetric positive definite).
+
+    Returns
+    -------
+    list of ndarray, each shape (m, n)
+        ``K_0 .. K_{h-1}``; the tracking law is ``u = u_plan - K_0 (x_est - x_plan)``.
+
+    Raises
+    ------
+    DimensionError
+        When the shapes disagree.
+    InvalidArgumentError
+        When ``horizon < 1``, ``Q``/``Q_final`` is not symmetric PSD or ``R`` is not
+        symmetric positive definite.
+    """
+    return riccati_costs(A, B, horizon, Q_final, Q, R)[0]
+
+
+DEFAULT_LQR: dict[str, Any] = {"horizon": 5, "Q_final": 1.0, "Q": 1.0, "R": 0.05}
+"""Weights used for a mode without gains: the paper's ``h = 5``, ``Q_final = Q = I``, ``R = 0.05 I``
+(scalars multiply the identity)."""
+
+def _weight(value: Any, size: int) -> Any:
+    if np.isscalar(value):
+        return float(value) * np.eye(size)  # type: ignore[arg-type]
+    return value
+
+
+def mode_gains(
+    mode: LCS, override: Sequence[np.ndarray] | None = None, default_lqr: Mapping[str, Any] | None = None
+) -> list[np.ndarray]:
+    """Tracking gains of one mode: ``override``, else ``mode.lqr_gains``, else computed defaults.
+
+    Parameters
+    ----------
+    mode : LCS
+    override : sequence of ndarray (m, n), optional
+    default_lqr : mapping, optional
+        ``horizon``, ``Q_final``, ``Q``, ``R`` for :func:`finite_horizon_lqr` (scalars mean a
+        multiple of the identity); default :data:`DEFAULT_LQR`.
+
+    Returns
+    -------
+    list of ndarray, each shape (m, n)
+    """
+    gains = override if override is not None else getattr(mode, "lqr_gains", None)
+    if gains is None:
+        cfg = dict(DEFAULT_LQR)
+        if default_lqr is not None:
+            unknown = set(default_lqr) - set(DEFAULT_LQR)
+            if unknown:
+                raise InvalidArgumentError(
+                    f"default_lqr has unknown keys {sorted(unknown)}; expected {sorted(DEFAULT_LQR)}"
+                )
+            cfg.update(default_lqr)
+        gains = finite_horizon_lqr(
+            mode.A,
+            mode.B,
+            cfg["horizon"],
+            _weight(cfg["Q_final"], mode.n),
+            _weight(cfg["Q"], mode.n),
+            _weight(cfg["R"], mode.m),
+        )
+    out = [np.asarray(K, dtype=float) for K in gains]
+    if not out:
+        raise InvalidArgumentError("lqr gains must contain at least one gain")
+    for j, K in enumerate(out):
+        if K.shape != (mode.m, mode.n):
+            raise DimensionError(f"lqr gain {j} must have shape ({mode.m}, {mode.n}), got {K.shape}")
+    return out
+
+
+def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray], np.ndarray]:
+    """A function mapping an input to its Euclidean projection on ``domain`` (identity for None).
+
+    Boxes (every face touches one coordinate) are clipped exactly; other polytopes use a small
+    quadratic program (SLSQP) only when the input lies outside.
+
+    Parameters
+    ----------
+    domain : Polytope or None
+        Admissible inputs ``{u : H u + c <= 0}`` of dimension ``m``.
+    m : int
+        Input dimension.
+    """
+    if domain is None:
+        return lambda u: u
+    if not isinstance(domain, Polytope):
+        raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
+    if domain.dim != m:
+        raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
+    H, c = domain.H, domain.c
+    nz = np.abs(H) > 0
+    if H.shape[0] and np.all(nz.sum(axis=1) == 1):
+        low, high = np.full(m, -np.inf), np.full(m, np.inf)
+        for row, cst in zip(H, c, strict=True):
+            i = int(np.flatnonzero(row)[0])
+            bound = -cst / row[i]
+            if row[i] > 0:
+                high[i] = min(high[i], bound)
+            else:
+                low[i] = max(low[i], bound)
+        if np.any(low > high):
+            raise InvalidArgumentError("control_domain is empty: no admissible input")
+        return lambda u: np.clip(u, low, high)
+
+    from scipy.optimize import minimize
+
+    def project(u: np.ndarray) -> np.ndarray:
+        if np.all(H @ u + c <= 1e-12):
+            return u
+        start = domain.chebyshev_center()[0]
+        res = minimize(
+            lambda z: 0.5 * float((z - u) @ (z - u)),
+            start,
+            jac=lambda z: z - u,
+            constraints=[{"type": "ineq", "fun": lambda z: -(H @ z + c), "jac": lambda z: -H}],
+            method="SLSQP",
+        )
+        return np.asarray(res.x, dtype=float)
+
+    return project
