@@ -73,14 +73,22 @@ import numpy as np
 from scipy.special import ndtr, owens_t
 
 from .._checks import as_covariance, as_int, as_vector
-from ..belief import GaussianBelief, kalman_update
+from ..belief import GaussianBelief
 from ..chance import std_terms
-from ..dynamical_system import LCS, SwitchedSystem
+from ..closed_loop import (
+    ClosedLoopMoments,
+    box_bounds,
+    gains_for,
+    prob_le,
+    propagate,
+    real_modes_for,
+    sqrt_psd,
+)
+from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from ..semantics import atom_margins
 from ..sets import Polytope
-from ..tracking import mode_gains
 from ..trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
@@ -144,13 +152,6 @@ def bivariate_normal_cdf(h: Any, k: Any, rho: Any) -> np.ndarray:
     out = np.where(finite, out, np.where(np.isposinf(h) | np.isposinf(k), hi, 0.0))
     out = np.where(np.isnan(out), hi, out)
     return np.clip(out, lo, hi)
-
-
-def _prob_le(mu: np.ndarray, sd: np.ndarray) -> np.ndarray:
-    """``P[X <= 0]`` for ``X ~ N(mu, sd^2)``; an indicator when ``sd == 0``."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        p = ndtr(-mu / sd)
-    return np.where(sd > 0, p, (mu <= 0).astype(float))
 
 
 def _standardised(mu: np.ndarray, sd: np.ndarray) -> np.ndarray:
@@ -379,317 +380,6 @@ class ClosedLoopPrediction:
 
 
 # --------------------------------------------------------------------------------------------
-# Input handling
-
-
-def _real_modes(real_system: Any, system: SwitchedSystem, actions: np.ndarray) -> list[LCS]:
-    if real_system is None:
-        return list(system.system_modes)
-    if isinstance(real_system, LCS):
-        real_system = SwitchedSystem([real_system])
-    if not isinstance(real_system, SwitchedSystem):
-        raise InvalidTypeError(
-            f"real_system must be made by mk_switched_sys (or mk_lcs), got {type(real_system).__name__}"
-        )
-    if (real_system.n, real_system.m) != (system.n, system.m):
-        raise DimensionError(
-            f"real_system has (n, m) = ({real_system.n}, {real_system.m}); "
-            f"the model has ({system.n}, {system.m})"
-        )
-    modes = list(real_system.system_modes)
-    if len(modes) > 1 and actions.size and int(actions.max()) >= len(modes):
-        raise DimensionError(
-            f"the plan uses mode {int(actions.max())}, real_system has modes 0..{len(modes) - 1} "
-            "(give one real mode per planning mode, or a single mode used for all)"
-        )
-    return modes
-
-
-def _gains_for(
-    system: SwitchedSystem,
-    actions: np.ndarray,
-    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None,
-    default_lqr: Mapping[str, Any] | None,
-) -> dict[int, list[np.ndarray]]:
-    def override(q: int) -> Sequence[np.ndarray] | None:
-        if lqr_gains is None:
-            return None
-        if isinstance(lqr_gains, Mapping):
-            return lqr_gains.get(q)
-        return lqr_gains[q] if q < len(lqr_gains) else None
-
-    return {q: mode_gains(system.mode(q), override(q), default_lqr) for q in sorted(set(actions.tolist()))}
-
-
-def _sqrt_psd(S: np.ndarray) -> np.ndarray:
-    """A square root ``T`` with ``T T' = S`` for a symmetric PSD ``S`` (eigenvalues clipped at 0)."""
-    w, V = np.linalg.eigh(0.5 * (S + S.T))
-    return V * np.sqrt(np.maximum(w, 0.0))
-
-
-def _cubature(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Points (P, n) and weights (P,) integrating against ``N(0, I)``.
-
-    Gauss-Hermite with 3 nodes per axis (exact for polynomials of degree 5 in each coordinate)
-    up to ``n = 4``; the degree-3 spherical rule (``2n`` points ``+-sqrt(n) e_i``) above.
-    """
-    if n <= 4:
-        nodes = np.array([-np.sqrt(3.0), 0.0, np.sqrt(3.0)])
-        weights = np.array([1 / 6, 2 / 3, 1 / 6])
-        grids = np.meshgrid(*([nodes] * n), indexing="ij")
-        pts = np.stack([g.reshape(-1) for g in grids], axis=1)
-        wgrid = np.meshgrid(*([weights] * n), indexing="ij")
-        w = np.prod(np.stack([g.reshape(-1) for g in wgrid], axis=1), axis=1)
-        return pts, w
-    eye = np.sqrt(n) * np.eye(n)
-    return np.vstack([eye, -eye]), np.full(2 * n, 1.0 / (2 * n))
-
-
-def _kalman_gain(mode: LCS, P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The gain :func:`idstlpy.belief.kalman_update` uses (same fallback), shape (n, p)."""
-    C = mode.C
-    S = C @ P @ C.T + R
-    PCt = P @ C.T
-    try:
-        with np.errstate(all="ignore"):
-            K = np.linalg.solve(S.T, PCt.T).T
-        if not np.all(np.isfinite(K)):
-            raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
-    except np.linalg.LinAlgError:
-        K = PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True)
-    return K
-
-
-# --------------------------------------------------------------------------------------------
-# The closed loop
-
-
-def _box(domain: Polytope | None, m: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Bounds ``(low, high)`` (m,) when ``domain`` is a box (every face touches one input), else None."""
-    if domain is None:
-        return None
-    if not isinstance(domain, Polytope):
-        raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
-    if domain.dim != m:
-        raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
-    H, c = domain.H, domain.c
-    if not H.shape[0] or not np.all((np.abs(H) > 0).sum(axis=1) == 1):
-        return None
-    low, high = np.full(m, -np.inf), np.full(m, np.inf)
-    for row, cst in zip(H, c, strict=True):
-        i = int(np.flatnonzero(row)[0])
-        bound = -cst / row[i]
-        if row[i] > 0:
-            high[i] = min(high[i], bound)
-        else:
-            low[i] = max(low[i], bound)
-    return low, high
-
-
-def _clipped_moments(
-    mu: np.ndarray, sd: np.ndarray, low: np.ndarray, high: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Moments of ``clip(Y_i, low_i, high_i)`` for ``Y_i ~ N(mu_i, sd_i^2)``, each shape (m,).
-
-    Returns the mean, the variance and ``P[low_i < Y_i < high_i]`` (the expected derivative of the
-    clip: by Stein's lemma ``Cov(z, clip(Y_i)) = P_in Cov(z, Y_i)`` for any ``z`` jointly Gaussian
-    with ``Y``).
-    """
-    pos = sd > 0
-    s = np.where(pos, sd, 1.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        a = (low - mu) / s
-        b = (high - mu) / s
-    Fa, Fb = ndtr(a), ndtr(b)
-    pa = np.where(np.isfinite(a), np.exp(-0.5 * np.where(np.isfinite(a), a, 0.0) ** 2), 0.0) / np.sqrt(
-        2 * np.pi
-    )
-    pb = np.where(np.isfinite(b), np.exp(-0.5 * np.where(np.isfinite(b), b, 0.0) ** 2), 0.0) / np.sqrt(
-        2 * np.pi
-    )
-    apa = np.where(np.isfinite(a), a * pa, 0.0)
-    bpb = np.where(np.isfinite(b), b * pb, 0.0)
-    lo_t = np.where(np.isfinite(low), low, 0.0)
-    hi_t = np.where(np.isfinite(high), high, 0.0)
-    p_in = Fb - Fa
-    e1 = lo_t * Fa + hi_t * (1 - Fb) + mu * p_in + s * (pa - pb)
-    e2 = (
-        lo_t**2 * Fa
-        + hi_t**2 * (1 - Fb)
-        + (mu**2 + s**2) * p_in
-        + 2 * mu * s * (pa - pb)
-        + s**2 * (apa - bpb)
-    )
-    var = np.maximum(e2 - e1**2, 0.0)
-    det = np.clip(mu, low, high)
-    inside = ((mu > low) & (mu < high)).astype(float)
-    return np.where(pos, e1, det), np.where(pos, var, 0.0), np.where(pos, p_in, inside)
-
-
-@dataclass
-class _Loop:
-    mean: np.ndarray  # (L, D)
-    cov: np.ndarray  # (L, D, D)
-    F: np.ndarray  # (N, D, D)
-    g: np.ndarray  # (N, D)
-    Q: np.ndarray  # (N, D, D)
-    P: np.ndarray  # (L, n, n)
-    K: np.ndarray  # (N, m, n)
-    L: list[np.ndarray]
-    clip: np.ndarray  # (N,)
-    sensitivity: bool
-
-
-def _noise_cov_jacobian(mode: LCS, x: np.ndarray) -> np.ndarray:
-    """``dR/dx_i`` at ``x`` by central differences, shape (n, p, p)."""
-    out = np.empty((x.shape[0], mode.p, mode.p))
-    for i in range(x.shape[0]):
-        step = 1e-5 * max(1.0, abs(float(x[i])))
-        e = np.zeros_like(x)
-        e[i] = step
-        out[i] = (mode.noise_cov(x + e) - mode.noise_cov(x - e)) / (2 * step)
-    return out
-
-
-def _propagate(
-    system: SwitchedSystem,
-    plan: ProbabilisticTSTrajectory,
-    N: int,
-    real_modes: list[LCS],
-    gains: dict[int, list[np.ndarray]],
-    process_noise: str,
-    z0: np.ndarray,
-    S0: np.ndarray,
-    P0: np.ndarray,
-    sensor_noise: str,
-    domain: Polytope | None,
-    filter_sensitivity: bool,
-) -> _Loop:
-    n, m = system.n, system.m
-    box = _box(domain, m)
-    N_ref = plan.num_of_steps
-    actions = plan.get_action()
-    means = plan.get_mean()
-    controls = plan.get_control()
-    used = {int(q) for q in actions[:N]}
-    sens = filter_sensitivity and any(
-        system.mode(q).p and system.mode(q).has_state_dependent_noise for q in used
-    )
-    D = 2 * n + (n * n if sens else 0)
-    I = np.eye(n)
-    Z = np.zeros((n, n))
-    out = _Loop(
-        mean=np.zeros((N + 1, D)),
-        cov=np.zeros((N + 1, D, D)),
-        F=np.zeros((N, D, D)),
-        g=np.zeros((N, D)),
-        Q=np.zeros((N, D, D)),
-        P=np.empty((N + 1, n, n)),
-        K=np.empty((N, m, n)),
-        L=[],
-        clip=np.zeros(N),
-        sensitivity=sens,
-    )
-    out.mean[0, : 2 * n], out.cov[0, : 2 * n, : 2 * n], out.P[0] = z0, S0, P0
-    cub = _cubature(n) if sensor_noise == "expected" else None
-    z, S, P = out.mean[0], out.cov[0], P0
-    for k in range(N):
-        q = int(actions[k])
-        mode = system.mode(q)
-        real = real_modes[0] if len(real_modes) == 1 else real_modes[q]
-        Ks = gains[q]
-        remaining = N_ref - k
-        Kt = Ks[0] if remaining >= len(Ks) else Ks[len(Ks) - remaining]
-        A, B, Ar, Br = mode.A, mode.B, real.A, real.B
-        W = mode.W if process_noise == "model" else real.W if process_noise == "real" else None
-        Qw = W @ W.T if W is not None and W.shape[1] else Z
-        m_k, m_next, v = means[k], means[k + 1], controls[k]
-        eta = z[n : 2 * n]
-        S_eta = S[n : 2 * n, n : 2 * n]
-        nominal_pred = A @ m_k + B @ v
-        r = m_next - nominal_pred
-        d = Ar @ m_k + Br @ v - m_next
-        # The input: u - v = c_u - K_eff eta + e, the statistical linearisation of the clip
-        # (e uncorrelated with the loop, covariance E).
-        K_eff, c_u, E = Kt, np.zeros(m), np.zeros((m, m))
-        if box is not None:
-            mu_y = v - Kt @ eta
-            sd_y = np.sqrt(np.maximum(np.diag(Kt @ S_eta @ Kt.T), 0.0))
-            e1, var, p_in = _clipped_moments(mu_y, sd_y, box[0], box[1])
-            K_eff = p_in[:, None] * Kt
-            c_u = e1 - v + K_eff @ eta
-            E = np.diag(np.maximum(var - p_in**2 * sd_y**2, 0.0))
-            out.clip[k] = min(1.0, float(np.sum(1.0 - p_in)))
-        elif domain is not None:  # a general polytope: the projection is not modelled, only bounded
-            mu_y = v - Kt @ eta
-            HK = domain.H @ Kt
-            sd_f = np.sqrt(np.maximum(np.einsum("fi,ij,fj->f", HK, S_eta, HK), 0.0))
-            out.clip[k] = min(1.0, float(np.sum(1.0 - _prob_le(domain.H @ mu_y + domain.c, sd_f))))
-        A_eta = A - B @ K_eff
-        # The filter's predicted mean is m_next + eta_pred, eta_pred = A_eta eta + B c_u - r + B e.
-        eta_pred_mean = A_eta @ eta + B @ c_u - r
-        # Filter: its noise is evaluated at its own (random) predicted mean, linearised at the plan's
-        # nominal one ("plan": the plan's MLO covariances) or at the predicted one (otherwise).
-        P_pred = A @ P @ A.T + mode.process_cov
-        state_dep = bool(mode.p) and mode.has_state_dependent_noise
-        x_lin = nominal_pred if sensor_noise == "plan" or not state_dep else m_next + eta_pred_mean
-        if mode.p:
-            R_filter = mode.noise_cov(x_lin)
-            Lk = _kalman_gain(mode, P_pred, R_filter)
-            _, P = kalman_update(mode, x_lin, P_pred, R=R_filter)
-            LC = Lk @ mode.C
-        else:
-            Lk = np.zeros((n, 0))
-            P = 0.5 * (P_pred + P_pred.T)
-            LC = Z
-        ILC = I - LC
-        BrK = Br @ K_eff
-        F = np.zeros((D, D))
-        F[: 2 * n, : 2 * n] = np.block([[Ar, -BrK], [LC @ Ar, ILC @ A_eta - LC @ BrK]])
-        drift = Br @ c_u + d
-        g = np.zeros(D)
-        g[: 2 * n] = np.concatenate([drift, ILC @ (B @ c_u - r) + LC @ drift])
-        Gw = np.zeros((D, n))  # how the process noise enters
-        Gw[: 2 * n] = np.vstack([I, LC])
-        Ge = np.zeros((D, m))  # how the clipping residual enters
-        Ge[: 2 * n] = np.vstack([Br, ILC @ B + LC @ Br])
-        if sens:
-            Phi = ILC @ A
-            F[2 * n :, 2 * n :] = np.kron(Phi, Phi)
-            if state_dep:
-                dR = _noise_cov_jacobian(mode, x_lin)
-                J = np.stack([(Lk @ dR[i] @ Lk.T).reshape(-1) for i in range(n)], axis=1)  # (n^2, n)
-                F[2 * n :, n : 2 * n] = J @ A_eta
-                g[2 * n :] = J @ (B @ c_u - r - (x_lin - m_next))
-                Ge[2 * n :] = J @ B
-        Qk = Gw @ Qw @ Gw.T + Ge @ E @ Ge.T
-        z = F @ z + g
-        S_pre = F @ S @ F.T + Qk
-        if mode.p:
-            if sensor_noise == "plan" or not state_dep:
-                R_true = mode.noise_cov(m_next)
-            elif sensor_noise == "mean":
-                R_true = mode.noise_cov(m_next + z[:n])
-            else:
-                pts, w = cub  # type: ignore[misc]
-                xs = m_next + z[:n] + pts @ _sqrt_psd(S_pre[:n, :n]).T
-                R_true = sum(wi * mode.noise_cov(xi) for wi, xi in zip(w, xs, strict=True))
-            LRL = np.zeros((D, D))
-            LRL[n : 2 * n, n : 2 * n] = Lk @ R_true @ Lk.T
-            Qk = Qk + LRL
-            S_pre = S_pre + LRL
-        S = 0.5 * (S_pre + S_pre.T)
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
-            raise InvalidArgumentError(
-                f"the predicted closed loop diverged at step {k + 1} (non-finite moments)"
-            )
-        out.mean[k + 1], out.cov[k + 1], out.P[k + 1] = z, S, P
-        out.F[k], out.g[k], out.Q[k], out.K[k] = F, g, 0.5 * (Qk + Qk.T), Kt
-        out.L.append(Lk)
-    return out
-
-
-# --------------------------------------------------------------------------------------------
 # Faces, witnesses and bounds
 
 
@@ -710,7 +400,9 @@ class _Faces:
     sd: dict[str, np.ndarray]  # (L, F) its standard deviation
 
 
-def _faces(aps: list[STLAtomicProposition], loop: _Loop, plan_means: np.ndarray, n: int) -> _Faces:
+def _faces(
+    aps: list[STLAtomicProposition], loop: ClosedLoopMoments, plan_means: np.ndarray, n: int
+) -> _Faces:
     rows_H, rows_c, rows_z, rows_a = [], [], [], []
     for i, ap in enumerate(aps):
         cone = ap.cone
@@ -875,7 +567,9 @@ def _dp_witness(
     return need
 
 
-def _hunter_failure(events: list[tuple[int, int]], faces: _Faces, reading: str, loop: _Loop) -> float:
+def _hunter_failure(
+    events: list[tuple[int, int]], faces: _Faces, reading: str, loop: ClosedLoopMoments
+) -> float:
     """Hunter's bound ``sum P(A_i) - sum_{tree} P(A_i & A_j)`` on ``P(some event fails)``.
 
     ``events`` are (face, step) pairs; faces with the same constraint (``h, c`` and, for the
@@ -894,7 +588,7 @@ def _hunter_failure(events: list[tuple[int, int]], faces: _Faces, reading: str, 
     for key, steps in groups.items():
         f = rep[key]
         ks = sorted(steps)
-        p = 1.0 - _prob_le(mu[ks, f], sd[ks, f])
+        p = 1.0 - prob_le(mu[ks, f], sd[ks, f])
         total += float(np.sum(p))
         if len(ks) < 2:
             continue
@@ -922,14 +616,14 @@ def _success_bound(
     mode_ok: np.ndarray,
     plan_truth: np.ndarray,
     reading: str,
-    loop: _Loop,
+    loop: ClosedLoopMoments,
 ) -> tuple[float, list[tuple[int, int]]]:
     """Lower bound on the formula's success for one reading, and the witness used."""
     from ..synthesis.plan import extract_witness
 
     L = mode_ok.shape[1]
     atom_index = {id(ap): i for i, ap in enumerate(aps)}
-    viol = 1.0 - _prob_le(faces.mu[reading], faces.sd[reading])  # (L, F)
+    viol = 1.0 - prob_le(faces.mu[reading], faces.sd[reading])  # (L, F)
     atom_cost: dict[int, np.ndarray] = {}
     for i, ap in enumerate(aps):
         cost = viol[:, faces.atom == i].sum(axis=1)
@@ -970,7 +664,7 @@ def _clopper_pearson_lower(rate: float, trials: int, confidence: float = 0.999) 
 
 
 def _sample_events(
-    loop: _Loop, faces: _Faces, size: int, rng: np.random.Generator, roots: list[np.ndarray]
+    loop: ClosedLoopMoments, faces: _Faces, size: int, rng: np.random.Generator, roots: list[np.ndarray]
 ) -> dict[str, np.ndarray]:
     """Face truth on ``size`` trajectories sampled from the model, per reading a bool array (S, L, F)."""
     L, D = loop.mean.shape
@@ -987,7 +681,7 @@ def _sample_events(
 
 
 def _sample_rates(
-    loop: _Loop,
+    loop: ClosedLoopMoments,
     faces: _Faces,
     samples: int,
     seed: Any,
@@ -1001,7 +695,7 @@ def _sample_rates(
     rng = np.random.default_rng(seed)
     L = loop.mean.shape[0]
     nF = faces.H.shape[0]
-    roots = [_sqrt_psd(loop.cov[0])] + [_sqrt_psd(Q) for Q in loop.Q]
+    roots = [sqrt_psd(loop.cov[0])] + [sqrt_psd(Q) for Q in loop.Q]
     promised = plan_truth[faces.atom].T[None]  # (1, L, F)
     readings = ("state", "belief")
     face_n = {r: np.zeros(nF) for r in readings}
@@ -1183,8 +877,8 @@ def predict_closed_loop(
     if not isinstance(filter_sensitivity, bool):
         raise InvalidTypeError(f"filter_sensitivity must be a bool, got {type(filter_sensitivity).__name__}")
     samples = as_int(samples, "samples", minimum=0)
-    real_modes = _real_modes(real_system, system, actions)
-    gains = _gains_for(system, actions, lqr_gains, default_lqr)
+    real_modes = real_modes_for(real_system, system, actions)
+    gains = gains_for(system, actions, lqr_gains, default_lqr)
     m0 = plan.get_mean(0)
     x0 = m0 if real_initial_state is None else as_vector(real_initial_state, "real_initial_state", n)
     if initial_belief is None:
@@ -1198,13 +892,13 @@ def predict_closed_loop(
         S0[:n, :n] = as_covariance(real_initial_cov, "real_initial_cov", n)
     z0 = np.concatenate([x0 - m0, b0 - m0])
 
-    loop = _propagate(
+    loop = propagate(
         system, plan, N, real_modes, gains, process_noise, z0, S0, P0.copy(), sensor_noise, domain,
         filter_sensitivity,
     )  # fmt: skip
     L = N + 1
     plan_means = plan.get_mean()[:L]
-    if domain is not None and _box(domain, m) is None and N and loop.clip.max() > 0.01:
+    if domain is not None and box_bounds(domain, m) is None and N and loop.clip.max() > 0.01:
         logger.warning(
             "predict_closed_loop: the corrected input leaves the (non-box) control domain with "
             "probability up to %.3g (step %d); its projection is not modelled",
@@ -1239,8 +933,8 @@ def predict_closed_loop(
         upto = min(L, margins.shape[0])
         plan_truth[i, :upto] = margins[:upto] >= 0.0
 
-    p_state = _prob_le(faces.mu["state"], faces.sd["state"])  # (L, F)
-    p_belief = _prob_le(faces.mu["belief"], faces.sd["belief"])
+    p_state = prob_le(faces.mu["state"], faces.sd["state"])  # (L, F)
+    p_belief = prob_le(faces.mu["belief"], faces.sd["belief"])
     nF = faces.H.shape[0]
     viol = {"state": np.full(nF, np.nan), "belief": np.full(nF, np.nan)}
     prop_violation = {nm: {"belief": float("nan"), "state": float("nan")} for nm in names}
