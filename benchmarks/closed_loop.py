@@ -25,6 +25,17 @@ Problems: ``light_dark`` (the paper's listing, planner seeds ``0..seeds-1``, tru
 unclipped and clipped); ``two_modes`` (examples/two_modes.toml: a sensing mode and a blind one).
 Writes a Markdown table (with command, date, nproc, git revision) to ``--out`` (default
 ``benchmarks/closed_loop_results.md``).
+
+``--goal`` runs issue 15's first goal instead: the light-dark listing and every feasible kind of
+the active-perception suite (:mod:`benchmarks.perception_problems`, ``--size``), each solved once
+with a fixed seed (``--solve-seed``, the listing's sampler parameters, ``--time-limit`` per solve),
+then ``validate(..., runs, predict=True)`` (real system and true start of the suite, tracking
+gains horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain). Per problem: the worst
+per-constraint |predicted - measured| violation rate (executed belief / true state), how many
+predicted rates fall outside the measured Wilson 95% interval, the formula's success bound and
+estimate against the measured rate, and, to find out why they disagree, the worst per-step
+difference, the largest clipping probability and the kind of sensor noise. It replaces (or
+appends) the ``## Goal`` section of ``--out``, leaving the rest of the file as it is.
 """
 
 from __future__ import annotations
@@ -311,6 +322,204 @@ def summary(rows: list[dict[str, Any]]) -> str:
     return "\n".join(out)
 
 
+# --------------------------------------------------------------------------------------------
+# Issue 15's first goal: validate(predict=True) on light-dark and the active-perception suite
+
+GOAL_HEADING = "## Goal: predicted vs measured violation rates (validate(predict=True))"
+
+
+def goal_cases(kinds: tuple[str, ...], size: str, solve_seed: int, time_limit: float) -> Iterator[Case | str]:
+    """Light-dark (the scenario) then each perception kind, solved once; a string for no plan."""
+    from . import perception_problems as pp
+    from .perception_suite import SAMPLER, _gains
+
+    if "light_dark" in kinds:
+        problem = light_dark()
+        plan, solve_s = _timed_solve(problem, **_LISTING, seed=solve_seed, time_limit=time_limit)
+        if plan is None:
+            yield f"light_dark: no plan ({problem.last_result.status})"
+        else:
+            _gains(problem)
+            yield Case("light_dark", problem, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE,
+                       solve_s=solve_s)
+    for kind in kinds:
+        if kind == "light_dark":
+            continue
+        problem, _ = pp.build(kind, size)
+        plan, solve_s = _timed_solve(problem, **SAMPLER, seed=solve_seed, time_limit=time_limit)
+        if plan is None:
+            res = problem.last_result
+            yield f"{kind}: no plan ({res.status}, {solve_s:.0f} s)"
+            continue
+        _gains(problem)
+        yield Case(kind, problem, plan, pp.real_system(problem), pp.real_initial_state(kind, problem),
+                   solve_s=solve_s)
+
+
+def _noise_kind(problem: Any) -> str:
+    modes = problem.switched_system.system_modes
+    sensing = "state-dependent" if any(m.p and m.has_state_dependent_noise for m in modes) else "constant"
+    if not any(m.p for m in modes):
+        sensing = "blind"
+    W = max(float(np.abs(m.W).max()) if m.W is not None and m.W.size else 0.0 for m in modes)
+    return f"{sensing}{', W' if W > 0 else ''}{f', {len(modes)} modes' if len(modes) > 1 else ''}"
+
+
+def goal_row(case: Case, runs: int, seed: int = 0, samples: int = 20000) -> dict[str, Any]:
+    """validate(predict=True) on one case; the goal's numbers (and per-step ones to explain them)."""
+    rep = stl.validate(case.problem, case.plan, case.real_system, case.x0, runs=runs, seed=seed,
+                       clip_controls=case.clip, process_noise=case.process_noise, keep_trajectories=runs,
+                       predict=True, predict_options={"samples": samples, "seed": seed})
+    pred = rep.predicted
+    cmp = rep.prediction_comparison()
+    assert pred is not None and cmp is not None
+    H = np.array([c.h for c in pred.constraints])
+    c = np.array([c.c for c in pred.constraints])
+    z = quantile([c.eps for c in pred.constraints])
+    states = np.array([real.get_state() for _, real in rep.executions])
+    hits = {
+        "state": np.sum(states @ H.T + c <= 0, axis=0),
+        "belief": np.sum([sim.get_mean() @ H.T + c + std_terms(H, z, sim.get_cov()) <= 0
+                          for sim, _ in rep.executions], axis=0),
+    }
+    row: dict[str, Any] = {
+        "case": case.name, "steps": case.plan.num_of_steps, "runs": runs, "solve_s": case.solve_s,
+        "validate_s": rep.elapsed, "noise": _noise_kind(case.problem),
+        "max_clip": float(pred.clip_probability.max()) if pred.num_of_steps else 0.0,
+        "box_domain": _is_box(case.problem.control_domain),
+        "constraints": len(cmp["predicates"]), "outside": cmp["outside"], "compared": cmp["compared"],
+        "outside_names": [f"{name} ({r})" for name, v in cmp["predicates"].items() for r, e in v.items()
+                          if e["outside"]],
+    }
+    for reading in ("belief", "state"):
+        diffs = [abs(v[reading]["diff"]) for v in cmp["predicates"].values()
+                 if v[reading]["diff"] is not None]
+        row[f"pred_{reading}_maxdiff"] = max(diffs) if diffs else float("nan")
+        worst = max(cmp["predicates"].items(), key=lambda kv: abs(kv[1][reading]["diff"] or 0.0))
+        row[f"pred_{reading}_worst"] = (worst[0], worst[1][reading])
+        row[f"pred_{reading}_maxrate"] = max(v[reading]["measured"] for v in cmp["predicates"].values())
+        p = np.array([getattr(cp, f"{reading}_probability") for cp in pred.constraints]).T
+        row[f"step_{reading}_maxdiff"] = float(np.abs(p - hits[reading] / runs).max())
+        e = cmp["success"][reading]
+        row[f"{reading}_bound"] = e["bound"]
+        row[f"{reading}_estimate"] = e["predicted"]
+        row[f"{reading}_measured"] = e["measured"]
+        row[f"{reading}_ci"] = e["ci"]
+        row[f"{reading}_bound_holds"] = e["bound_holds"]
+        row[f"{reading}_estimate_outside"] = e["outside"]
+    return row
+
+
+def _is_box(domain: Any) -> bool:
+    if domain is None:
+        return True
+    H = np.asarray(domain.H, dtype=float)
+    return bool(np.all(np.count_nonzero(np.abs(H) > 1e-12, axis=1) <= 1))
+
+
+def _opt_pct(x: float | None) -> str:
+    return "n/a" if x is None or not np.isfinite(x) else _pct(x)
+
+
+def goal_table(rows: list[dict[str, Any]], skipped: list[str]) -> str:
+    """The goal's table and a line per problem without a plan."""
+    head = ("| problem | steps | sensor noise | max clip P | constraints | worst per-constraint "
+            "\\|pred - meas\\| belief / state (max measured rate) | rates outside the 95% CI | "
+            "per step: max \\|diff\\| belief / state | "
+            "success, belief: bound / estimate / measured [95% CI] | "
+            "success, true state: bound / estimate / measured [95% CI] | validate (s) |")
+    lines = [head, "|" + "---|" * (head.count(" | ") + 1)]
+    for r in rows:
+        lines.append(
+            f"| {r['case']} | {r['steps']} | {r['noise']} | {r['max_clip']:.2f}"
+            f"{'' if r['box_domain'] else ' (not a box)'} | {r['constraints']} | "
+            f"{r['pred_belief_maxdiff']:.3f} / {r['pred_state_maxdiff']:.3f} "
+            f"({r['pred_belief_maxrate']:.3f} / {r['pred_state_maxrate']:.3f}) | "
+            f"{r['outside']} / {r['compared']} | "
+            f"{r['step_belief_maxdiff']:.3f} / {r['step_state_maxdiff']:.3f} | "
+            + " | ".join(
+                f"{_opt_pct(r[f'{k}_bound'])}{'' if r[f'{k}_bound_holds'] is not False else ' (ABOVE)'} / "
+                f"{_opt_pct(r[f'{k}_estimate'])}{' (!)' if r[f'{k}_estimate_outside'] else ''} / "
+                f"{_pct(r[f'{k}_measured'])} [{_pct(r[f'{k}_ci'][0])}, {_pct(r[f'{k}_ci'][1])}]"
+                for k in ("belief", "state")
+            )
+            + f" | {r['validate_s']:.1f} |")
+    out = "\n".join(lines)
+    flagged = [f"- {r['case']}: " + "; ".join(r["outside_names"]) for r in rows if r["outside_names"]]
+    if flagged:
+        out += "\n\nPer-constraint rates outside the interval:\n\n" + "\n".join(flagged)
+    if skipped:
+        out += "\n\nNot compared (no plan):\n\n" + "\n".join(f"- {s}" for s in skipped)
+    return out
+
+
+def write_goal_section(path: Path, text: str) -> None:
+    """Replace the goal section of ``path`` (from its heading to the next ``## ``), or append it."""
+    old = path.read_text() if path.exists() else ""
+    start = old.find(GOAL_HEADING)
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text.rstrip("\n") + "\n"
+    else:
+        nxt = old.find("\n## ", start + len(GOAL_HEADING))
+        tail = "" if nxt < 0 else old[nxt:]
+        new = old[:start] + text.rstrip("\n") + "\n" + tail
+    path.write_text(new)
+
+
+def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
+    """``--goal``: run, print and record the goal's table."""
+    from . import perception_problems as pp
+
+    kinds = ("light_dark",) + tuple(k for k, v in pp.KINDS.items() if v.expected == "feasible")
+    if a.kinds:
+        kinds = tuple(s.strip() for s in a.kinds.split(",") if s.strip())
+        unknown = set(kinds) - {"light_dark", *pp.KINDS}
+        if unknown:
+            raise SystemExit(f"unknown kinds {sorted(unknown)}")
+    rows, skipped = [], []
+    for case in goal_cases(kinds, a.size, a.solve_seed, a.time_limit):
+        if isinstance(case, str):
+            skipped.append(case)
+            print(case, flush=True)
+            continue
+        row = goal_row(case, a.runs)
+        rows.append(row)
+        print(f"{row['case']}: {row['steps']} steps, worst per-constraint |diff| belief "
+              f"{row['pred_belief_maxdiff']:.3f} state {row['pred_state_maxdiff']:.3f}, outside "
+              f"{row['outside']}/{row['compared']}, state success bound {_opt_pct(row['state_bound'])} "
+              f"measured {_pct(row['state_measured'])} ({row['validate_s']:.0f} s)", flush=True)
+    table_md = goal_table(rows, skipped)
+    print()
+    print(table_md)
+    if a.out != "-":
+        mach = machine()
+        args = sys.argv[1:] if argv is None else argv
+        text = "\n".join([
+            GOAL_HEADING,
+            "",
+            f"- command: `python -m benchmarks.closed_loop {' '.join(args)}`",
+            f"- date: {dt.datetime.now().astimezone().isoformat(timespec='seconds')}",
+            f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}; {mach['python']}",
+            f"- idstlpy revision: {mach['git']}",
+            f"- each problem solved once (seed {a.solve_seed}, the listing's sampler parameters, "
+            f"time limit {a.time_limit:g} s, perception size `{a.size}`), then `validate(runs={a.runs}, "
+            "predict=True)`: real system and true start of the perception suite (light-dark: the "
+            "paper's), LQR horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain; prediction "
+            "with its defaults (sensor_noise='expected', filter_sensitivity=True), 20000 model samples",
+            "- a constraint's rate is the fraction of runs that broke it at a step where the plan "
+            "satisfies its proposition (validate's); 'outside' counts predicted rates (per "
+            "constraint and proposition, belief and true state, and the two success estimates) "
+            "outside the measured Wilson 95% interval: about 1 in 20 is expected by chance when the "
+            "prediction is exact; '(ABOVE)' marks a success bound above the measured interval",
+            "",
+            table_md,
+            "",
+        ])
+        write_goal_section(Path(a.out), text)
+        print(f"\nwrote the goal section of {a.out}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m benchmarks.closed_loop", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -319,7 +528,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--problems", default=",".join(PROBLEMS), help=f"comma-separated subset of {PROBLEMS}")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "closed_loop_results.md"),
                    help="Markdown file to write ('-' for none)")
+    p.add_argument("--goal", action="store_true",
+                   help="issue 15's goal: validate(predict=True) on light-dark and the perception suite")
+    p.add_argument("--kinds", default="", help="(--goal) comma-separated light_dark and perception kinds")
+    p.add_argument("--size", default="full", choices=("small", "full"), help="(--goal) perception size")
+    p.add_argument("--solve-seed", type=int, default=0, help="(--goal) the solver's seed")
+    p.add_argument("--time-limit", type=float, default=120.0, help="(--goal) seconds per solve")
     a = p.parse_args(argv)
+    if a.goal:
+        return goal_main(a, argv)
     names = tuple(s.strip() for s in a.problems.split(",") if s.strip())
     unknown = set(names) - set(PROBLEMS)
     if unknown:

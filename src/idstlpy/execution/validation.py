@@ -13,6 +13,16 @@ records
   face was broken at such a step. A broken promise at a step the formula does not need is still
   counted, so violation rates are an upper view of what went wrong, not failure causes.
 
+With ``predict=True`` the plan's execution is also *predicted* once, before the runs, by
+:func:`~idstlpy.execution.prediction.predict_closed_loop` with exactly the options the runs use
+(tracking gains, projection on the control domain, process noise, real system, true initial
+state), and :attr:`ValidationReport.predicted` holds it. :meth:`ValidationReport.prediction_comparison`
+(also in :meth:`~ValidationReport.as_dict` and :meth:`~ValidationReport.summary`) puts the
+predicted violation rates and formula success next to the measured ones, with the measured
+Wilson 95% interval and an ``outside`` flag per rate. The prediction is exact for constant sensor
+noise without clipping (up to its model sampling); with state-dependent noise or clipped inputs it
+is a linearisation around the plan, and the comparison shows how far off it is.
+
 Runs are independent: run ``i`` uses child ``i`` of ``numpy.random.SeedSequence(seed).spawn``,
 and results are gathered by index, so the same seed gives the identical report whatever the
 executor and the number of workers.
@@ -44,7 +54,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -56,6 +66,9 @@ from ..semantics import atom_margins, robustness
 from ..tracking import mode_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
+
+if TYPE_CHECKING:  # the prediction is imported when asked for (validate(predict=True))
+    from .prediction import ClosedLoopPrediction
 
 __all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory"]
 
@@ -147,6 +160,9 @@ class ValidationReport:
         Wall-clock seconds (not part of equality).
     executions : tuple of (ProbabilisticTSTrajectory, RealTrajectory)
         The first ``keep_trajectories`` executions, for plotting (not part of equality).
+    predicted : ClosedLoopPrediction or None
+        With ``validate(predict=True)``: the predicted execution under the same options (not
+        part of equality); compare with :meth:`prediction_comparison`.
     """
 
     runs: int
@@ -167,6 +183,7 @@ class ValidationReport:
     executions: tuple[tuple[ProbabilisticTSTrajectory, RealTrajectory], ...] = field(
         default=(), compare=False, repr=False
     )
+    predicted: ClosedLoopPrediction | None = field(default=None, compare=False, repr=False)
 
     def meets(self, belief: float = 0.90, state: float = 0.95) -> bool:
         """Whether both success rates reach the given bars.
@@ -183,6 +200,125 @@ class ValidationReport:
         bool
         """
         return self.belief_success_rate >= belief and self.state_success_rate >= state
+
+    def prediction_comparison(self) -> dict[str, Any] | None:
+        """Predicted next to measured: violation rates per predicate and proposition, success.
+
+        Every entry is ``{"predicted": p, "measured": r, "ci": [lo, hi], "diff": p - r,
+        "outside": flag}`` with ``[lo, hi]`` the measured rate's Wilson 95% interval and
+        ``outside`` True when ``p`` falls outside it (None when ``p`` is NaN). ``p`` is the
+        prediction's model-sampling estimate (:attr:`ClosedLoopPrediction.samples` samples), so
+        it carries a small sampling error of its own. At the 95% level about one rate in twenty
+        falls outside by chance even when the prediction is exact.
+
+        Returns
+        -------
+        dict or None
+            None without a prediction. Else ``{"predicates": {name: {"belief": entry, "state":
+            entry}}, "propositions": {...}, "success": {"belief": entry, "state": entry},
+            "outside": n, "compared": n, "max_abs_diff": d}``; the success entries add
+            ``bound`` (the analytic lower bound, sound for the Gaussian model),
+            ``sampled_bound`` and ``bound_holds`` (``bound <= hi``). ``outside`` counts the
+            flagged rates among the ``compared`` ones; ``max_abs_diff`` is the largest
+            ``|predicted - measured|`` over the predicates' violation rates.
+        """
+        pred = self.predicted
+        if pred is None:
+            return None
+        pred_rates = pred.predicate_violation
+        predicates = {
+            name: {
+                r: _comparison(pred_rates.get(name, {}).get(r, float("nan")), v[r], v[f"{r}_ci"])
+                for r in ("belief", "state")
+            }
+            for name, v in self.predicate_violations.items()
+        }
+        propositions = {
+            name: {
+                r: _comparison(
+                    pred.proposition_violation.get(name, {}).get(r, float("nan")), v[r], v[f"{r}_ci"]
+                )
+                for r in ("belief", "state")
+            }
+            for name, v in self.proposition_violations.items()
+        }
+        success: dict[str, dict[str, Any]] = {}
+        for r in ("belief", "state"):
+            ci = getattr(self, f"{r}_ci")
+            entry = _comparison(
+                getattr(pred, f"{r}_success_estimate"), getattr(self, f"{r}_success_rate"), ci
+            )
+            bound = float(getattr(pred, f"{r}_success_bound"))
+            entry["bound"] = bound if math.isfinite(bound) else None
+            sampled = float(getattr(pred, f"{r}_success_sampled_bound"))
+            entry["sampled_bound"] = sampled if math.isfinite(sampled) else None
+            # the bound is a promise: it must not exceed what the executions can still be
+            entry["bound_holds"] = None if not math.isfinite(bound) else bool(bound <= ci[1] + 1e-12)
+            success[r] = entry
+        entries = [e for d in (predicates, propositions) for v in d.values() for e in v.values()]
+        entries += list(success.values())
+        compared = [e for e in entries if e["outside"] is not None]
+        diffs = [abs(e["diff"]) for v in predicates.values() for e in v.values() if e["outside"] is not None]
+        return {
+            "predicates": predicates,
+            "propositions": propositions,
+            "success": success,
+            "outside": sum(bool(e["outside"]) for e in compared),
+            "compared": len(compared),
+            "max_abs_diff": max(diffs) if diffs else None,
+        }
+
+    def summary(self) -> str:
+        """A plain-text table: the success rates, then violation rates per predicate.
+
+        With a prediction (``validate(predict=True)``) each rate has its predicted value beside
+        it and a ``!`` when that value falls outside the measured Wilson 95% interval.
+
+        Returns
+        -------
+        str
+        """
+        cmp = self.prediction_comparison()
+        lines = [
+            f"{self.runs} runs of {self.num_of_steps} steps, plan margin {self.plan_margin:.4g}, "
+            f"{self.elapsed:.3g} s"
+        ]
+
+        def cell(entry: dict[str, Any] | None, rate: float, ci: Sequence[float]) -> str:
+            text = f"{_pct(rate)} {_ci(ci)}"
+            if entry is not None:
+                p = entry["predicted"]
+                flag = " !" if entry["outside"] else ""
+                text += f" pred {'n/a' if p is None else _pct(p)}{flag}"
+            return text
+
+        for r, label in (("belief", "executed belief"), ("state", "true state")):
+            entry = None if cmp is None else cmp["success"][r]
+            rate, ci = getattr(self, f"{r}_success_rate"), getattr(self, f"{r}_ci")
+            text = f"success, {label}: {cell(entry, rate, ci)}"
+            if entry is not None and entry["bound"] is not None:
+                above = "" if entry["bound_holds"] else ", ABOVE the interval"
+                text += f" (bound {_pct(entry['bound'])}{above})"
+            lines.append(text)
+        rows = [
+            (name, v, None if cmp is None else cmp["predicates"][name])
+            for name, v in self.predicate_violations.items()
+        ]
+        if rows:
+            width = max(len(name) for name, _, _ in rows)
+            lines.append(f"{'violated at a promised step'.ljust(width)}  belief / true state")
+            for name, v, entry in rows:
+                b = cell(None if entry is None else entry["belief"], v["belief"], v["belief_ci"])
+                st = cell(None if entry is None else entry["state"], v["state"], v["state_ci"])
+                lines.append(f"{name.ljust(width)}  {b} / {st}")
+        if cmp is not None:
+            worst = cmp["max_abs_diff"]
+            lines.append(
+                f"prediction: {cmp['outside']} of {cmp['compared']} predicted rates outside the measured "
+                f"95% interval; worst per-predicate |predicted - measured| "
+                f"{'n/a' if worst is None else f'{worst:.3f}'}"
+            )
+        return "\n".join(lines)
 
     def __repr__(self) -> str:
         return (
@@ -250,8 +386,21 @@ class ValidationReport:
             "state_margin": _margin_stats(self.state_margins),
             "proposition_violations": {k: dict(v) for k, v in self.proposition_violations.items()},
             "predicate_violations": {k: dict(v) for k, v in self.predicate_violations.items()},
+            **({} if self.predicted is None else {"prediction": self._prediction_dict()}),
             "elapsed": self.elapsed,
         }
+
+    def _prediction_dict(self) -> dict[str, Any]:
+        """The comparison plus the prediction's own summary numbers (no per-step arrays)."""
+        pred = self.predicted
+        assert pred is not None
+        out = dict(self.prediction_comparison() or {})
+        out["sensor_noise"] = pred.sensor_noise
+        out["samples"] = pred.samples
+        out["max_clip_probability"] = (
+            float(pred.clip_probability.max()) if pred.clip_probability.size else 0.0
+        )
+        return out
 
     to_dict = as_dict
 
@@ -262,6 +411,16 @@ def _pct(rate: float) -> str:
 
 def _ci(ci: Sequence[float]) -> str:
     return f"[{100 * ci[0]:.1f}, {100 * ci[1]:.1f}]"
+
+
+def _comparison(predicted: float, measured: float, ci: Sequence[float]) -> dict[str, Any]:
+    """One predicted rate against a measured one and its interval (see prediction_comparison)."""
+    p = float(predicted)
+    if not math.isfinite(p):
+        return {"predicted": None, "measured": measured, "ci": list(ci), "diff": None, "outside": None}
+    # a hair of slack: a rate predicted exactly at an interval's end (0 or 1) is inside it
+    outside = not (ci[0] - 1e-12 <= p <= ci[1] + 1e-12)
+    return {"predicted": p, "measured": measured, "ci": list(ci), "diff": p - measured, "outside": outside}
 
 
 def _margin_stats(values: Sequence[float]) -> dict[str, float]:
@@ -396,6 +555,52 @@ def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> 
     return None
 
 
+PREDICT_SAMPLES = 20000
+"""Default model samples of ``validate(predict=True)``: their sampling error (at most 0.0035 on a
+rate) is a tenth of the Wilson half-width of 1000 runs, so a flag says something about the model."""
+
+PREDICT_OPTIONS = ("sensor_noise", "filter_sensitivity", "samples", "seed")
+"""Keys ``predict_options`` accepts (the rest of the prediction's options are validate's own)."""
+
+
+def _predict(
+    problem: Any,
+    plan: ProbabilisticTSTrajectory,
+    real_system: Any,
+    real_initial_state: np.ndarray,
+    steps: int,
+    sim_options: Mapping[str, Any],
+    options: Mapping[str, Any] | None,
+) -> ClosedLoopPrediction:
+    """The prediction of exactly the execution ``validate`` runs (same gains, domain, noise, start)."""
+    from .prediction import predict_closed_loop
+
+    if options is not None and not isinstance(options, Mapping):
+        raise InvalidTypeError(f"predict_options must be a mapping, got {type(options).__name__}")
+    opts = dict(options or {})
+    unknown = sorted(set(opts) - set(PREDICT_OPTIONS))
+    if unknown:
+        raise InvalidArgumentError(
+            f"predict_options: unknown or execution keys {unknown}; accepted: {', '.join(PREDICT_OPTIONS)} "
+            "(the execution options are validate's own)"
+        )
+    opts.setdefault("samples", PREDICT_SAMPLES)
+    t0 = time.perf_counter()
+    predicted = predict_closed_loop(
+        problem,
+        plan,
+        real_system,
+        real_initial_state,
+        num_of_steps=steps,
+        control_domain=sim_options["control_domain"],
+        process_noise=sim_options["process_noise"],
+        lqr_gains=sim_options["lqr_gains"],
+        **opts,
+    )
+    logger.debug("validate: closed-loop prediction in %.3g s", time.perf_counter() - t0)
+    return predicted
+
+
 def validate(
     problem: Any,
     solution: ProbabilisticTSTrajectory,
@@ -414,6 +619,8 @@ def validate(
     max_workers: int = 2,
     keep_trajectories: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    predict: bool = False,
+    predict_options: Mapping[str, Any] | None = None,
 ) -> ValidationReport:
     """Execute a plan many times and measure how often its promise held.
 
@@ -454,6 +661,15 @@ def validate(
         Keep the first this-many executions in :attr:`ValidationReport.executions`.
     progress : callable, optional
         ``progress(done, runs)`` called in the calling process as batches finish.
+    predict : bool
+        Also predict the execution (:func:`~idstlpy.execution.prediction.predict_closed_loop`
+        with this call's gains, control-domain projection, process noise, real system, true
+        initial state and number of steps) into :attr:`ValidationReport.predicted`; see
+        :meth:`ValidationReport.prediction_comparison`.
+    predict_options : mapping, optional
+        Further options of the prediction: ``sensor_noise``, ``filter_sensitivity``, ``samples``
+        (default :data:`PREDICT_SAMPLES`), ``seed`` (of the model sampling, default 0). The
+        execution options are this call's and cannot be given here.
 
     Returns
     -------
@@ -504,6 +720,11 @@ def validate(
     real_initial_state = np.asarray(real_initial_state, dtype=float)
     # Validate every argument once, here, with one short run (errors name the argument).
     simulate(system, solution, min(steps, 1), real_initial_state, real_system, seed=0, **sim_options)
+    predicted = None
+    if predict:
+        predicted = _predict(
+            problem, solution, real_system, real_initial_state, steps, sim_options, predict_options
+        )
     payload = _Payload(
         system, problem.stl_formula, None, solution, real_system, real_initial_state, steps, sim_options, keep
     )
@@ -548,7 +769,9 @@ def validate(
     finally:
         if own_pool is not None:
             own_pool.shutdown()
-    return _report(problem.stl_formula, solution, steps, root, results, time.perf_counter() - t0)
+    return _report(
+        problem.stl_formula, solution, steps, root, results, time.perf_counter() - t0, predicted=predicted
+    )
 
 
 def _report(
@@ -558,6 +781,7 @@ def _report(
     root: np.random.SeedSequence,
     results: list[dict[str, Any]],
     elapsed: float,
+    predicted: ClosedLoopPrediction | None = None,
 ) -> ValidationReport:
     runs = len(results)
     belief_margins = tuple(float(r["belief_margin"]) for r in results)
@@ -601,4 +825,5 @@ def _report(
         predicate_violations=rates("belief_preds", "state_preds", pred_names),
         elapsed=elapsed,
         executions=tuple(r["trajectories"] for r in results if "trajectories" in r),
+        predicted=predicted,
     )
