@@ -8,6 +8,9 @@
 - :func:`plot_light_dark` is the same with the shading taken from the problem's sensor: the
   noise standard deviation of the plan's mode over the workspace (brighter is less noise).
 - :func:`plot_monte_carlo` overlays many executions.
+- Both draw, with ``predicted=`` (a :class:`~idstlpy.execution.prediction.ClosedLoopPrediction`,
+  or from ``validate(..., predict=True)``'s report), the predicted true-state mean and its 95%
+  ellipses: where the executor is expected to take the robot, before it runs.
 - :func:`plot_time_series` draws any trajectory against the step: per state the mean with a
   2-sigma band, then the inputs and the modes; it works for any state dimension.
 - :func:`save_figure` writes a figure in the format of the file's extension (PNG, PDF, SVG).
@@ -89,6 +92,10 @@ class WorkspaceArtists:
         The observations received (their first two outputs, in the drawn coordinates).
     real : Line2D or None
         True states.
+    predicted : Line2D or None
+        The predicted true-state mean (``predicted=``).
+    predicted_ellipses : list of Ellipse
+        The predicted true state's 95% ellipses.
     legend : Legend or None
         The legend.
     legend_proxies : list of Artist
@@ -109,6 +116,8 @@ class WorkspaceArtists:
     executed_ellipses: list[Any] = field(default_factory=list)
     observations: Any = None
     real: Any = None
+    predicted: Any = None
+    predicted_ellipses: list[Any] = field(default_factory=list)
     legend: Any = None
     legend_proxies: list[Any] = field(default_factory=list)
     dims: tuple[int, int] = (0, 1)
@@ -537,6 +546,7 @@ def plot_workspace(
     colorbar: bool = True,
     show_modes: bool | None = None,
     light_legend: str | None = None,
+    predicted: Any = None,
 ) -> WorkspaceArtists:
     """Draw a problem's workspace with a plan and an execution, in two chosen state coordinates.
 
@@ -581,6 +591,10 @@ def plot_workspace(
         more than one mode).
     light_legend : str, optional
         A shorter name of the shading for the legend (default ``light_label``).
+    predicted : ClosedLoopPrediction, optional
+        A prediction of the execution (:func:`~idstlpy.execution.prediction.predict_closed_loop`
+        or ``validate(..., predict=True).predicted``): its true-state mean (dotted red) and 95%
+        ellipses of the true state (dashed red), every ``ellipse_every`` steps.
 
     Returns
     -------
@@ -605,6 +619,8 @@ def plot_workspace(
     for traj, what in ((plan, "plan"), (executed, "executed"), (real, "real")):
         if traj is not None:
             _check_traj(traj, what, n)
+    if predicted is not None:
+        _check_prediction(predicted, n)
     resolution = int(resolution)
     if resolution < 2:
         raise InvalidArgumentError(f"resolution must be >= 2, got {resolution}")
@@ -617,6 +633,8 @@ def plot_workspace(
     trajs = [t.get_mean()[:, d] for t in (plan, executed) if t is not None]
     if real is not None:
         trajs.append(real.get_state()[:, d])
+    if predicted is not None:
+        trajs.append(predicted.state_mean[:, d])
     lo, hi = _extent(np.asarray(problem.initial_state.mean, dtype=float)[d], boxes, trajs)
 
     if light is not None:
@@ -757,6 +775,8 @@ def plot_workspace(
         (out.real,) = ax.plot(
             s[:, d[0]], s[:, d[1]], "-", color="tab:red", lw=1.0, label="true state", zorder=6
         )
+    if predicted is not None:
+        _draw_prediction(ax, predicted, d, ellipse_every, out, proxies)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_xlabel(f"x[{d[0]}]")
@@ -764,6 +784,61 @@ def plot_workspace(
     out.legend_proxies = proxies
     out.legend = _place_legend(ax, proxies, legend)
     return out
+
+
+def _check_prediction(predicted: Any, n: int) -> None:
+    from .execution import ClosedLoopPrediction
+
+    if not isinstance(predicted, ClosedLoopPrediction):
+        raise InvalidTypeError(
+            f"predicted must be a ClosedLoopPrediction (predict_closed_loop, or validate(predict=True)"
+            f".predicted), got {type(predicted).__name__}"
+        )
+    if predicted.n != n:
+        raise DimensionError(f"predicted has state dimension {predicted.n}, the problem has n = {n}")
+
+
+def _draw_prediction(
+    ax: Any,
+    predicted: Any,
+    d: list[int],
+    ellipse_every: int | None,
+    out: WorkspaceArtists,
+    proxies: list[Any],
+) -> None:
+    """The predicted true-state mean and 95% ellipses (red like the true state, dashed: a forecast)."""
+    from matplotlib.lines import Line2D
+
+    mean, cov = predicted.state_mean, predicted.state_cov
+    steps = mean.shape[0]
+    (out.predicted,) = ax.plot(
+        mean[:, d[0]],
+        mean[:, d[1]],
+        ":",
+        color="darkred",
+        lw=1.2,
+        label="predicted true state: mean",
+        zorder=6.5,
+    )
+    every = ellipse_every or max(1, steps // 25)
+    for k in range(0, steps, every):
+        e = _ellipse(mean[k, d], cov[k][np.ix_(d, d)], fill=False, ec="darkred", ls="--", lw=0.7, zorder=6.5)
+        ax.add_patch(e)
+        out.predicted_ellipses.append(e)
+    if out.predicted_ellipses:
+        proxies.append(
+            Line2D(
+                [],
+                [],
+                ls="none",
+                marker="o",
+                ms=9,
+                mfc="none",
+                mec="darkred",
+                mew=0.8,
+                label="predicted true state: 95% ellipses",
+            )
+        )
 
 
 def _constrained(fig: Any) -> bool:
@@ -852,6 +927,7 @@ def plot_monte_carlo(
     dims: Sequence[int] = (0, 1),
     legend: LegendPlacement = "outside",
     colorbar: bool = True,
+    predicted: Any = None,
 ) -> MonteCarloArtists:
     """Overlay many executions of a plan; the title gives the success rate(s).
 
@@ -877,6 +953,9 @@ def plot_monte_carlo(
         As in :func:`plot_workspace`.
     colorbar : bool
         Add the shading's colorbar.
+    predicted : ClosedLoopPrediction or False, optional
+        Draw the predicted true-state mean and 95% ellipses (see :func:`plot_workspace`); default
+        the report's prediction (``validate(..., predict=True)``), if any; False: none.
 
     Returns
     -------
@@ -884,7 +963,13 @@ def plot_monte_carlo(
     """
     from matplotlib.lines import Line2D
 
-    ws = plot_light_dark(problem, plan, ax=ax, light=light, dims=dims, legend=False, colorbar=colorbar)
+    if predicted is None and report is not None:
+        predicted = getattr(report, "predicted", None)
+    if predicted is False:
+        predicted = None
+    ws = plot_light_dark(
+        problem, plan, ax=ax, light=light, dims=dims, legend=False, colorbar=colorbar, predicted=predicted
+    )
     ax = ws.ax
     if ws.plan is not None:  # keep the plan visible above the executions that track it
         ws.plan.set_zorder(7)

@@ -200,12 +200,13 @@ def run_light_dark(
         max_workers=args.workers,
         keep_trajectories=min(args.runs, 50),
         progress=lambda done, total: progress.update(f"Monte Carlo: {done}/{total} runs"),
+        predict=True,
     )
     progress.stop(f"Monte Carlo: {report.runs} runs")
 
     progress.start("drawing figures")
     fig1, ax1 = plt.subplots(figsize=(6.5, 5.5))
-    plot_light_dark(problem, plan, xi_sim, xi_real, ax=ax1)
+    plot_light_dark(problem, plan, xi_sim, xi_real, ax=ax1, predicted=report.predicted)
     ax1.set_title(f"light-dark: plan ({plan.num_of_steps} steps) and one execution", fontsize="small")
     path1 = out_dir / "plan_execution.png"
     fig1.savefig(path1, dpi=120, bbox_inches="tight")
@@ -231,6 +232,25 @@ def run_light_dark(
         ),
         ("monte carlo time", f"{report.elapsed:.2f} s"),
     ]
+    comparison = report.prediction_comparison()
+    if comparison is not None:
+        rows += [
+            (
+                f"predicted {reading} success",
+                f"{100 * entry['predicted']:.1f}% (lower bound {100 * entry['bound']:.1f}%)"
+                if entry["predicted"] is not None and entry["bound"] is not None
+                else "n/a",
+            )
+            for reading, entry in comparison["success"].items()
+        ]
+        worst = comparison["max_abs_diff"]
+        rows.append(
+            (
+                "predicted vs measured",
+                f"{comparison['outside']} of {comparison['compared']} predicted rates outside the "
+                f"95% CI; worst per-constraint difference {'n/a' if worst is None else f'{worst:.3f}'}",
+            )
+        )
     validation = report.as_dict()
     record["timing"]["validation"] = validation.pop("elapsed", None)
     validation["seed"] = args.seed
