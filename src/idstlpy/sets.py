@@ -144,6 +144,65 @@ class Polytope:
         return self.contains(x)
 
     @cached_property
+    def _axis_box(self) -> tuple[np.ndarray, np.ndarray, bool] | None:
+        """``(low, high, feasible)`` when every row bounds one coordinate (a box), else ``None``.
+
+        Most propositions are boxes, and their geometry needs no LP: the bounds are read off
+        the rows. ``feasible`` is False when a row without coefficients is violated
+        (``0 x + c <= 0`` with ``c > 0``); ``low > high`` in some coordinate also means empty.
+        """
+        H, c = self.H, self.c
+        nnz = np.count_nonzero(H, axis=1)
+        if H.shape[0] == 0 or np.any(nnz > 1) or not (np.all(np.isfinite(H)) and np.all(np.isfinite(c))):
+            return None
+        n = self.dim
+        low, high = np.full(n, -np.inf), np.full(n, np.inf)
+        one = nnz == 1
+        j = np.argmax(H[one] != 0, axis=1)
+        a = H[one, j]
+        with np.errstate(over="ignore", divide="ignore"):
+            bound = -c[one] / a
+        if not np.all(np.isfinite(bound)):
+            return None  # a bound beyond floating point: leave it to the LP's tolerances
+        up, down = a > 0, a < 0
+        np.minimum.at(high, j[up], bound[up])
+        np.maximum.at(low, j[down], bound[down])
+        feasible = bool(np.all(c[~one] <= 0))
+        return low, high, feasible
+
+    def _box_radius(self, box: tuple[np.ndarray, np.ndarray, bool]) -> float:
+        """The Chebyshev LP's optimum for a box: half its narrowest width (capped at 1e6).
+
+        A box that is empty only by rounding of its bounds (``low > high`` by less than a few
+        ulps of their size, on top of the LP's own ``_INTERIOR_TOL``) is treated as touching, so
+        emptiness is never claimed from rounding.
+        """
+        low, high, feasible = box
+        if not feasible:
+            return -np.inf
+        with np.errstate(invalid="ignore"):
+            half = 0.5 * (high - low)
+        half = np.where(np.isnan(half), np.inf, half)
+        r = float(min(np.min(half), 1e6)) if half.size else 1e6
+        if -_INTERIOR_TOL > r:
+            ends = np.concatenate([low[np.isfinite(low)], high[np.isfinite(high)]])
+            scale = np.max(np.abs(ends), initial=0.0)
+            if r >= -_INTERIOR_TOL - 4 * np.finfo(float).eps * scale:
+                r = -_INTERIOR_TOL
+        return r
+
+    @cached_property
+    def _radius(self) -> float:
+        """Chebyshev radius (``-inf`` when infeasible), without an LP for boxes."""
+        if self.H.shape[0] == 0:
+            return np.inf
+        box = self._axis_box
+        if box is not None:
+            return self._box_radius(box)
+        center, radius = self._chebyshev
+        return radius if center is not None else -np.inf
+
+    @cached_property
     def _chebyshev(self) -> tuple[np.ndarray | None, float]:
         n = self.dim
         if self.H.shape[0] == 0:
@@ -158,12 +217,7 @@ class Polytope:
 
     def is_empty(self) -> bool:
         """True when no point satisfies the inequalities."""
-        center, radius = self._chebyshev
-        if center is None:
-            return True
-        if radius >= -_INTERIOR_TOL:
-            return False
-        return True
+        return bool(self._radius < -_INTERIOR_TOL)
 
     def chebyshev_center(self) -> tuple[np.ndarray, float]:
         """Centre and radius of the largest inscribed ball (radius capped at 1e6 if unbounded).
@@ -181,8 +235,7 @@ class Polytope:
     @property
     def is_full_dimensional(self) -> bool:
         """True when the polytope has an interior (a ball of positive radius fits)."""
-        center, radius = self._chebyshev
-        return center is not None and radius > _INTERIOR_TOL
+        return bool(self._radius > _INTERIOR_TOL)
 
     def support(self, direction: Any) -> float:
         """``max_{x in P} d' x`` (``inf`` when unbounded, ``-inf`` when empty).
@@ -197,6 +250,9 @@ class Polytope:
         float
         """
         d = as_vector(direction, "direction", self.dim)
+        box = self._axis_box
+        if box is not None:
+            return _box_support(box, d)
         res = _lp(-d, self.H, -self.c)
         if res.status == "infeasible":
             return -np.inf
@@ -215,6 +271,11 @@ class Polytope:
 
     def _bounding_box(self) -> tuple[np.ndarray, np.ndarray]:
         n = self.dim
+        box = self._axis_box
+        if box is not None:
+            if box[2] and np.all(box[0] <= box[1]):
+                return box[0].copy(), box[1].copy()
+            return np.full(n, np.inf), np.full(n, -np.inf)  # empty: what the support LPs return
         low, high = np.empty(n), np.empty(n)
         for i in range(n):
             e = np.zeros(n)
@@ -289,6 +350,18 @@ class Polytope:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(dim={self.dim}, faces={self.H.shape[0]})"
+
+
+def _box_support(box: tuple[np.ndarray, np.ndarray, bool], d: np.ndarray) -> float:
+    """``max d'x`` over a box: each coordinate at the bound ``d`` points to."""
+    low, high, feasible = box
+    if not feasible or np.any(low > high):
+        return -np.inf
+    pos, neg = d > 0, d < 0
+    ends = np.concatenate([high[pos], low[neg]])
+    if not np.all(np.isfinite(ends)):
+        return np.inf
+    return float(d[pos] @ high[pos] + d[neg] @ low[neg])
 
 
 class FullDimensionalPolytope(Polytope):

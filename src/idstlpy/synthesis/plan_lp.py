@@ -231,60 +231,263 @@ def build_plan_rows(
     ``(S, ref)`` adds, to each face's standard-deviation term, its first-order dependence on
     the means around the reference means ``ref`` (K + 1, n): ``S[k]`` (k, n, n, n) holds
     ``d covs[k] / d mean_j[i]`` for ``j = 1..k`` (from :func:`covariance_jacobian`).
+
+    The lazy loop calls this once per candidate on the same problem, so what does not depend on
+    the candidate is kept on ``abstraction`` (one solve's lifetime): the covariance schedule
+    (extended from its longest common prefix with the last one) and each proposition's scaled,
+    normalised faces. The rows are the same, entry for entry, as a fresh build's.
     """
     K = int(actions.shape[0])
     n, m = mean0.shape[0], scaling.du.shape[0]
     dx, du = scaling.dx, scaling.du
     if covs is None:
-        covs, exact = covariance_schedule(modes, cov0, actions, budget)
+        covs, exact = _cached_schedule(abstraction, modes, cov0, actions, budget)
     else:
         exact = False
     ncol = K * n + K * m
+    if budget is not None and K >= 1024:
+        budget.check("building the plan LP")
+    A_eq, b_eq = _dynamics_rows(modes, actions, mean0, dx, du, ncol)
+    A_U, b_U = _control_rows(control_domain, du, K, n, m, ncol)
+    if linearisation is None:
+        faces = _face_rows(abstraction, requirements, covs, dx, n, ncol)
+    else:
+        faces = _linearised_face_rows(abstraction, requirements, covs, dx, n, ncol, linearisation)
+    face_H, off, norms, units, owner, impossible = faces
+    return PlanRows(
+        K,
+        n,
+        m,
+        A_eq,
+        b_eq,
+        A_U,
+        b_U,
+        face_H,
+        off,
+        norms,
+        units,
+        owner,
+        list(requirements),
+        impossible,
+        covs,
+        exact,
+        scaling,
+    )
 
-    # Dynamics, row-scaled by 1/dx: x~_{k+1} - (A~) x~_k - (B~) u~_k = [k = 0] A~ x~_0.
-    rows, cols, vals = [], [], []
+
+def _row_cache(abstraction: Abstraction) -> dict[str, Any]:
+    cache: dict[str, Any] = abstraction.__dict__.setdefault("_plan_rows_cache", {})
+    return cache
+
+
+def _cached_schedule(
+    abstraction: Abstraction,
+    modes: Sequence[Any],
+    cov0: np.ndarray,
+    actions: np.ndarray,
+    budget: Budget | None,
+) -> tuple[np.ndarray, bool]:
+    """:func:`covariance_schedule`, extended from the last schedule of the same modes and prior.
+
+    The schedule up to step ``k`` depends only on ``actions[:k]``, so the steps shared with the
+    previous request are copied, not recomputed (single-mode problems never recompute a step).
+    """
+    K = int(actions.shape[0])
+    key = (tuple(id(mode) for mode in modes), cov0.shape, cov0.tobytes())
+    store = _row_cache(abstraction).setdefault("schedules", {})
+    entry = store.get(key)
+    # The entry holds the modes themselves: while it lives, their ids name no other object.
+    if entry is None:
+        entry = (tuple(modes), np.zeros(0, dtype=int), cov0[None, :, :].copy(), np.zeros(1, dtype=bool))
+    _, done, covs_done, inexact_done = entry
+    L = min(K, done.shape[0])
+    same = np.flatnonzero(done[:L] != actions[:L])
+    p = int(same[0]) if same.size else L
+    covs = np.empty((K + 1,) + cov0.shape)
+    covs[: p + 1] = covs_done[: p + 1]
+    inexact = np.empty(K + 1, dtype=bool)  # inexact[k]: some step before k used a lower bound
+    inexact[: p + 1] = inexact_done[: p + 1]
+    if p < K:
+        tail, tail_exact = covariance_schedule(modes, covs[p], actions[p:], budget)
+        covs[p + 1 :] = tail[1:]
+        if tail_exact:
+            inexact[p + 1 :] = inexact[p]
+        else:
+            lower = [modes[int(q)].p != 0 and modes[int(q)].has_state_dependent_noise for q in actions[p:]]
+            inexact[p + 1 :] = inexact[p] | (np.cumsum(lower) > 0)
+    if K >= done.shape[0] or p < K:
+        store[key] = (tuple(modes), np.asarray(actions, dtype=int).copy(), covs.copy(), inexact.copy())
+    return covs, not bool(inexact[K])
+
+
+def _dynamics_rows(
+    modes: Sequence[Any], actions: np.ndarray, mean0: np.ndarray, dx: np.ndarray, du: np.ndarray, ncol: int
+) -> tuple[csr_matrix, np.ndarray]:
+    """Dynamics, row-scaled by 1/dx: x~_{k+1} - (A~) x~_k - (B~) u~_k = [k = 0] A~ x~_0."""
+    K = int(actions.shape[0])
+    n, m = mean0.shape[0], du.shape[0]
     b_eq = np.zeros(K * n)
+    if K == 0:
+        return csr_matrix((0, ncol)), b_eq
+    used = np.unique(actions)
+    At = np.zeros((len(modes), n, n))
+    Bt = np.zeros((len(modes), n, m))
+    for q in used.tolist():
+        At[q] = modes[q].A * dx[None, :] / dx[:, None]
+        Bt[q] = modes[q].B * du[None, :] / dx[:, None]
+    b_eq[:n] = At[int(actions[0])] @ (mean0 / dx)
     ri, ci = np.indices((n, n))
     rb, cb = np.indices((n, m))
-    eye = np.eye(n).ravel()
-    for k in range(K):
-        if budget is not None and not (k + 1) % 1024:
-            budget.check("building the plan LP")
-        mode = modes[int(actions[k])]
-        At = mode.A * dx[None, :] / dx[:, None]
-        Bt = mode.B * du[None, :] / dx[:, None]
-        r0 = k * n
-        rows.append((r0 + ri).ravel())
-        cols.append((k * n + ci).ravel())
-        vals.append(eye)
-        if k >= 1:
-            rows.append((r0 + ri).ravel())
-            cols.append(((k - 1) * n + ci).ravel())
-            vals.append(-At.ravel())
-        else:
-            b_eq[:n] = At @ (mean0 / dx)
-        rows.append((r0 + rb).ravel())
-        cols.append((K * n + k * m + cb).ravel())
-        vals.append(-Bt.ravel())
-    A_eq = _sparse(rows, cols, vals, K * n, ncol)
+    ks = np.arange(K)
+    # Per step, in this order: the identity block, -A~ on the previous state (k >= 1), -B~.
+    eye_r = ks[:, None] * n + ri.ravel()[None, :]
+    eye_c = ks[:, None] * n + ci.ravel()[None, :]
+    eye_v = np.broadcast_to(np.eye(n).ravel(), (K, n * n))
+    a_r = eye_r
+    a_c = (ks[:, None] - 1) * n + ci.ravel()[None, :]
+    a_v = -At[actions].reshape(K, n * n)
+    b_r = ks[:, None] * n + rb.ravel()[None, :]
+    b_c = n * K + ks[:, None] * m + cb.ravel()[None, :]
+    b_v = -Bt[actions].reshape(K, n * m)
+    blocks = [(eye_r, eye_c, eye_v), (a_r, a_c, a_v), (b_r, b_c, b_v)]
+    rows = np.concatenate([b[0] for b in blocks], axis=1)
+    cols = np.concatenate([b[1] for b in blocks], axis=1)
+    vals = np.concatenate([b[2] for b in blocks], axis=1)
+    keep = np.ones(rows.shape, dtype=bool)
+    keep[0, n * n : 2 * n * n] = False  # step 0 reads the known x_0 (it is in b_eq)
+    A_eq = coo_matrix((vals[keep], (rows[keep], cols[keep])), shape=(K * n, ncol)).tocsr()
+    return A_eq, b_eq
 
-    # Control domain, normalised rows.
+
+def _control_rows(
+    control_domain: Any, du: np.ndarray, K: int, n: int, m: int, ncol: int
+) -> tuple[csr_matrix, np.ndarray]:
+    """The control domain at every step, rows normalised."""
     UH = control_domain.H * du[None, :]
     unorm = np.linalg.norm(UH, axis=1)
     keep = unorm > 0
-    UH, Uc, unorm = UH[keep] / unorm[keep, None], control_domain.c[keep] / unorm[keep], unorm[keep]
+    UH, Uc = UH[keep] / unorm[keep, None], control_domain.c[keep] / unorm[keep]
     nU = UH.shape[0]
-    ri, ci = np.indices(UH.shape)
-    A_U = _sparse(
-        [(k * nU + ri).ravel() for k in range(K)],
-        [(K * n + k * m + ci).ravel() for k in range(K)],
-        [UH.ravel()] * K,
-        K * nU,
-        ncol,
-    )
     b_U = np.tile(-Uc, K)
+    if K == 0 or nU == 0:
+        return csr_matrix((K * nU, ncol)), b_U
+    ri, ci = np.indices(UH.shape)
+    ks = np.arange(K)[:, None]
+    rows = (ks * nU + ri.ravel()[None, :]).ravel()
+    cols = (K * n + ks * m + ci.ravel()[None, :]).ravel()
+    vals = np.tile(UH.ravel(), K)
+    return coo_matrix((vals, (rows, cols)), shape=(K * nU, ncol)).tocsr(), b_U
 
-    # Required faces.
+
+@dataclass(frozen=True)
+class _Faces:
+    """One proposition's faces in scaled units: what every face row of it shares."""
+
+    H: np.ndarray  # (F, n) raw normals
+    c: np.ndarray  # (F,)
+    z: np.ndarray  # (F,)
+    live: np.ndarray  # (F,) bool: the face reads the mean (its scaled normal is non-zero)
+    block: np.ndarray  # (F_live, n): scaled normal / its norm
+    g: np.ndarray  # (F_live,): ||h * dx||
+    inv: np.ndarray  # (F_live,): 1 / ||h * dx||
+    norm: np.ndarray  # (F_live,): ||h|| / ||h * dx||
+
+
+def _faces(abstraction: Abstraction, i: int, dx: np.ndarray) -> _Faces:
+    store = _row_cache(abstraction).setdefault("faces", {})
+    key = (i, dx.tobytes())
+    out = store.get(key)
+    if out is None:
+        cone = abstraction.atoms[i].cone
+        G = cone.H * dx[None, :]
+        g = np.linalg.norm(G, axis=1)
+        live = g != 0
+        gl = g[live]
+        # Per face, as one-face builds computed them (the same rounding, the same rows).
+        hn = np.array([np.linalg.norm(h) for h in cone.H[live]])
+        out = _Faces(cone.H, cone.c, cone.z, live, G[live] / gl[:, None], gl, 1.0 / gl, hn / gl)
+        store[key] = out
+    return out
+
+
+_FaceParts = tuple[csr_matrix, np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[tuple[int, int]]]
+
+
+def _face_rows(
+    abstraction: Abstraction,
+    requirements: list[tuple[int, int]],
+    covs: np.ndarray,
+    dx: np.ndarray,
+    n: int,
+    ncol: int,
+) -> _FaceParts:
+    """One normalised row per live face of every requirement, in requirement then face order.
+
+    A face reads the mean at its step only: one block of ``n`` coefficients, so a plan of K
+    steps builds its rows in O(K), one vectorised pass per proposition.
+    """
+    R = len(requirements)
+    if R == 0:
+        empty = np.zeros(0)
+        return csr_matrix((0, ncol)), empty, empty, empty, np.zeros(0, dtype=int), []
+    req = np.asarray(requirements, dtype=int).reshape(R, 2)
+    count = np.zeros(R, dtype=int)  # rows of each requirement
+    parts: list[tuple[np.ndarray, _Faces, np.ndarray, np.ndarray]] = []
+    impossible: list[tuple[int, int, int]] = []  # (requirement, face, ...) sorted below
+    for i in np.unique(req[:, 1]).tolist():
+        idx = np.flatnonzero(req[:, 1] == i)
+        fc = _faces(abstraction, i, dx)
+        terms = std_terms(fc.H, fc.z, covs[req[idx, 0]])  # (r, F)
+        dead = np.any(np.isinf(terms), axis=1)  # eps = 0 with positive variance: no belief meets it
+        for r in idx[dead].tolist():
+            impossible.append((r, -1, i))
+        ok = idx[~dead]
+        terms = terms[~dead]
+        if not fc.live.all():
+            # A face that does not read the mean holds or fails whatever the controls.
+            fails = fc.c[~fc.live][None, :] + terms[:, ~fc.live] > 0
+            for a, f in zip(*np.nonzero(fails), strict=True):
+                impossible.append((int(ok[a]), int(np.flatnonzero(~fc.live)[f]), i))
+        count[ok] = fc.block.shape[0]
+        offs = (fc.c[fc.live][None, :] + terms[:, fc.live]) / fc.g[None, :]
+        parts.append((ok, fc, offs, req[ok, 0]))
+    start = np.concatenate([[0], np.cumsum(count)])
+    nrows = int(start[-1])
+    off = np.empty(nrows)
+    norms = np.empty(nrows)
+    units = np.empty(nrows)
+    owner = np.empty(nrows, dtype=int)
+    rr, cc, vv = [], [], []
+    cols_n = np.arange(n)
+    for ok, fc, offs, ks in parts:
+        F = fc.block.shape[0]
+        if F == 0 or ok.size == 0:
+            continue
+        r = start[ok][:, None] + np.arange(F)[None, :]  # (r, F)
+        off[r] = offs
+        norms[r] = fc.norm[None, :]
+        units[r] = fc.inv[None, :]
+        owner[r] = ok[:, None]
+        rr.append(np.repeat(r.ravel(), n))
+        first = (ks - 1)[:, None, None] * n  # the face reads the mean at its own step
+        cc.append(np.broadcast_to(first + cols_n[None, None, :], (ok.size, F, n)).ravel())
+        vv.append(np.broadcast_to(fc.block[None, :, :], (ok.size, F, n)).ravel())
+    face_H = _sparse(rr, cc, vv, nrows, ncol)
+    impossible.sort(key=lambda t: (t[0], t[1]))
+    return face_H, off, norms, units, owner, [requirements[r] for r, _, _ in impossible]
+
+
+def _linearised_face_rows(
+    abstraction: Abstraction,
+    requirements: list[tuple[int, int]],
+    covs: np.ndarray,
+    dx: np.ndarray,
+    n: int,
+    ncol: int,
+    linearisation: tuple[list[np.ndarray], np.ndarray],
+) -> _FaceParts:
+    """Face rows with each standard-deviation term linearised in the means (one face at a time)."""
+    S, ref = linearisation
     rows, cols, vals, off, norms, units, owner = [], [], [], [], [], [], []
     impossible: list[tuple[int, int]] = []
     r = 0
@@ -297,8 +500,7 @@ def build_plan_rows(
         G = cone.H * dx[None, :]
         g = np.linalg.norm(G, axis=1)
         slope = None
-        if linearisation is not None and k >= 1:
-            S, ref = linearisation
+        if k >= 1:
             sd = np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", cone.H, covs[k], cone.H), 0.0))
             # d (z sd) / d mean_j[i] = z h' (dP_k / d mean_j[i]) h / (2 sd), for j = 1..k.
             dvar = np.einsum("fa,jiab,fb->fji", cone.H, S[k], cone.H)
@@ -314,15 +516,13 @@ def build_plan_rows(
                 continue
             base = cone.c[f] + terms[f]
             if slope is None:
-                # The face reads the mean at step k only: one block of n coefficients (O(n), not
-                # O(k n): a plan of K steps builds its rows in O(K)).
                 gf = float(g[f])
                 nz = np.array([k - 1])
                 block = (G[f] / gf)[None, :]
             else:
                 coef = slope[f].copy()
                 coef[k - 1] += cone.H[f]
-                base -= float(np.sum(slope[f] * linearisation[1][1 : k + 1]))  # type: ignore[index]
+                base -= float(np.sum(slope[f] * ref[1 : k + 1]))
                 scaled = coef * dx[None, :]
                 gf = float(np.linalg.norm(scaled[k - 1])) if g[f] > 0 else float(np.linalg.norm(scaled))
                 if gf == 0:
@@ -339,25 +539,13 @@ def build_plan_rows(
             units.append(1.0 / gf)
             owner.append(idx)
             r += 1
-    face_H = _sparse(rows, cols, vals, r, ncol)
-    return PlanRows(
-        K,
-        n,
-        m,
-        A_eq,
-        b_eq,
-        A_U,
-        b_U,
-        face_H,
+    return (
+        _sparse(rows, cols, vals, r, ncol),
         np.asarray(off, dtype=float),
         np.asarray(norms, dtype=float),
         np.asarray(units, dtype=float),
         np.asarray(owner, dtype=int),
-        list(requirements),
         impossible,
-        covs,
-        exact,
-        scaling,
     )
 
 
