@@ -53,6 +53,7 @@ as the obligations it carries.
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
@@ -88,12 +89,42 @@ def _junction(kind: type, parts: Iterable[STLFormula]) -> STLFormula:
             continue
         for q in p.children if isinstance(p, kind) else (p,):
             out.setdefault(q, None)
-    items = list(out)
+    items = _subsume(list(out), conjunction=kind is STLAnd)
     if not items:
         return neutral
     if len(items) == 1:
         return items[0]
     return kind(items)  # type: ignore[no-any-return]
+
+
+def _subsume(items: list[STLFormula], conjunction: bool) -> list[STLFormula]:
+    """Merge temporal operands that differ only in the end ``b`` of their interval.
+
+    With the same operands and start ``a``, ``f1 U[a,b] f2`` implies ``f1 U[a,b'] f2`` and
+    ``f1 R[a,b'] f2`` implies ``f1 R[a,b] f2`` for ``b <= b'`` (also under the strong finite
+    reading). A conjunction keeps the strongest of each group, a disjunction the weakest: the
+    holds in progress of ``F G`` formulas otherwise pile up as ``G[1,20] t | G[1,21] t | ...``.
+    """
+    groups: dict[tuple[Any, ...], int] = {}
+    out: list[STLFormula] = []
+    for f in items:
+        if not isinstance(f, STLUntil | STLRelease):
+            out.append(f)
+            continue
+        key = (type(f), f.a, f.left, f.right)
+        if key not in groups:
+            groups[key] = len(out)
+            out.append(f)
+            continue
+        i = groups[key]
+        g = out[i]
+        assert isinstance(g, STLUntil | STLRelease)
+        # The stronger of the two: the smaller b for until, the larger for release.
+        stronger_is_smaller = isinstance(f, STLUntil)
+        f_stronger = (f.b < g.b) == stronger_is_smaller
+        if f_stronger == conjunction:
+            out[i] = f
+    return out
 
 
 def progress_step(formula: STLFormula, truth: dict[int, bool]) -> STLFormula:
