@@ -33,7 +33,10 @@ from .errors import (
 )
 from .execution import (
     ClosedLoopPrediction,
+    ExecutionReport,
+    Replan,
     ValidationReport,
+    execute,
     finite_horizon_lqr,
     predict_closed_loop,
     simulate,
@@ -69,6 +72,7 @@ from .formulas import (
     until,
 )
 from .problem_file import ProblemSpec, apply_overrides, load_problem
+from .progression import progress
 from .semantics import MonitorReport, monitor, robustness, satisfies
 from .sets import (
     BeliefCone,
@@ -144,6 +148,10 @@ __all__ = [
     "finite_horizon_lqr",
     "simulate",
     "validate",
+    "execute",
+    "ExecutionReport",
+    "Replan",
+    "progress",
     "predict_closed_loop",
     "ClosedLoopPrediction",
     "ValidationReport",

@@ -5,7 +5,8 @@ Functions (re-exported at the top level as ``idstlpy.finite_horizon_lqr``, ``ids
 
 - :func:`finite_horizon_lqr`: gains of the tracking law (``LCS.compute_finite_horizon_lqr``);
 - :func:`simulate`: one execution (``SwitchedSystem.simulate``);
-- :func:`validate`: many independent executions and the rates at which the plan's promise held.
+- :func:`validate`: many independent executions and the rates at which the plan's promise held;
+- :func:`execute`: one execution that re-plans from the executed belief (receding horizon).
 
 Submodules (one job each; none is named like a function it defines):
 
@@ -13,21 +14,26 @@ Submodules (one job each; none is named like a function it defines):
   recursion and the tracking law;
 - :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
   control domain);
-- :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals.
+- :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals;
+- :mod:`idstlpy.execution.replanning`: :func:`execute`, :class:`ExecutionReport`, :class:`Replan`.
 """
 
 from __future__ import annotations
 
 from ..tracking import finite_horizon_lqr
 from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
+from .replanning import ExecutionReport, Replan, execute
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval
 
 __all__ = [
     "ClosedLoopPrediction",
     "ConstraintPrediction",
+    "ExecutionReport",
+    "execute",
     "finite_horizon_lqr",
     "predict_closed_loop",
+    "Replan",
     "simulate",
     "validate",
     "ValidationReport",

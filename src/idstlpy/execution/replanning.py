@@ -1,0 +1,615 @@
+"""Receding-horizon execution: track a plan, predict its success as it goes, re-plan when needed.
+
+:func:`execute` runs a plan exactly as :func:`~idstlpy.execution.simulation.simulate` does
+(Kalman filter, receding-horizon LQR, true state moved by the real system; it *calls*
+``simulate`` on the remaining plan, a chunk of steps at a time, with one random stream), and at
+decision steps re-solves the problem from the current executed belief:
+
+- ``replan=None``: never; the execution is bit-identical to ``simulate`` with the same seed;
+- ``replan="every"``: every ``every`` steps, the plan is replaced by the re-solved one when the
+  solver finds one (receding-horizon control);
+- ``replan="on_risk"``: every ``check_every`` steps the closed-loop prediction
+  (:func:`~idstlpy.execution.prediction.predict_closed_loop`) of the *remaining* plan from the
+  current belief gives the probability that the formula will hold; below ``risk`` the problem is
+  re-solved, and the new plan is adopted when its own predicted success is higher.
+
+What is re-solved
+-----------------
+After ``k`` executed steps the obligation is not the original formula: an until may be half-way,
+a hold in progress, a deadline closer. :func:`idstlpy.progression.progress` rewrites the formula
+over the executed belief prefix ``X_0 .. X_k`` into the formula ``psi`` the rest must satisfy
+(``satisfies(whole, phi) == satisfies(rest, psi)``, the rest starting at ``X_k``). The re-solve
+is a new :class:`~idstlpy.Problem` with the same modes and control domain, the prior
+``N(mean_k, P_k)`` (the filter's belief) and ``psi``, solved with the caller's solver options, a
+wall-clock cap ``replan_time_limit`` and a seed derived from the execution's seed and the
+re-plan's index, so the same seed gives the same execution and the same re-plans (unless a
+wall-clock cap was hit: the record says so, as ``SolveStats.caps_hit`` does). A re-solve that
+finds no plan keeps the old one; every attempt is recorded.
+
+What is predicted
+-----------------
+The success probability of the remaining plan is predicted with the planning model only (the
+executor does not know the real system): the true state is distributed as the current belief
+(``real_initial_state = mean_k``, ``real_initial_cov = P_k``), the filter starts at the belief,
+and the formula is ``psi``. ``risk_measure="bound"`` (default) uses the prediction's sound lower
+bounds (no sampling, about 0.1 s on the light-dark plan), ``"estimate"`` its sampled point
+estimates (``risk_samples`` samples). ``risk_on`` chooses the executed belief's success, the true
+state's (the formula's deterministic reading) or the smaller of the two.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from .._checks import as_float, as_int
+from ..belief import GaussianBelief, to_belief
+from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
+from ..formulas import FALSE, TRUE, STLFormula
+from ..progression import progress
+from ..semantics import robustness
+from ..tracking import mode_gains
+from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
+from .simulation import simulate
+
+__all__ = ["ExecutionReport", "Replan", "execute", "replan_seed"]
+
+logger = logging.getLogger(__name__)
+
+ReplanMode = Literal["on_risk", "every"] | None
+
+_REPLAN_KEY = 0x5E501E  # spawn-key word of the re-solve seeds (distinct from validate's children)
+
+
+@dataclass(frozen=True, eq=False)
+class Replan:
+    """One re-plan attempt of :func:`execute`.
+
+    Parameters
+    ----------
+    step : int
+        Execution step ``k`` of the attempt: the re-solve starts from the executed belief ``X_k``.
+    reason : str
+        ``"risk"`` (predicted success below ``risk``), ``"every"`` (the schedule) or
+        ``"violated"`` (the executed prefix already broke the formula: nothing to re-solve).
+    predicted : float
+        Predicted success of the remaining plan at this step (NaN when not predicted).
+    status : str
+        The re-solve's ``SolveResult.status`` (``"found"``, ``"infeasible"``,
+        ``"budget_exhausted"``), ``"error"`` when building the problem failed, or ``"skipped"``.
+    adopted : bool
+        Whether the new plan replaced the old one.
+    new_predicted : float
+        Predicted success of the new plan (NaN when not predicted).
+    solve_time : float
+        Wall-clock seconds of the re-solve (not part of equality).
+    plan_steps : int
+        Steps of the new plan (0 without one).
+    seed : int
+        The solver seed used (derived, see :func:`replan_seed`).
+    formula : str
+        The progressed formula that was re-solved.
+    reason_text : str
+        The solver's ``reason`` (or the error).
+    caps_hit : tuple of str
+        Wall-clock caps the re-solve hit (reproducibility is not promised then).
+    """
+
+    step: int
+    reason: str
+    predicted: float
+    status: str
+    adopted: bool
+    new_predicted: float = float("nan")
+    solve_time: float = field(default=0.0, compare=False)
+    plan_steps: int = 0
+    seed: int = 0
+    formula: str = ""
+    reason_text: str = ""
+    caps_hit: tuple[str, ...] = ()
+
+    def _key(self) -> tuple[Any, ...]:
+        # NaN (no prediction) equals NaN here: two runs of the same seed give equal records.
+        return tuple(
+            "nan" if isinstance(v, float) and math.isnan(v) else v
+            for f, v in vars(self).items()
+            if f != "solve_time"
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Replan):
+            return NotImplemented
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
+
+
+@dataclass(frozen=True)
+class ExecutionReport:
+    """Outcome of :func:`execute`.
+
+    Parameters
+    ----------
+    belief : ProbabilisticTSTrajectory
+        The executed belief (filter means (K+1, n), covariances (K+1, n, n), modes (K,), inputs
+        (K, m)), across every plan that was followed.
+    real : RealTrajectory
+        True states (K+1, n), observations (K+1, p), modes and inputs.
+    replans : tuple of Replan
+        Every re-plan attempt, in order.
+    belief_satisfied, state_satisfied : bool
+        Whether the *original* formula holds on the executed belief / on the true states (the
+        formula's deterministic reading, zero covariance).
+    belief_margin, state_margin : float
+        The corresponding robustness.
+    plans : tuple of (int, ProbabilisticTSTrajectory)
+        The plans followed, each with the execution step at which it started (the first at 0).
+    seed_entropy : int or tuple of int
+        Entropy of the execution's ``SeedSequence`` (pass ``SeedSequence(seed_entropy)`` as
+        ``seed`` to reproduce a run made with ``seed=None``).
+    elapsed : float
+        Wall-clock seconds, re-solves included (not part of equality).
+    """
+
+    belief: ProbabilisticTSTrajectory = field(repr=False)
+    real: RealTrajectory = field(repr=False)
+    replans: tuple[Replan, ...]
+    belief_satisfied: bool
+    state_satisfied: bool
+    belief_margin: float
+    state_margin: float
+    plans: tuple[tuple[int, ProbabilisticTSTrajectory], ...] = field(default=(), repr=False)
+    seed_entropy: int | tuple[int, ...] = 0
+    elapsed: float = field(default=0.0, compare=False)
+
+    @property
+    def num_of_steps(self) -> int:
+        """Steps executed ``K``."""
+        return self.belief.num_of_steps
+
+    @property
+    def num_replans(self) -> int:
+        """Re-solves attempted (``"violated"`` records excluded)."""
+        return sum(r.status != "skipped" for r in self.replans)
+
+    @property
+    def num_adopted(self) -> int:
+        """Re-solves whose plan was adopted."""
+        return sum(r.adopted for r in self.replans)
+
+    @property
+    def replan_time(self) -> float:
+        """Wall-clock seconds spent in re-solves."""
+        return float(sum(r.solve_time for r in self.replans))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ExecutionReport):
+            return NotImplemented
+        return (
+            self.replans == other.replans
+            and self.belief_satisfied == other.belief_satisfied
+            and self.state_satisfied == other.state_satisfied
+            and _same(self.belief_margin, other.belief_margin)
+            and _same(self.state_margin, other.state_margin)
+            and np.array_equal(self.belief.get_mean(), other.belief.get_mean())
+            and np.array_equal(self.belief.get_cov(), other.belief.get_cov())
+            and np.array_equal(self.real.get_state(), other.real.get_state())
+            and np.array_equal(self.belief.get_action(), other.belief.get_action())
+            and np.array_equal(self.belief.get_control(), other.belief.get_control())
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # mutable arrays inside: not hashable
+
+
+def _same(a: float, b: float) -> bool:
+    return a == b or (math.isnan(a) and math.isnan(b))
+
+
+def replan_seed(seed_sequence: np.random.SeedSequence, index: int) -> int:
+    """The solver seed of re-plan ``index`` of an execution (a fixed function of the seed).
+
+    Parameters
+    ----------
+    seed_sequence : numpy.random.SeedSequence
+        The execution's seed sequence (its noise stream is ``default_rng(seed_sequence)``).
+    index : int
+        0 for the first re-plan attempt, 1 for the second, ...
+
+    Returns
+    -------
+    int
+        A seed in ``[0, 2**63)``, independent of the execution's noise stream.
+    """
+    child = np.random.SeedSequence(
+        seed_sequence.entropy, spawn_key=(*seed_sequence.spawn_key, _REPLAN_KEY, int(index))
+    )
+    return int(child.generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def _suffix(plan: ProbabilisticTSTrajectory, j: int) -> ProbabilisticTSTrajectory:
+    """Steps ``j .. N`` of a plan as a plan of its own (``simulate`` indexes gains by what remains)."""
+    return ProbabilisticTSTrajectory(
+        plan.get_mean()[j:], plan.get_cov()[j:], plan.get_action()[j:], plan.get_control()[j:]
+    )
+
+
+def _state_reading(
+    states: np.ndarray, actions: np.ndarray, controls: np.ndarray
+) -> ProbabilisticTSTrajectory:
+    n = states.shape[1]
+    return ProbabilisticTSTrajectory(states, np.zeros((states.shape[0], n, n)), actions, controls)
+
+
+def execute(
+    problem: Any,
+    plan: ProbabilisticTSTrajectory,
+    real_system: Any,
+    real_initial_state: Any,
+    seed: int | np.random.SeedSequence | None = None,
+    *,
+    replan: ReplanMode = None,
+    risk: float = 0.9,
+    every: int = 10,
+    check_every: int = 1,
+    risk_measure: Literal["bound", "estimate"] = "bound",
+    risk_on: Literal["belief", "state", "both"] = "both",
+    risk_samples: int = 1000,
+    max_replans: int = 20,
+    replan_time_limit: float = 30.0,
+    options: Any = None,
+    solver_options: Mapping[str, Any] | None = None,
+    clip_controls: bool = True,
+    process_noise: str = "model",
+    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
+    default_lqr: Mapping[str, Any] | None = None,
+) -> ExecutionReport:
+    """Execute a plan under real noise, re-planning from the executed belief when asked to.
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem the plan solves (model, control domain, formula).
+    plan : ProbabilisticTSTrajectory
+        The plan to execute first (``problem.solve``'s result), ``N`` steps.
+    real_system : SwitchedSystem or LCS
+        The system moving the true state (one mode per planning mode, or one for all).
+    real_initial_state : array_like, shape (n,)
+        True initial state.
+    seed : int, SeedSequence or None
+        Seed of the execution: the noise stream is ``default_rng(seed)`` (as ``simulate``'s)
+        and the re-solves' seeds derive from it (:func:`replan_seed`). ``None``: fresh entropy,
+        recorded in :attr:`ExecutionReport.seed_entropy`.
+    replan : {None, "on_risk", "every"}
+        When to re-solve (module notes).
+    risk : float
+        ``"on_risk"``: re-solve when the predicted success of the remaining plan is below this
+        (in ``[0, 1]``).
+    every : int
+        ``"every"``: re-solve every this many executed steps (>= 1).
+    check_every : int
+        ``"on_risk"``: predict every this many executed steps (>= 1); each prediction costs
+        about as much as executing the whole remaining plan ten times.
+    risk_measure : {"bound", "estimate"}
+        The prediction's sound lower bound or its sampled estimate.
+    risk_on : {"belief", "state", "both"}
+        Success of the executed belief, of the true state (the deterministic reading), or the
+        smaller of the two.
+    risk_samples : int
+        Samples of the Gaussian model for ``risk_measure="estimate"``.
+    max_replans : int
+        At most this many re-solves per execution (>= 0).
+    replan_time_limit : float
+        Wall-clock cap (seconds) of one re-solve: the solver's ``time_limit`` is the smaller of
+        this and the options' own.
+    options : SolverOptions, optional
+        The solver options of the re-solves (use the ones the plan was solved with); the seed is
+        replaced by the derived one.
+    solver_options : mapping, optional
+        :class:`~idstlpy.SolverOptions` fields overriding ``options`` (e.g. ``rrt_timeout``).
+    clip_controls, process_noise, lqr_gains, default_lqr
+        As in :func:`~idstlpy.execution.validation.validate`.
+
+    Returns
+    -------
+    ExecutionReport
+
+    Raises
+    ------
+    InvalidTypeError
+        When ``problem`` is not a Problem, ``plan`` not a trajectory, or an option has the wrong
+        type.
+    InvalidArgumentError
+        When ``plan`` is None or an option is out of range (the message names it).
+    DimensionError
+        When dimensions of the plan, the model and the real system disagree.
+    """
+    from ..synthesis.options import SolverOptions
+    from ..synthesis.problem import Problem
+
+    t0 = time.perf_counter()
+    if not isinstance(problem, Problem):
+        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
+    if plan is None:
+        raise InvalidArgumentError(
+            "plan is None: there is no plan to execute (see problem.last_result.reason)"
+        )
+    if not isinstance(plan, ProbabilisticTSTrajectory):
+        raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
+    if replan not in (None, "on_risk", "every"):
+        raise InvalidArgumentError(f"replan must be None, 'on_risk' or 'every', got {replan!r}")
+    risk = as_float(risk, "risk", 0.0, 1.0)
+    every = as_int(every, "every", minimum=1)
+    check_every = as_int(check_every, "check_every", minimum=1)
+    if risk_measure not in ("bound", "estimate"):
+        raise InvalidArgumentError(f"risk_measure must be 'bound' or 'estimate', got {risk_measure!r}")
+    if risk_on not in ("belief", "state", "both"):
+        raise InvalidArgumentError(f"risk_on must be 'belief', 'state' or 'both', got {risk_on!r}")
+    risk_samples = as_int(risk_samples, "risk_samples", minimum=1)
+    max_replans = as_int(max_replans, "max_replans", minimum=0)
+    replan_time_limit = as_float(replan_time_limit, "replan_time_limit", 0.0, low_open=True)
+    if not isinstance(clip_controls, bool):
+        raise InvalidTypeError(f"clip_controls must be a bool, got {type(clip_controls).__name__}")
+    if options is None:
+        base = SolverOptions()
+    elif isinstance(options, SolverOptions):
+        base = options
+    else:
+        raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
+    if solver_options is not None:
+        if not isinstance(solver_options, Mapping):
+            raise InvalidTypeError(f"solver_options must be a mapping, got {type(solver_options).__name__}")
+        base = base.with_(**solver_options)
+    cap = replan_time_limit if base.time_limit is None else min(base.time_limit, replan_time_limit)
+    base = base.with_(time_limit=cap)
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence | None):
+        raise InvalidTypeError(f"seed must be an int, a SeedSequence or None, got {type(seed).__name__}")
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    rng = np.random.default_rng(ss)  # the same stream simulate(seed=seed) draws
+
+    system = problem.switched_system
+    formula = problem.stl_formula
+    gains = []
+    for q, mode in enumerate(system.system_modes):
+        override = None
+        if lqr_gains is not None:
+            override = (
+                lqr_gains.get(q)
+                if isinstance(lqr_gains, Mapping)
+                else (lqr_gains[q] if q < len(lqr_gains) else None)
+            )
+        gains.append(mode_gains(mode, override, default_lqr))
+    sim_options: dict[str, Any] = {
+        "control_domain": problem.control_domain if clip_controls else None,
+        "process_noise": process_noise,
+        "lqr_gains": gains,
+    }
+
+    def predicted_success(
+        current: ProbabilisticTSTrajectory, j: int, psi: STLFormula, belief: GaussianBelief
+    ) -> float:
+        """Predicted probability that the rest of ``current`` from its step ``j`` satisfies ``psi``."""
+        if psi is TRUE:
+            return 1.0
+        if psi is FALSE:
+            return 0.0
+        from .prediction import predict_closed_loop
+
+        pred = predict_closed_loop(
+            system,
+            _suffix(current, j),
+            None,  # the planning model: the executor does not know the real system
+            belief.mean,
+            formula=psi,
+            control_domain=sim_options["control_domain"],
+            process_noise="model" if process_noise == "model" else "none",
+            lqr_gains=gains,
+            initial_belief=belief,
+            real_initial_cov=belief.cov,
+            samples=risk_samples if risk_measure == "estimate" else 0,
+            seed=0,
+        )
+        if risk_measure == "bound":
+            b, s = pred.belief_success_bound, pred.state_success_bound
+        else:
+            b, s = pred.belief_success_estimate, pred.state_success_estimate
+        value = {"belief": b, "state": s, "both": min(b, s)}[risk_on]
+        return float(value) if math.isfinite(value) else 0.0
+
+    # Executed so far (lists of per-chunk arrays; row 0 of every later chunk repeats the last row).
+    current = plan
+    start = 0  # execution step at which ``current`` started
+    plans: list[tuple[int, ProbabilisticTSTrajectory]] = [(0, plan)]
+    means = [plan.get_mean(0)[None, :]]
+    covs = [plan.get_cov(0)[None, :, :]]
+    states: list[np.ndarray] = []
+    observations: list[np.ndarray] = []
+    actions: list[np.ndarray] = []
+    controls: list[np.ndarray] = []
+    belief = GaussianBelief(plan.get_mean(0).copy(), plan.get_cov(0).copy())
+    x: Any = real_initial_state
+    replans: list[Replan] = []
+    attempts = 0
+    violated = False
+    k = 0
+    p_max = max((mode.p for mode in system.system_modes), default=0)
+
+    def decision_due(k: int) -> bool:
+        if replan is None or k == 0 or violated or attempts >= max_replans:
+            return False
+        return k % (every if replan == "every" else check_every) == 0
+
+    while True:
+        j = k - start
+        remaining = current.num_of_steps - j
+        if remaining <= 0:
+            break
+        if decision_due(k):
+            prefix = ProbabilisticTSTrajectory(
+                np.concatenate(means), np.concatenate(covs), np.concatenate(actions), np.concatenate(controls)
+            )
+            psi = progress(formula, prefix)
+            if psi is FALSE:
+                violated = True  # the prefix broke the formula: no plan can repair it
+                replans.append(Replan(k, "violated", 0.0, "skipped", False, formula=str(psi)))
+            elif psi is not TRUE:
+                p_old = float("nan")
+                go = replan == "every"
+                if replan == "on_risk":
+                    p_old = predicted_success(current, j, psi, belief)
+                    go = p_old < risk
+                if go:
+                    record, new_plan = _resolve(
+                        problem,
+                        belief,
+                        psi,
+                        base,
+                        replan_seed(ss, attempts),
+                        k,
+                        "risk" if replan == "on_risk" else "every",
+                        p_old,
+                    )
+                    attempts += 1
+                    if new_plan is not None and replan == "on_risk":
+                        p_new = predicted_success(new_plan, 0, psi, belief)
+                        adopt = p_new > p_old
+                        record = _with(record, new_predicted=p_new, adopted=adopt)
+                    if record.adopted and new_plan is not None:
+                        current, start = new_plan, k
+                        plans.append((k, new_plan))
+                        j, remaining = 0, new_plan.num_of_steps
+                    replans.append(record)
+                    logger.info(
+                        "execute: step %d, %s re-plan %s (%s, predicted %.3g -> %.3g, %.2f s)",
+                        k,
+                        record.reason,
+                        "adopted" if record.adopted else "kept the old plan",
+                        record.status,
+                        record.predicted,
+                        record.new_predicted,
+                        record.solve_time,
+                    )
+        # Execute up to the next decision step (or the end of the plan) with simulate itself.
+        if replan is None:
+            chunk = remaining
+        else:
+            period = every if replan == "every" else check_every
+            chunk = min(remaining, period - k % period)
+        xi_sim, xi_real = simulate(
+            system,
+            _suffix(current, j),
+            chunk,
+            x,
+            real_system,
+            seed=rng,
+            initial_belief=belief,
+            **sim_options,
+        )
+        if not states:
+            states.append(xi_real.get_state()[:1])
+            observations.append(_pad(xi_real.get_observation()[:1], p_max))
+        means.append(xi_sim.get_mean()[1:])
+        covs.append(xi_sim.get_cov()[1:])
+        states.append(xi_real.get_state()[1:])
+        observations.append(_pad(xi_real.get_observation()[1:], p_max))
+        actions.append(xi_sim.get_action())
+        controls.append(xi_sim.get_control())
+        belief = GaussianBelief(xi_sim.get_mean(chunk), xi_sim.get_cov(chunk))
+        x = xi_real.get_state(chunk)
+        k += chunk
+
+    all_actions = np.concatenate(actions) if actions else np.zeros(0, dtype=int)
+    all_controls = np.concatenate(controls) if controls else np.zeros((0, system.m))
+    xi_b = ProbabilisticTSTrajectory(np.concatenate(means), np.concatenate(covs), all_actions, all_controls)
+    if not states:  # a plan of no step: nothing was executed
+        x0 = np.asarray(real_initial_state, dtype=float).reshape(1, -1)
+        states, observations = [x0], [np.full((1, p_max), np.nan)]
+    all_states = np.concatenate(states)
+    xi_r = RealTrajectory(all_states, np.concatenate(observations), all_actions, all_controls)
+    b_margin = robustness(xi_b, formula)
+    s_margin = robustness(_state_reading(all_states, all_actions, all_controls), formula)
+    entropy = ss.entropy
+    return ExecutionReport(
+        belief=xi_b,
+        real=xi_r,
+        replans=tuple(replans),
+        belief_satisfied=b_margin >= 0.0,
+        state_satisfied=s_margin >= 0.0,
+        belief_margin=b_margin,
+        state_margin=s_margin,
+        plans=tuple(plans),
+        seed_entropy=int(entropy) if isinstance(entropy, int | np.integer) else tuple(entropy or ()),
+        elapsed=time.perf_counter() - t0,
+    )
+
+
+def _pad(obs: np.ndarray, p_max: int) -> np.ndarray:
+    """Observations with ``p_max`` columns (NaN where a mode observes fewer)."""
+    if obs.shape[1] == p_max:
+        return obs
+    out = np.full((obs.shape[0], p_max), np.nan)
+    out[:, : obs.shape[1]] = obs
+    return out
+
+
+def _with(record: Replan, **changes: Any) -> Replan:
+    from dataclasses import replace
+
+    return replace(record, **changes)
+
+
+def _resolve(
+    problem: Any,
+    belief: GaussianBelief,
+    psi: STLFormula,
+    options: Any,
+    seed: int,
+    step: int,
+    reason: str,
+    predicted: float,
+) -> tuple[Replan, ProbabilisticTSTrajectory | None]:
+    """Re-solve ``psi`` from ``belief``; the record and the new plan (None when none was found)."""
+    from ..synthesis.problem import Problem
+
+    t0 = time.perf_counter()
+    try:
+        cov = 0.5 * (belief.cov + belief.cov.T)  # the filter's Joseph form is symmetric up to rounding
+        sub = Problem(problem.switched_system, problem.control_domain, to_belief(belief.mean, cov), psi)
+        result = sub.solve_result(options=options.with_(seed=seed))
+    except IdstlpyError as exc:
+        # A re-plan that cannot even be posed keeps the old plan; the record says why.
+        return (
+            Replan(
+                step,
+                reason,
+                predicted,
+                "error",
+                False,
+                solve_time=time.perf_counter() - t0,
+                seed=seed,
+                formula=str(psi),
+                reason_text=f"{type(exc).__name__}: {exc}",
+            ),
+            None,
+        )
+    new = result.trajectory if result.status == "found" else None
+    record = Replan(
+        step,
+        reason,
+        predicted,
+        result.status,
+        adopted=new is not None,
+        solve_time=time.perf_counter() - t0,
+        plan_steps=0 if new is None else new.num_of_steps,
+        seed=seed,
+        formula=str(psi),
+        reason_text=str(result.reason),
+        caps_hit=tuple(result.stats.caps_hit),
+    )
+    return record, new

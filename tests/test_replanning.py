@@ -1,0 +1,177 @@
+"""Receding-horizon execution (idstlpy.execute): identity with simulate, determinism, re-plans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import idstlpy as stl
+from idstlpy.errors import InvalidArgumentError, InvalidTypeError
+from idstlpy.execution.replanning import replan_seed
+
+FORMULA_TEXT = "F[0,12] G[0,4] target"
+
+
+def _problem() -> stl.Problem:
+    """A noisy integrator that must reach a box and hold it (LP-exact: solves in milliseconds)."""
+    x = stl.mk_variable(2, name="x")
+    u = stl.mk_variable(2, name="u")
+    mode = stl.mk_lbs(A=np.eye(2), B=0.5 * np.eye(2), W=0.08 * np.eye(2), C=np.eye(2), V=0.1 * np.eye(2))
+    target = stl.logical_and(
+        stl.prob(x[0] >= 1.4) >= 0.9,
+        stl.prob(x[0] <= 2.6) >= 0.9,
+        stl.prob(x[1] >= -0.6) >= 0.9,
+        stl.prob(x[1] <= 0.6) >= 0.9,
+        name="target",
+    )
+    return stl.Problem(
+        stl.mk_switched_sys([mode]),
+        stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region,
+        stl.to_belief(np.zeros(2), 0.05 * np.eye(2)),
+        stl.eventually(0, 12, stl.always(0, 4, target)),
+    )
+
+
+OPTIONS = {"rrt_timeout": 2, "seed": 0}
+
+
+@pytest.fixture(scope="module")
+def case():
+    problem = _problem()
+    plan = problem.solve(**OPTIONS)
+    assert plan is not None, problem.last_result
+    real = stl.mk_switched_sys([stl.mk_lcs(A=np.eye(2), B=0.5 * np.eye(2))])
+    return problem, plan, real, np.array([0.2, -0.1])
+
+
+def test_without_replanning_execute_is_simulate(case):
+    problem, plan, real, x0 = case
+    xi_b, xi_r = stl.simulate(
+        problem.switched_system,
+        plan,
+        plan.num_of_steps,
+        x0,
+        real,
+        seed=7,
+        control_domain=problem.control_domain,
+    )
+    report = stl.execute(problem, plan, real, x0, seed=7)
+    assert np.array_equal(report.belief.get_mean(), xi_b.get_mean())
+    assert np.array_equal(report.belief.get_cov(), xi_b.get_cov())
+    assert np.array_equal(report.real.get_state(), xi_r.get_state())
+    assert np.array_equal(report.real.get_observation(), xi_r.get_observation(), equal_nan=True)
+    assert report.replans == () and report.plans[0][1] is plan
+    assert report.belief_satisfied == stl.satisfies(xi_b, problem.stl_formula)
+
+
+def test_chunked_execution_with_failed_resolves_is_still_simulate(case):
+    """A re-solve that finds nothing keeps the old plan: the run equals the fixed plan's, bit for bit."""
+    problem, plan, real, x0 = case
+    fixed = stl.execute(problem, plan, real, x0, seed=3)
+    starved = stl.execute(
+        problem,
+        plan,
+        real,
+        x0,
+        seed=3,
+        replan="every",
+        every=2,
+        replan_time_limit=1e-9,
+        solver_options=OPTIONS,
+    )
+    assert starved.num_replans >= 1 and starved.num_adopted == 0
+    assert all(r.status != "found" and not r.adopted for r in starved.replans)
+    assert np.array_equal(starved.belief.get_mean(), fixed.belief.get_mean())
+    assert np.array_equal(starved.real.get_state(), fixed.real.get_state())
+
+
+def test_same_seed_same_execution_and_replans(case):
+    problem, plan, real, x0 = case
+    kw = {"replan": "every", "every": 3, "solver_options": OPTIONS}
+    a = stl.execute(problem, plan, real, x0, seed=11, **kw)
+    b = stl.execute(problem, plan, real, x0, seed=11, **kw)
+    assert a.num_adopted >= 1
+    assert a == b
+    assert [r.seed for r in a.replans] == [
+        replan_seed(np.random.SeedSequence(11), i) for i in range(len(a.replans))
+    ]
+    c = stl.execute(problem, plan, real, x0, seed=12, **kw)
+    assert not np.array_equal(a.real.get_state(), c.real.get_state())
+
+
+def test_forced_risk_triggers_a_replan_from_the_progressed_formula(case):
+    problem, plan, real, x0 = case
+    report = stl.execute(
+        problem,
+        plan,
+        real,
+        x0,
+        seed=1,
+        replan="on_risk",
+        risk=1.0,
+        check_every=4,
+        max_replans=2,
+        solver_options=OPTIONS,
+    )
+    assert 1 <= report.num_replans <= 2
+    first = report.replans[0]
+    assert first.step == 4 and first.reason == "risk"
+    assert 0.0 <= first.predicted < 1.0
+    assert first.status == "found"
+    # The formula re-solved is the original one progressed over the executed prefix X_0..X_4.
+    prefix = stl.ProbabilisticTSTrajectory(
+        report.belief.get_mean()[:5],
+        report.belief.get_cov()[:5],
+        report.belief.get_action()[:4],
+        report.belief.get_control()[:4],
+    )
+    assert first.formula == str(stl.progress(problem.stl_formula, prefix))
+    assert first.adopted == (first.new_predicted > first.predicted)
+    # Verdicts are the original formula's, on the whole executed run.
+    assert report.belief_satisfied == stl.satisfies(report.belief, problem.stl_formula)
+    # A threshold of 0 never re-plans.
+    calm = stl.execute(problem, plan, real, x0, seed=1, replan="on_risk", risk=0.0, check_every=4)
+    assert calm.replans == ()
+
+
+def test_adopted_plan_is_followed(case):
+    problem, plan, real, x0 = case
+    report = stl.execute(problem, plan, real, x0, seed=5, replan="every", every=4, solver_options=OPTIONS)
+    assert report.num_adopted >= 1
+    ((k, new),) = [p for p in report.plans if p[0] == report.replans[0].step]
+    # The new plan starts at the executed belief of step k and its modes are the ones executed.
+    assert np.allclose(new.get_mean(0), report.belief.get_mean(k))
+    end = min(report.num_of_steps, k + new.num_of_steps)
+    assert np.array_equal(report.belief.get_action()[k:end], new.get_action()[: end - k])
+
+
+@pytest.mark.parametrize(
+    ("kw", "error", "name"),
+    [
+        ({"replan": "sometimes"}, InvalidArgumentError, "replan"),
+        ({"replan": "on_risk", "risk": 1.5}, InvalidArgumentError, "risk"),
+        ({"replan": "every", "every": 0}, InvalidArgumentError, "every"),
+        ({"check_every": 0}, InvalidArgumentError, "check_every"),
+        ({"risk_measure": "median"}, InvalidArgumentError, "risk_measure"),
+        ({"risk_on": "plan"}, InvalidArgumentError, "risk_on"),
+        ({"max_replans": -1}, InvalidArgumentError, "max_replans"),
+        ({"replan_time_limit": 0}, InvalidArgumentError, "replan_time_limit"),
+        ({"seed": "x"}, InvalidTypeError, "seed"),
+        ({"options": {"rrt_timeout": 1}}, InvalidTypeError, "options"),
+        ({"solver_options": {"no_such_option": 1}}, InvalidArgumentError, "no_such_option"),
+    ],
+)
+def test_bad_inputs_raise_package_errors_naming_the_argument(case, kw, error, name):
+    problem, plan, real, x0 = case
+    with pytest.raises(error, match=name):
+        stl.execute(problem, plan, real, x0, **kw)
+
+
+def test_bad_problem_or_plan(case):
+    problem, plan, real, x0 = case
+    with pytest.raises(InvalidTypeError, match="problem"):
+        stl.execute("problem", plan, real, x0)
+    with pytest.raises(InvalidArgumentError, match="plan is None"):
+        stl.execute(problem, None, real, x0)
+    with pytest.raises(stl.DimensionError, match="real_initial_state"):
+        stl.execute(problem, plan, real, np.zeros(3))
