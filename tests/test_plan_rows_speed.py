@@ -155,3 +155,19 @@ def test_touching_boxes_are_not_disjoint():
     assert Polytope.box([0.0], [1.0]).intersect(Polytope.box([1.0 + 1e-6], [2.0])).is_empty()
     # A slanted face is not a box: the LP answers.
     assert Polytope([[1.0, 1.0]], [-1.0])._axis_box is None
+
+
+def test_is_disjoint_agrees_with_the_intersection():
+    rng = np.random.default_rng(1)
+    for _ in range(300):
+        n = int(rng.integers(1, 4))
+        boxes = []
+        for _ in range(2):
+            low = rng.normal(size=n) * 2
+            high = low + rng.uniform(-0.5, 3, size=n)
+            boxes.append(Polytope(np.vstack([np.eye(n), -np.eye(n)]), np.concatenate([-high, low])))
+        a, b = boxes
+        assert a.is_disjoint(b) == _lp_only(a).intersect(_lp_only(b)).is_empty()
+    slanted = Polytope([[1.0, 1.0]], [-1.0])  # x + y <= 1: not a box, the LP answers
+    assert slanted.is_disjoint(Polytope.box([2.0, 2.0], [3.0, 3.0]))
+    assert not slanted.is_disjoint(Polytope.box([0.0, 0.0], [3.0, 3.0]))

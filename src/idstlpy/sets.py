@@ -170,27 +170,6 @@ class Polytope:
         feasible = bool(np.all(c[~one] <= 0))
         return low, high, feasible
 
-    def _box_radius(self, box: tuple[np.ndarray, np.ndarray, bool]) -> float:
-        """The Chebyshev LP's optimum for a box: half its narrowest width (capped at 1e6).
-
-        A box that is empty only by rounding of its bounds (``low > high`` by less than a few
-        ulps of their size, on top of the LP's own ``_INTERIOR_TOL``) is treated as touching, so
-        emptiness is never claimed from rounding.
-        """
-        low, high, feasible = box
-        if not feasible:
-            return -np.inf
-        with np.errstate(invalid="ignore"):
-            half = 0.5 * (high - low)
-        half = np.where(np.isnan(half), np.inf, half)
-        r = float(min(np.min(half), 1e6)) if half.size else 1e6
-        if -_INTERIOR_TOL > r:
-            ends = np.concatenate([low[np.isfinite(low)], high[np.isfinite(high)]])
-            scale = np.max(np.abs(ends), initial=0.0)
-            if r >= -_INTERIOR_TOL - 4 * np.finfo(float).eps * scale:
-                r = -_INTERIOR_TOL
-        return r
-
     @cached_property
     def _radius(self) -> float:
         """Chebyshev radius (``-inf`` when infeasible), without an LP for boxes."""
@@ -198,7 +177,7 @@ class Polytope:
             return np.inf
         box = self._axis_box
         if box is not None:
-            return self._box_radius(box)
+            return _box_radius(box)
         center, radius = self._chebyshev
         return radius if center is not None else -np.inf
 
@@ -273,9 +252,9 @@ class Polytope:
         n = self.dim
         box = self._axis_box
         if box is not None:
-            if box[2] and np.all(box[0] <= box[1]):
-                return box[0].copy(), box[1].copy()
-            return np.full(n, np.inf), np.full(n, -np.inf)  # empty: what the support LPs return
+            if _box_radius(box) < -_INTERIOR_TOL:
+                return np.full(n, np.inf), np.full(n, -np.inf)  # empty: what the support LPs return
+            return box[0].copy(), box[1].copy()
         low, high = np.empty(n), np.empty(n)
         for i in range(n):
             e = np.zeros(n)
@@ -348,14 +327,54 @@ class Polytope:
             )
         return make_polytope(np.vstack([self.H, other.H]), np.concatenate([self.c, other.c]))
 
+    def is_disjoint(self, other: Polytope) -> bool:
+        """True when no point lies in both polytopes (``self.intersect(other).is_empty()``).
+
+        Parameters
+        ----------
+        other : Polytope
+            A polytope of the same dimension ``n``.
+
+        Returns
+        -------
+        bool
+        """
+        a, b = self._axis_box, other._axis_box
+        if a is None or b is None or other.dim != self.dim:
+            return self.intersect(other).is_empty()
+        box = (np.maximum(a[0], b[0]), np.minimum(a[1], b[1]), a[2] and b[2])
+        return bool(_box_radius(box) < -_INTERIOR_TOL)
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}(dim={self.dim}, faces={self.H.shape[0]})"
 
 
+def _box_radius(box: tuple[np.ndarray, np.ndarray, bool]) -> float:
+    """The Chebyshev LP's optimum for a box: half its narrowest width (capped at 1e6).
+
+    A box that is empty only by rounding of its bounds (``low > high`` by less than a few
+    ulps of their size, on top of the LP's own ``_INTERIOR_TOL``) is treated as touching, so
+    emptiness is never claimed from rounding.
+    """
+    low, high, feasible = box
+    if not feasible:
+        return -np.inf
+    with np.errstate(invalid="ignore"):
+        half = 0.5 * (high - low)
+    half = np.where(np.isnan(half), np.inf, half)
+    r = float(min(np.min(half), 1e6)) if half.size else 1e6
+    if -_INTERIOR_TOL > r:
+        ends = np.concatenate([low[np.isfinite(low)], high[np.isfinite(high)]])
+        scale = np.max(np.abs(ends), initial=0.0)
+        if r >= -_INTERIOR_TOL - 4 * np.finfo(float).eps * scale:
+            r = -_INTERIOR_TOL
+    return r
+
+
 def _box_support(box: tuple[np.ndarray, np.ndarray, bool], d: np.ndarray) -> float:
     """``max d'x`` over a box: each coordinate at the bound ``d`` points to."""
-    low, high, feasible = box
-    if not feasible or np.any(low > high):
+    low, high, _ = box
+    if _box_radius(box) < -_INTERIOR_TOL:
         return -np.inf
     pos, neg = d > 0, d < 0
     ends = np.concatenate([high[pos], low[neg]])

@@ -91,6 +91,9 @@ class Abstraction:
         """Slack of every face (>= 0 satisfied), shape (F,)."""
         if not self.H.shape[0]:
             return np.zeros(0)
+        if not cov.any():
+            # Zero covariance (STL, and every noise-free plan): every standard-deviation term is 0.
+            return -(mean @ self.H.T + self.c)
         return slack(self.H, self.c, self.z, mean, cov)
 
     def truth(self, mean: np.ndarray, cov: np.ndarray, arrival_mode: int) -> np.ndarray:
@@ -98,16 +101,24 @@ class Abstraction:
 
         ``arrival_mode < 0`` means step 0 (mode atoms are vacuous).
         """
-        out = np.ones(self.num_atoms, dtype=bool)
+        out = self._mode_truth(arrival_mode).copy()
         if self.H.shape[0]:
             bad = self.face_slack(mean, cov) < 0
-            if bad.any():
-                out[np.unique(self.owner[bad])] = False
-        if arrival_mode >= 0:
-            for i, modes in enumerate(self.mode_sets):
-                if modes is not None and arrival_mode not in modes:
-                    out[i] = False
+            out[self.owner[bad]] = False
         return out
+
+    def _mode_truth(self, arrival_mode: int) -> np.ndarray:
+        """Which propositions a belief reached with ``arrival_mode`` may satisfy (cached per mode)."""
+        cache = self.__dict__.setdefault("_mode_truths", {})
+        got = cache.get(arrival_mode)
+        if got is None:
+            got = np.ones(self.num_atoms, dtype=bool)
+            if arrival_mode >= 0:
+                for i, modes in enumerate(self.mode_sets):
+                    if modes is not None and arrival_mode not in modes:
+                        got[i] = False
+            cache[arrival_mode] = got
+        return got
 
     def region(self, i: int) -> Polytope:
         """Mean region of proposition ``i`` at zero covariance (whole space without faces; cached)."""
@@ -228,7 +239,7 @@ class Abstraction:
             for j in range(i + 1, self.num_atoms):
                 if i in empty or j in empty or not regions[i].H.shape[0] or not regions[j].H.shape[0]:
                     continue
-                if regions[i].intersect(regions[j]).is_empty():
+                if regions[i].is_disjoint(regions[j]):
                     disjoint.append((i, j))
         init = self.truth(initial_mean, initial_cov, -1)
         initial_false = [i for i in range(self.num_atoms) if not init[i]]

@@ -327,11 +327,10 @@ class BMCProposer:
         """
         enc = self._enc()
         K = min(truth.shape[1] - 1, self.bound)
-        phases: list[int] = []
-        for k in range(1, K + 1):
-            phases.extend(int(v) if t else -int(v) for v, t in zip(enc.p[:, k], truth[:, k], strict=True))
-        phases.extend(int(v) for v in enc.p[:, K + 1 :].ravel())
-        enc.set_phases(phases)
+        # Step by step, each proposition's literal signed by its label; later steps claimed.
+        signed = np.where(truth[:, 1 : K + 1], enc.p[:, 1 : K + 1], -enc.p[:, 1 : K + 1])
+        phases = np.concatenate([signed.T.ravel(), enc.p[:, K + 1 :].ravel()])
+        enc.set_phases(phases.tolist())
 
     def complete(
         self, truth: np.ndarray, modes: np.ndarray, optimistic_required: np.ndarray | None = None
