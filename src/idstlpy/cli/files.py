@@ -77,6 +77,12 @@ def register(subparsers: Any) -> None:
         help="a saved result (from solve, validate, sweep, demo or SolveResult.save): re-roll its "
         "modes and controls under this problem, check the formula, execute it; no solving",
     )
+    validate.add_argument(
+        "--predict",
+        action="store_true",
+        help="also predict the execution (linear-Gaussian closed loop) and report predicted next "
+        "to measured violation rates and success (the same as --set validation.predict=true)",
+    )
     _common(validate, single=True)
     validate.set_defaults(func=_cmd_validate)
 
@@ -154,6 +160,13 @@ def _common(parser: argparse.ArgumentParser, single: bool) -> None:
             default=None,
             help="optimise the plan: least input effort, fewest steps or largest robustness margin "
             "(the same as --set solver.objective=...)",
+        )
+        parser.add_argument(
+            "--guarantee",
+            choices=("mlo", "closed_loop"),
+            default=None,
+            help="what the chance constraints constrain: the MLO belief (the paper's semantics, default) "
+            "or the true state predicted under the executor (the same as --set solver.guarantee=...)",
         )
 
 
@@ -326,7 +339,11 @@ def _single(args: argparse.Namespace, kind: str) -> int:
     sets = list(args.overrides)
     if getattr(args, "objective", None):
         sets.append(f'solver.objective="{args.objective}"')
+    if getattr(args, "guarantee", None):
+        sets.append(f'solver.guarantee="{args.guarantee}"')
     overrides = parse_set_option(sets)
+    if getattr(args, "predict", False):
+        overrides["validation.predict"] = True
     spec = apply_overrides(load_problem(args.file), overrides)
     saved = None
     plan_path = getattr(args, "plan", None)

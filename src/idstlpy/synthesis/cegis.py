@@ -15,6 +15,13 @@ The loop orchestrates typed parts (:mod:`.interfaces`) and decides nothing itsel
 5. On an LP-exact single-mode problem whose lazy loop has not converged after
    ``lazy_candidates`` candidates, the eager MILP (:mod:`.milp`) chooses the discrete plan.
 
+With ``guarantee="closed_loop"`` the monitor verifies the true state predicted under the executor
+(:func:`idstlpy.closed_loop.predicted_state`) instead of the MLO belief, and a plan that fails it
+is first repaired (:func:`_certify`). An MLO refutation stays a proof under constant sensor noise
+(the predicted covariance is the filter's plus the estimate's spread, never smaller than the MLO
+one, and every chance constraint has ``eps <= 0.5``, so it only gets harder); under
+state-dependent noise it is not, and an ``infeasible`` becomes ``budget_exhausted``.
+
 Statuses: ``found`` (monitor-verified), ``infeasible`` (the proposer ran dry over proven
 clauses at the formula's full horizon, or the MILP over a correctly bounded model proved it),
 ``budget_exhausted`` otherwise, with the counts of refuted and abandoned candidates.
@@ -24,12 +31,13 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ..backends import get_backend
 from ..belief import rollout
+from ..closed_loop import predicted_state
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -59,6 +67,12 @@ class _Run:
         self.stats = SolveStats()
         self.formula = problem.stl_formula
         self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
+        self.closed_loop = options.guarantee == "closed_loop"
+        system = problem.switched_system
+        # Under closed_loop, MLO proofs carry over only when the filter covariance is the MLO one.
+        self.proofs_hold = not self.closed_loop or not any(
+            mode.p and mode.has_state_dependent_noise for mode in system.system_modes
+        )
 
     def done(
         self,
@@ -66,13 +80,29 @@ class _Run:
         reason: str,
         traj: ProbabilisticTSTrajectory | None = None,
         margin: float = np.nan,
+        predicted: ProbabilisticTSTrajectory | None = None,
     ) -> SolveResult:
         stats = self.stats
         stats.time_total = self.budget.elapsed()
+        if status == "infeasible" and not self.proofs_hold:
+            status = "budget_exhausted"
+            reason += (
+                " under the MLO reading; with state-dependent sensor noise that is no proof for "
+                "guarantee='closed_loop'"
+            )
         if status != "found" and "time_limit" in stats.caps_hit:
             reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
-        return SolveResult(status, traj, reason, margin, stats, str(self.formula))
+        return SolveResult(
+            status,
+            traj,
+            reason,
+            margin,
+            stats,
+            str(self.formula),
+            guarantee=self.options.guarantee,
+            predicted=predicted,
+        )
 
     def counts(self) -> str:
         s = self.stats
@@ -136,7 +166,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
         seeds = np.random.SeedSequence(options.seed)
         weights = None if options.effort_weights is None else np.asarray(options.effort_weights, dtype=float)
         teachers: list[Teacher] = [
-            LPTeacher(problem, abstraction, scaling, lp_backend, 3, options.objective, weights)
+            LPTeacher(
+                problem, abstraction, scaling, lp_backend, 3, options.objective, weights, run.closed_loop
+            )
         ]
         sampler = SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
         if sampler.applies(problem):
@@ -179,15 +211,22 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 logger.debug("candidate %d refuted: %s", stats.candidates, verdict.conflict.proof)
                 continue
             if isinstance(verdict, Found):
-                checked = _verify(problem, verdict.actions, verdict.controls)
+                checked = _verify(run, verdict.actions, verdict.controls, abstraction, scaling)
                 if checked is not None:
-                    traj, margin = checked
                     found = run.done(
-                        "found", f"{verdict.how} met the plan and the monitor agrees", traj, margin
+                        "found",
+                        f"{verdict.how} met the plan and the monitor agrees",
+                        checked.traj,
+                        checked.margin,
+                        checked.predicted,
                     )
                     path = "lp" if verdict.exact else "sampler"
                     return _optimise(run, found, proposer, abstraction, scaling, path)
-                why = "the plan failed the monitor's exact re-check"
+                why = (
+                    "the plan's predicted closed loop failed the monitor, even repaired"
+                    if run.closed_loop
+                    else "the plan failed the monitor's exact re-check"
+                )
             else:
                 why = verdict.why if verdict is not None else "no teacher applies"
             proposer.abandon(plan)
@@ -259,11 +298,20 @@ def _optimise(
     except BudgetExceeded:
         stats.caps_hit.append("time_limit")
         how += " (the time limit stopped the optimisation: the best plan so far)"
+    final = _check(run, traj)
+    if final is None:
+        # The optimiser works on the MLO belief; its plan may lose the closed-loop promise the
+        # first plan had: keep that one.
+        logger.info("the optimised plan fails the closed-loop check: the first plan is kept")
+        traj, final = found.trajectory, _check(run, found.trajectory)
+        value, optimal, scope, bound = objective_value(name, traj, formula, weights), False, "", float("nan")
+        how = found.reason + " (the optimised plan failed the closed-loop check)"
     if np.isfinite(bound):
         # The MILP's bound is on its own model, within the solver's tolerances; the verified plan
         # is a bound too, so the reported one is never on the wrong side of the value.
         bound = max(bound, value) if name == "margin" else min(bound, value)
-    result = run.done("found", how, traj, robustness(traj, formula))
+    margin = robustness(traj, formula) if final is None else final.margin
+    result = run.done("found", how, traj, margin, None if final is None else final.predicted)
     result.objective = name
     result.objective_value = value
     result.objective_bound = bound
@@ -309,7 +357,7 @@ def _global(
     checked = _retime(run, abstraction, scaling, out.claims, out.controls, name, weights)
     if checked is None:
         return None
-    return checked[0], out.proven, out.bound, proposer.bound >= proposer.H
+    return checked.traj, out.proven, out.bound, proposer.bound >= proposer.H
 
 
 def _retime(
@@ -321,7 +369,7 @@ def _retime(
     objective: str | None,
     weights: np.ndarray | None,
     room: float = 0.0,
-) -> tuple[ProbabilisticTSTrajectory, float] | None:
+) -> Verified | None:
     """Verify a MILP's plan, first re-solved by the plan LP on its witness (exact re-timing).
 
     ``room`` is the least margin (state units) the re-timing leaves inside the required faces.
@@ -351,7 +399,7 @@ def _retime(
         stats.lp_calls += 1
         if lp.feasible and lp.controls is not None:
             actions, controls = np.zeros(L - 1, dtype=int), lp.controls
-    return _verify(problem, actions, controls)
+    return _verify(run, actions, controls, abstraction, scaling)
 
 
 def _guide(proposer: BMCProposer, abstraction: Abstraction, teacher: LPTeacher, plan: DiscretePlan) -> None:
@@ -432,22 +480,125 @@ def _eager(
         checked = _retime(run, abstraction, scaling, claims, controls, None, weights, room)
     if checked is None:
         return None
-    traj, margin = checked
     whole = proposer.bound >= proposer.H or options.objective == "time"  # shorter plans are all inside
     scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
     run.milp_proof = (out.proven, scope, out.bound)
     return run.done(
-        "found", "the eager MILP chose the plan, the LP timed it, the monitor agrees", traj, margin
+        "found",
+        "the eager MILP chose the plan, the LP timed it, the monitor agrees",
+        checked.traj,
+        checked.margin,
+        checked.predicted,
     )
 
 
+class Verified(NamedTuple):
+    """A plan that passed the monitor: the MLO plan, its margin and, under closed_loop, the
+    predicted true-state distribution the margin is about."""
+
+    traj: ProbabilisticTSTrajectory
+    margin: float
+    predicted: ProbabilisticTSTrajectory | None
+
+
+def _check(run: _Run, traj: ProbabilisticTSTrajectory | None) -> Verified | None:
+    """Run the monitor on what the guarantee is about: the MLO plan, or its predicted closed loop."""
+    if traj is None:
+        return None
+    formula = run.problem.stl_formula
+    if not run.closed_loop:
+        margin = robustness(traj, formula)
+        return Verified(traj, margin, None) if margin >= 0 else None
+    predicted = predicted_state(run.problem.switched_system, traj, run.problem.control_domain)
+    margin = robustness(predicted, formula)
+    return Verified(traj, margin, predicted) if margin >= 0 else None
+
+
 def _verify(
-    problem: Any, actions: np.ndarray, controls: np.ndarray
-) -> tuple[ProbabilisticTSTrajectory, float] | None:
-    """Re-roll the exact belief dynamics and run the monitor; the plan and its margin if it passes."""
+    run: _Run, actions: np.ndarray, controls: np.ndarray, abstraction: Abstraction, scaling: Scaling
+) -> Verified | None:
+    """Re-roll the exact belief dynamics and run the monitor; the plan and its margin if it passes.
+
+    Under ``guarantee="closed_loop"`` a plan whose predicted true state fails is repaired first
+    (:func:`_certify`).
+    """
+    problem = run.problem
     traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
-    margin = robustness(traj, problem.stl_formula)
-    if margin >= 0:
-        return traj, margin
-    logger.warning("candidate failed the monitor re-check (margin %.3g)", margin)
+    if run.closed_loop:
+        return _certify(run, traj, abstraction, scaling)
+    checked = _check(run, traj)
+    if checked is None:
+        logger.warning(
+            "candidate failed the monitor re-check (margin %.3g)", robustness(traj, problem.stl_formula)
+        )
+    return checked
+
+
+def _certify(
+    run: _Run, traj: ProbabilisticTSTrajectory, abstraction: Abstraction, scaling: Scaling
+) -> Verified | None:
+    """Make a plan keep its promise under the executor: sequential LPs on predicted covariances.
+
+    Each round predicts the true state's covariances under the executor for the current plan,
+    freezes them in the plan LP of the requirements the plan meets (its witness), leaves the
+    execution margin where it can, re-rolls the MLO belief and checks the prediction again.
+    Under constant sensor noise and without clipping the predicted covariances depend on the
+    modes only, so one round is exact; otherwise the means may move at most ``trust`` per round
+    (halved after a round that did not help). Returns ``None`` when no round passes.
+    """
+    problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
+    system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
+    exact = run.proofs_hold and problem.control_domain is None
+    trust = np.inf
+    rounds = max(2, options.polish_rounds)
+    for r in range(rounds + 1):
+        budget.check("the closed-loop certification")
+        checked = _check(run, traj)
+        if checked is not None:
+            if r:
+                logger.info("closed-loop repair: the plan keeps its promise after %d round(s)", r)
+            return checked
+        if r == rounds:
+            break
+        predicted = predicted_state(system, traj, problem.control_domain)
+        acts = traj.get_action()
+        modes = np.concatenate([[-1], acts]).astype(int)
+        means, covs = traj.get_mean(), traj.get_cov()
+        truth = np.stack(
+            [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
+            axis=1,
+        )
+        witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
+        if witness is None:
+            break
+        required, L = witness
+        plan = DiscretePlan(required[:, :L], modes[:L], L)
+        target = execution_margin(system, init, abstraction, plan)
+        if not exact and not np.isfinite(trust):
+            trust = 2.0 * max(target, 1e-3 * float(np.max(scaling.dx)))
+        with stats.clock("time_lp"):
+            lp = solve_plan_lp(
+                system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                abstraction,
+                plan,
+                target,
+                covs=predicted.get_cov()[:L],
+                anchor=means[:L],
+                trust=trust,
+                scaling=scaling,
+                backend=get_backend(options.lp_backend),
+                time_limit=max(budget.remaining(), 1e-3),
+                budget=budget,
+            )
+        stats.lp_calls += 1
+        if not lp.feasible or lp.controls is None:
+            if exact:
+                break
+            trust *= 0.5
+            continue
+        traj = rollout(system, init, acts[: L - 1], lp.controls)
+    logger.info("closed-loop repair failed: the predicted true state breaks the formula")
     return None

@@ -114,6 +114,13 @@ class SolverOptions:
         :mod:`idstlpy.synthesis.objectives`).
     effort_weights : sequence of float, optional
         Per-input weights ``w`` of ``"effort"`` (default ones), length ``m``.
+    guarantee : {"mlo", "closed_loop"}
+        What the chance constraints constrain. ``"mlo"`` (the paper's semantics): the belief
+        under the maximum-likelihood observation. ``"closed_loop"``: the true state predicted
+        under the executor (LQR tracking with the modes' gains and a Kalman filter, inputs
+        projected on the control domain; :func:`idstlpy.closed_loop.predicted_state`). The
+        returned plan is still the MLO belief trajectory the executor tracks; the result's
+        ``predicted`` holds the distribution that was verified.
     sat_backend : str
         python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
     lp_backend, milp_backend : str
@@ -142,6 +149,7 @@ class SolverOptions:
     shortcut_checks: int = 24
     objective: str | None = None
     effort_weights: tuple[float, ...] | None = None
+    guarantee: str = "mlo"
     sat_backend: str = "cadical195"
     lp_backend: str = "highs"
     milp_backend: str = "auto"
@@ -182,6 +190,7 @@ class SolverOptions:
             if not w or not all(math.isfinite(v) and v >= 0 for v in w):
                 raise InvalidArgumentError(f"effort_weights must be finite and >= 0, got {list(w)}")
             put(self, "effort_weights", w)
+        put(self, "guarantee", _name(self.guarantee, "guarantee", ("mlo", "closed_loop")))
         put(self, "sat_backend", _name(self.sat_backend, "sat_backend", tuple(sat_backends())))
         put(self, "lp_backend", _name(self.lp_backend, "lp_backend", tuple(available_backends())))
         if self.milp_backend == "auto":

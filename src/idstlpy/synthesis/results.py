@@ -169,6 +169,12 @@ class SolveResult:
         ``"discrete plan"`` (the best controls for the discrete plan the solver settled on, from
         the plan LP), ``"shortest first"`` (time: every shorter candidate was refuted by a proof)
         or ``""``.
+    guarantee : {"mlo", "closed_loop"}
+        What ``margin`` and the verification are about: the MLO belief trajectory (the paper's
+        semantics) or the true state predicted under the executor (``predicted``).
+    predicted : ProbabilisticTSTrajectory or None
+        With ``guarantee="closed_loop"``: the predicted true-state distribution (means
+        (N + 1, n), covariances (N + 1, n, n)) on which the monitor verified the formula.
     """
 
     status: Status
@@ -182,6 +188,8 @@ class SolveResult:
     objective_bound: float = float("nan")
     optimal: bool = False
     optimal_scope: str = ""
+    guarantee: str = "mlo"
+    predicted: ProbabilisticTSTrajectory | None = None
 
     @property
     def gap(self) -> float:
@@ -225,8 +233,10 @@ class SolveResult:
             "objective_bound": _finite_or_none(self.objective_bound),
             "optimal": self.optimal,
             "optimal_scope": self.optimal_scope,
+            "guarantee": self.guarantee,
             "stats": self.stats.to_dict(),
             "plan": None if traj is None else _trajectory_to_dict(traj),
+            "predicted": None if self.predicted is None else _trajectory_to_dict(self.predicted),
         }
 
     @classmethod
@@ -264,6 +274,10 @@ class SolveResult:
             )
         plan = data.get("plan")
         traj = None if plan is None else _trajectory_from_dict(plan)
+        pred = data.get("predicted")
+        guarantee = str(data.get("guarantee", "mlo"))
+        if guarantee not in ("mlo", "closed_loop"):
+            raise InvalidArgumentError(f"guarantee must be 'mlo' or 'closed_loop', got {guarantee!r}")
 
         def num(key: str) -> float:
             v = data.get(key)
@@ -281,6 +295,8 @@ class SolveResult:
             num("objective_bound"),
             bool(data.get("optimal", False)),
             str(data.get("optimal_scope", "")),
+            guarantee,
+            None if pred is None else _trajectory_from_dict(pred),
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:

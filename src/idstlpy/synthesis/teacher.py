@@ -26,6 +26,7 @@ from scipy.sparse import csr_matrix, hstack, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
+from ..closed_loop import predicted_state
 from ..semantics import robustness
 from .abstraction import Abstraction
 from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
@@ -377,6 +378,10 @@ class LPTeacher:
         The LP optimises ``effort`` and ``margin`` for each discrete plan (``time`` is the
         proposer's: shortest first).
     effort_weights : ndarray, shape (m,), optional
+    closed_loop : bool
+        ``guarantee="closed_loop"``: a plan is accepted when the true state predicted under the
+        executor (:func:`idstlpy.closed_loop.predicted_state`) passes the monitor, and the
+        fixed point freezes those predicted covariances instead of the re-rolled MLO ones.
     """
 
     name = "lp"
@@ -390,8 +395,10 @@ class LPTeacher:
         rounds: int = 3,
         objective: str | None = None,
         effort_weights: np.ndarray | None = None,
+        closed_loop: bool = False,
     ) -> None:
         self.problem = problem
+        self.closed_loop = closed_loop
         self.abs = abstraction
         self.scaling = scaling
         self.backend = backend
@@ -439,11 +446,15 @@ class LPTeacher:
         if out.status == "unknown":
             return Unknown(out.why, out.means)
         actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
-        if out.exact and out.controls is not None:
+        if out.exact and out.controls is not None and not self.closed_loop:
             return Found(actions, out.controls, "the plan LP", exact=True)
         found = self._fixed_point(plan, actions, out, margin, budget, stats)
         if found is not None:
             return found
+        if self.closed_loop:
+            return Unknown(
+                "the plan LP found no plan whose predicted closed loop keeps the promise", out.means
+            )
         return Unknown("the plan LP is only a relaxation under state-dependent noise", out.means)
 
     def _fixed_point(
@@ -455,11 +466,13 @@ class LPTeacher:
         budget: Budget,
         stats: SolveStats,
     ) -> Found | None:
-        """Under state-dependent noise, re-solve the LP on the exact covariances of its own plan.
+        """Re-solve the LP on the covariances its own plan really has.
 
-        Roll the LP's controls out exactly; if the monitor accepts, that is the plan. Otherwise
-        freeze those covariances and solve again (a fixed-point iteration that settles at once
-        when the noise does not really depend on the mean along the plan).
+        Roll the LP's controls out exactly (under ``closed_loop``: and predict the executed true
+        state); if the monitor accepts, that is the plan. Otherwise freeze those covariances and
+        solve again (a fixed-point iteration that settles at once when the covariances do not
+        depend on the means along the plan: constant sensor noise, and no input clipping under
+        ``closed_loop``).
         """
         problem = self.problem
         system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
@@ -468,8 +481,15 @@ class LPTeacher:
             if controls is None:
                 return None
             traj = rollout(system, init, actions, controls)
+            if self.closed_loop:
+                traj = predicted_state(system, traj, problem.control_domain)
             if robustness(traj, formula) >= 0:
-                return Found(actions, controls, "the plan LP on re-rolled covariances")
+                how = (
+                    "the plan LP on predicted closed-loop covariances"
+                    if self.closed_loop
+                    else ("the plan LP on re-rolled covariances")
+                )
+                return Found(actions, controls, how, exact=out.exact)
             with stats.clock("time_lp"):
                 nxt = solve_plan_lp(
                     system,
