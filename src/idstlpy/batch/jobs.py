@@ -415,6 +415,7 @@ def _validate(
         runs=execution.runs,
         seed=vseed,
         executor="serial",
+        predict=execution.predict,
     )
     data = report.as_dict()
     data["seed"] = vseed

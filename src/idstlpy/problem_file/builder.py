@@ -71,6 +71,8 @@ class ExecutionSettings:
         Number of validation runs.
     seed : int or None
         Seed of the validation runs.
+    predict : bool
+        Also predict the execution (``validate(..., predict=True)``).
     """
 
     real_system: SwitchedSystem
@@ -78,6 +80,7 @@ class ExecutionSettings:
     lqr: dict[str, Any] | None = None
     runs: int = sc.DEFAULT_VALIDATION_RUNS
     seed: int | None = None
+    predict: bool = False
 
 
 class BuiltProblem(NamedTuple):
@@ -467,4 +470,7 @@ class _Builder:
             else sc.DEFAULT_VALIDATION_RUNS
         )
         seed = sc.integer(self.ctx, vpath + ("seed",), vv["seed"], 0) if "seed" in vv else None
-        return ExecutionSettings(real, x0, lqr, runs, seed)
+        predict = vv.get("predict", False)
+        if not isinstance(predict, bool):
+            raise self.err(vpath + ("predict",), f"must be true or false, got {sc.kind_of(predict)}")
+        return ExecutionSettings(real, x0, lqr, runs, seed, predict)

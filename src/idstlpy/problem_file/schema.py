@@ -59,7 +59,7 @@ PROPOSITION_KEYS = ("constraints", "confidence", "modes")
 CONSTRAINT_TABLE_KEYS = ("expr", "confidence")
 EXECUTION_KEYS = ("real_system", "real_initial_state", "lqr")
 LQR_KEYS = ("horizon", "Q_final", "Q", "R")
-VALIDATION_KEYS = ("runs", "seed")
+VALIDATION_KEYS = ("runs", "seed", "predict")
 DEFAULT_VALIDATION_RUNS = 100
 
 
