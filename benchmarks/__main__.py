@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import logging
+import os
 import shutil
 import sys
 import time
@@ -70,6 +72,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=ROOT / "results", help="output directory (default results/)")
     p.add_argument("--no-doc", action="store_true", help="do not rewrite BENCHMARKS.md")
     p.add_argument("--doc", type=Path, default=ROOT / "BENCHMARKS.md", help="where to write BENCHMARKS.md")
+    p.add_argument("--doc-from", type=Path, default=None, metavar="DIR",
+                   help="run nothing: refresh BENCHMARKS.md's sections from an earlier run's --out DIR "
+                        "(its results.csv and run.json), e.g. after editing benchmarks/analysis.md")
     p.add_argument("-v", "--verbose", action="store_true")
     return p.parse_args(argv)
 
@@ -108,18 +113,55 @@ def make_config(a: argparse.Namespace) -> Config:
     return cfg
 
 
+def _load() -> str:
+    """The 1-minute load average (other jobs on the machine inflate every tool's seconds)."""
+    return f"{os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else "?"
+
+
+def _write_doc(a: argparse.Namespace, run: dict, tables: str, plotted: bool, png_path: Path) -> None:
+    """Refresh BENCHMARKS.md's runner sections (the other sections are kept, see report.py)."""
+    analysis_file = Path(__file__).with_name("analysis.md")
+    analysis = analysis_file.read_text() if analysis_file.exists() else None
+    try:
+        plot_rel = str(png_path.relative_to(a.doc.resolve().parent)) if plotted else None
+    except ValueError:
+        plot_rel = str(png_path) if plotted else None
+    write_benchmarks_md(a.doc, tables, run["command"], run["machine"], run["timeout"], run["repeats"],
+                        plot_rel, run["started"], run["wall"], analysis, run.get("load"), run.get("suites"))
+    logging.info("wrote %s", a.doc)
+
+
+def _doc_from(a: argparse.Namespace) -> int:
+    """``--doc-from DIR``: re-render the tables of an earlier run and refresh BENCHMARKS.md."""
+    run = json.loads((a.doc_from / "run.json").read_text())
+    rows = load_rows(str(a.doc_from / "results.csv"), "all")
+    tables = markdown(rows, run["timeout"], run["peers"], run["modes"])
+    kept = ROOT / "benchmarks" / "results"
+    kept.mkdir(exist_ok=True)
+    for name in ("results.csv", "run.json", "horizon_scaling.png"):
+        src = a.doc_from / name
+        if src.exists() and src.resolve() != (kept / name).resolve():
+            shutil.copy(src, kept / name)
+    png = kept / "horizon_scaling.png"
+    _write_doc(a, run, tables, png.exists(), png)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if a.verbose else logging.INFO,
                         format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
     for name in ("matplotlib", "PIL", "idstlpy"):
         logging.getLogger(name).setLevel(logging.WARNING)
+    if a.doc_from is not None:
+        return _doc_from(a)
     cfg = make_config(a)
     unknown = set(a.suites) - set(ALL_SUITES)
     if unknown:
         raise SystemExit(f"unknown suites {sorted(unknown)}; choose from {list(ALL_SUITES)}")
     a.out.mkdir(parents=True, exist_ok=True)
     started = dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
+    load0 = _load()
     t0 = time.perf_counter()
     rows: list[dict] = []
     if a.reuse_peers is not None:
@@ -143,23 +185,20 @@ def main(argv: list[str] | None = None) -> int:
     cmd = command_line()
     md_path.write_text(f"# Benchmark results\n\n`{cmd}` - {started}, nproc {mach['nproc']}, "
                        f"{mach['cpu']}\n\n{tables}\n")
+    run = {"command": cmd, "started": started, "wall": wall, "machine": mach, "timeout": cfg.timeout,
+           "repeats": cfg.repeats, "peers": list(cfg.peers), "modes": list(cfg.modes),
+           "load": f"{load0} at the start, {_load()} at the end", "suites": list(a.suites)}
+    (a.out / "run.json").write_text(json.dumps(run, indent=1))
     logging.info("wrote %s, %s%s", csv_path, md_path, f", {png_path}" if plotted else "")
     if not a.quick and not a.no_doc:
         # results/ is scratch (git-ignored); the figures BENCHMARKS.md shows are kept beside the code.
         kept = ROOT / "benchmarks" / "results"
         kept.mkdir(exist_ok=True)
         shutil.copy(csv_path, kept / "results.csv")
+        shutil.copy(a.out / "run.json", kept / "run.json")
         if plotted:
             png_path = Path(shutil.copy(png_path, kept / "horizon_scaling.png"))
-        analysis_file = Path(__file__).with_name("analysis.md")
-        analysis = analysis_file.read_text() if analysis_file.exists() else None
-        try:
-            plot_rel = str(png_path.relative_to(a.doc.parent)) if plotted else None
-        except ValueError:
-            plot_rel = str(png_path) if plotted else None
-        write_benchmarks_md(a.doc, tables, cmd, mach, cfg.timeout, cfg.repeats, plot_rel, started, wall,
-                            analysis)
-        logging.info("wrote %s", a.doc)
+        _write_doc(a, run, tables, plotted, png_path)
     print(tables)
     return 0
 

@@ -180,20 +180,25 @@ _FLOATS = ("build_s", "solve_s", "e2e_s", "stlpy_robustness", "margin", "dyn_res
 
 
 def load_rows(path: str, keep_tools: str) -> list[dict[str, Any]]:
-    """Rows of an earlier ``results.csv``: ``keep_tools`` is ``peers`` (every tool but idstlpy)."""
+    """Rows of an earlier ``results.csv``.
+
+    ``keep_tools`` is ``peers`` (every tool but idstlpy, marked as reused), ``idstlpy`` or
+    ``all``.
+    """
     import csv
 
     out = []
     with open(path, newline="") as fh:
         for r in csv.DictReader(fh):
             is_ido = r["tool"] == "idstlpy"
-            if (keep_tools == "peers") == is_ido:
+            if (keep_tools == "peers" and is_ido) or (keep_tools == "idstlpy" and not is_ido):
                 continue
             row: dict[str, Any] = {k: v for k, v in r.items() if v != ""}
             row["T"] = int(row["T"])
             for k in _FLOATS:
                 if k in row:
                     row[k] = float(row[k])
-            row["reused_from"] = path
+            if keep_tools == "peers":
+                row["reused_from"] = path
             out.append(row)
     return out
