@@ -175,3 +175,64 @@ def test_bad_problem_or_plan(case):
         stl.execute(problem, None, real, x0)
     with pytest.raises(stl.DimensionError, match="real_initial_state"):
         stl.execute(problem, plan, real, np.zeros(3))
+
+
+def test_validate_runs_the_replanning_executor(case):
+    problem, plan, real, x0 = case
+    fixed = stl.validate(problem, plan, real, x0, runs=6, seed=4, executor="serial")
+    assert fixed.replans == ()
+    # Re-solves that can never finish: every run is the fixed run, so the report is the same.
+    starved = stl.validate(
+        problem,
+        plan,
+        real,
+        x0,
+        runs=6,
+        seed=4,
+        executor="serial",
+        replan="every",
+        replan_options={"every": 2, "replan_time_limit": 1e-9, "solver_options": OPTIONS},
+    )
+    assert starved.belief_margins == fixed.belief_margins
+    assert starved.state_margins == fixed.state_margins
+    assert all(r >= 1 for r in starved.replans)
+    live = stl.validate(
+        problem,
+        plan,
+        real,
+        x0,
+        runs=6,
+        seed=4,
+        executor="serial",
+        replan="every",
+        replan_options={"every": 3, "solver_options": OPTIONS},
+    )
+    assert len(live.replans) == 6 and sum(live.replans) >= 6
+    assert live.as_dict()["replans"] == list(live.replans)
+    one = stl.execute(
+        problem,
+        plan,
+        real,
+        x0,
+        seed=np.random.SeedSequence(4).spawn(6)[0],
+        replan="every",
+        every=3,
+        solver_options=OPTIONS,
+    )
+    assert live.belief_margins[0] == one.belief_margin
+
+
+@pytest.mark.parametrize(
+    ("kw", "error", "name"),
+    [
+        ({"replan": "always"}, InvalidArgumentError, "replan"),
+        ({"replan": "every", "replan_options": {"every": 2, "bogus": 1}}, InvalidArgumentError, "bogus"),
+        ({"replan": "every", "replan_options": [("every", 2)]}, InvalidTypeError, "replan_options"),
+        ({"replan": "every", "num_of_steps": 3}, InvalidArgumentError, "num_of_steps"),
+        ({"replan": "every", "replan_options": {"every": 0}}, InvalidArgumentError, "every"),
+    ],
+)
+def test_validate_replan_bad_inputs(case, kw, error, name):
+    problem, plan, real, x0 = case
+    with pytest.raises(error, match=name):
+        stl.validate(problem, plan, real, x0, runs=2, seed=0, executor="serial", **kw)

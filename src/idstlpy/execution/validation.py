@@ -163,6 +163,8 @@ class ValidationReport:
     predicted : ClosedLoopPrediction or None
         With ``validate(predict=True)``: the predicted execution under the same options (not
         part of equality); compare with :meth:`prediction_comparison`.
+    replans : tuple of int
+        With ``validate(replan=...)``: the re-solves of every run (empty without re-planning).
     """
 
     runs: int
@@ -184,6 +186,7 @@ class ValidationReport:
         default=(), compare=False, repr=False
     )
     predicted: ClosedLoopPrediction | None = field(default=None, compare=False, repr=False)
+    replans: tuple[int, ...] = ()
 
     def meets(self, belief: float = 0.90, state: float = 0.95) -> bool:
         """Whether both success rates reach the given bars.
@@ -387,6 +390,7 @@ class ValidationReport:
             "proposition_violations": {k: dict(v) for k, v in self.proposition_violations.items()},
             "predicate_violations": {k: dict(v) for k, v in self.predicate_violations.items()},
             **({} if self.predicted is None else {"prediction": self._prediction_dict()}),
+            **({"replans": list(self.replans)} if self.replans else {}),
             "elapsed": self.elapsed,
         }
 
@@ -446,6 +450,9 @@ class _Payload:
     num_of_steps: int
     sim_options: dict[str, Any]
     keep: int
+    # validate(replan=...): the problem and execute()'s re-plan options (None: simulate only)
+    problem: Any = None
+    replan: dict[str, Any] | None = None
 
 
 def _propositions(formula: STLFormula) -> list[STLAtomicProposition]:
@@ -480,8 +487,12 @@ def _violations(
     preds: list[bool] = []
     for ap, mask in zip(_propositions(formula), promises, strict=True):
         margins = atom_margins(ap, means, covs, actions)
+        # With re-plans the execution may be longer or shorter than the plan: compare the
+        # steps both have (the promise is the original plan's).
+        mask = mask[: margins.shape[0]]
+        margins = margins[: mask.shape[0]]
         props.append(bool(np.any(margins[mask] < 0.0)))
-        faces = _face_slacks(ap, means, covs)
+        faces = _face_slacks(ap, means, covs)[: mask.shape[0]]
         preds.extend(bool(np.any(faces[mask, j] < 0.0)) for j in range(faces.shape[1]))
     return props, preds
 
@@ -499,15 +510,32 @@ def _execute(
     promises = _promises(formula, payload.plan, L)
     results = []
     for offset, ss in enumerate(seeds):
-        xi_sim, xi_real = simulate(
-            system,
-            payload.plan,
-            payload.num_of_steps,
-            payload.real_initial_state,
-            payload.real_system,
-            seed=np.random.default_rng(ss),
-            **payload.sim_options,
-        )
+        replans = 0
+        if payload.replan is not None:
+            from .replanning import execute
+
+            run = execute(
+                problem if payload.system is None else payload.problem,
+                payload.plan,
+                payload.real_system,
+                payload.real_initial_state,
+                seed=ss,  # execute draws from default_rng(ss): the same noise as simulate below
+                clip_controls=payload.sim_options["control_domain"] is not None,
+                process_noise=payload.sim_options["process_noise"],
+                lqr_gains=payload.sim_options["lqr_gains"],
+                **payload.replan,
+            )
+            xi_sim, xi_real, replans = run.belief, run.real, run.num_replans
+        else:
+            xi_sim, xi_real = simulate(
+                system,
+                payload.plan,
+                payload.num_of_steps,
+                payload.real_initial_state,
+                payload.real_system,
+                seed=np.random.default_rng(ss),
+                **payload.sim_options,
+            )
         state_traj = state_trajectory(xi_real)
         b_props, b_preds = _violations(formula, xi_sim, promises)
         s_props, s_preds = _violations(formula, state_traj, promises)
@@ -519,6 +547,8 @@ def _execute(
             "state_props": s_props,
             "state_preds": s_preds,
         }
+        if payload.replan is not None:
+            res["replans"] = replans
         if first_index + offset < payload.keep:
             res["trajectories"] = (xi_sim, xi_real)
         results.append(res)
@@ -545,7 +575,7 @@ def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> 
     except Exception as exc:  # noqa: BLE001
         logger.debug("validate: cloudpickle unavailable or failed (%s)", exc)
     if problem_factory is not None:
-        slim = dataclasses.replace(payload, system=None, formula=None, factory=problem_factory)
+        slim = dataclasses.replace(payload, system=None, formula=None, factory=problem_factory, problem=None)
         try:
             return pickle.dumps(slim)
         except Exception as exc:  # noqa: BLE001
@@ -601,6 +631,35 @@ def _predict(
     return predicted
 
 
+_REPLAN_OPTIONS = frozenset(
+    {"risk", "every", "check_every", "risk_measure", "risk_on", "risk_samples", "max_replans",
+     "replan_time_limit", "options", "solver_options"}
+)
+"""Keys ``replan_options`` accepts (the execution options are validate's own)."""
+
+
+def _replan_options(
+    replan: Any, options: Mapping[str, Any] | None, num_of_steps: Any, plan: ProbabilisticTSTrajectory
+) -> dict[str, Any]:
+    """``execute``'s keywords for ``validate(replan=...)``, checked here (errors name the argument)."""
+    if replan not in ("on_risk", "every"):
+        raise InvalidArgumentError(
+            f"replan must be None, 'on_risk' or 'every' (with replan_options), got {replan!r}"
+        )
+    if options is not None and not isinstance(options, Mapping):
+        raise InvalidTypeError(f"replan_options must be a mapping, got {type(options).__name__}")
+    unknown = sorted(set(options or {}) - _REPLAN_OPTIONS)
+    if unknown:
+        raise InvalidArgumentError(
+            f"replan_options has unknown keys {unknown}; accepted: {sorted(_REPLAN_OPTIONS)}"
+        )
+    if num_of_steps is not None and num_of_steps != plan.num_of_steps:
+        raise InvalidArgumentError(
+            "num_of_steps cannot be combined with replan: a re-planned run follows its plans to their end"
+        )
+    return {"replan": replan, **dict(options or {})}
+
+
 def validate(
     problem: Any,
     solution: ProbabilisticTSTrajectory,
@@ -621,6 +680,8 @@ def validate(
     progress: Callable[[int, int], None] | None = None,
     predict: bool = False,
     predict_options: Mapping[str, Any] | None = None,
+    replan: str | None = None,
+    replan_options: Mapping[str, Any] | None = None,
 ) -> ValidationReport:
     """Execute a plan many times and measure how often its promise held.
 
@@ -670,6 +731,14 @@ def validate(
         Further options of the prediction: ``sensor_noise``, ``filter_sensitivity``, ``samples``
         (default :data:`PREDICT_SAMPLES`), ``seed`` (of the model sampling, default 0). The
         execution options are this call's and cannot be given here.
+    replan : {None, "on_risk", "every"}
+        Execute every run with :func:`~idstlpy.execution.replanning.execute` and this re-plan
+        policy instead of :func:`simulate` (the same noise for the same seed: runs that never
+        re-plan are identical). Verdicts are the original formula's on the whole execution;
+        :attr:`ValidationReport.replans` counts the re-solves of every run.
+    replan_options : mapping, optional
+        Further keywords of ``execute`` (``risk``, ``every``, ``check_every``, ``options``,
+        ``solver_options``, ``replan_time_limit``, ...); the execution options are this call's.
 
     Returns
     -------
@@ -720,6 +789,9 @@ def validate(
     real_initial_state = np.asarray(real_initial_state, dtype=float)
     # Validate every argument once, here, with one short run (errors name the argument).
     simulate(system, solution, min(steps, 1), real_initial_state, real_system, seed=0, **sim_options)
+    replan_kw: dict[str, Any] | None = None
+    if replan is not None or replan_options is not None:
+        replan_kw = _replan_options(replan, replan_options, num_of_steps, solution)
     predicted = None
     if predict:
         predicted = _predict(
@@ -728,6 +800,8 @@ def validate(
     payload = _Payload(
         system, problem.stl_formula, None, solution, real_system, real_initial_state, steps, sim_options, keep
     )
+    if replan_kw is not None:
+        payload = dataclasses.replace(payload, problem=problem, replan=replan_kw)
 
     own_pool = None
     pool: Executor | None = None
@@ -826,4 +900,5 @@ def _report(
         elapsed=elapsed,
         executions=tuple(r["trajectories"] for r in results if "trajectories" in r),
         predicted=predicted,
+        replans=tuple(int(r["replans"]) for r in results if "replans" in r),
     )
