@@ -45,6 +45,10 @@ def _problem() -> tuple[stl.SwitchedSystem, stl.Polytope, np.ndarray, np.ndarray
 def _same(a: object, b: object) -> None:
     for f in ("A_eq", "A_U", "face_H"):
         x, y = getattr(a, f), getattr(b, f)
+        # Built as CSR directly: well formed, columns sorted in every row, as a COO build gives.
+        x.check_format(full_check=True)
+        ref = x.tocoo().tocsr()
+        assert x.has_sorted_indices and (x != ref).nnz == 0
         assert x.shape == y.shape
         np.testing.assert_array_equal(x.indptr, y.indptr)
         np.testing.assert_array_equal(x.indices, y.indices)

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ..backends import Backend, HighsBackend, LinearModel
-from ..chance import slack, std_terms
+from ..chance import std_terms
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
 from .interfaces import Budget
@@ -94,7 +94,16 @@ class Abstraction:
         if not cov.any():
             # Zero covariance (STL, and every noise-free plan): every standard-deviation term is 0.
             return -(mean @ self.H.T + self.c)
-        return slack(self.H, self.c, self.z, mean, cov)
+        # The lazy loop labels the same covariance schedule candidate after candidate: the
+        # standard-deviation terms depend on the covariance alone, so they are kept by its bytes.
+        cache = self.__dict__.setdefault("_std_terms", {})
+        key = (cov.shape, cov.tobytes())
+        terms = cache.get(key)
+        if terms is None:
+            if len(cache) >= 1 << 14:
+                cache.clear()
+            terms = cache[key] = std_terms(self.H, self.z, cov)
+        return -(mean @ self.H.T + self.c + terms)
 
     def truth(self, mean: np.ndarray, cov: np.ndarray, arrival_mode: int) -> np.ndarray:
         """Which propositions hold for belief ``N(mean, cov)`` reached with ``arrival_mode``.
@@ -169,10 +178,11 @@ class Abstraction:
         """
         if system.num_modes != 1 or not self.num_atoms or horizon < 1:
             return {}
-        from .plan_lp import covariance_schedule
+        from .plan_lp import cached_schedule
 
         steps = min(horizon, max_steps)
-        covs, _ = covariance_schedule(system.system_modes, initial_cov, np.zeros(steps, dtype=int), budget)
+        # Through the plan rows' cache: the lazy loop's candidates then reuse this schedule.
+        covs, _ = cached_schedule(self, system.system_modes, initial_cov, np.zeros(steps, dtype=int), budget)
         tail = covs[1:]
         if steps < horizon:
             last, prev = tail[-1], tail[-2] if steps > 1 else initial_cov

@@ -241,7 +241,7 @@ def build_plan_rows(
     n, m = mean0.shape[0], scaling.du.shape[0]
     dx, du = scaling.dx, scaling.du
     if covs is None:
-        covs, exact = _cached_schedule(abstraction, modes, cov0, actions, budget)
+        covs, exact = cached_schedule(abstraction, modes, cov0, actions, budget)
     else:
         exact = False
     ncol = K * n + K * m
@@ -280,7 +280,7 @@ def _row_cache(abstraction: Abstraction) -> dict[str, Any]:
     return cache
 
 
-def _cached_schedule(
+def cached_schedule(
     abstraction: Abstraction,
     modes: Sequence[Any],
     cov0: np.ndarray,
@@ -336,26 +336,25 @@ def _dynamics_rows(
         At[q] = modes[q].A * dx[None, :] / dx[:, None]
         Bt[q] = modes[q].B * du[None, :] / dx[:, None]
     b_eq[:n] = At[int(actions[0])] @ (mean0 / dx)
-    ri, ci = np.indices((n, n))
-    rb, cb = np.indices((n, m))
+    # Each row (k, i) in column order: -A~ on x_{k-1} (k >= 1), the identity on x_k, -B~ on u_k;
+    # built as CSR directly (every coefficient kept, zeros too, as a COO build would).
     ks = np.arange(K)
-    # Per step, in this order: the identity block, -A~ on the previous state (k >= 1), -B~.
-    eye_r = ks[:, None] * n + ri.ravel()[None, :]
-    eye_c = ks[:, None] * n + ci.ravel()[None, :]
-    eye_v = np.broadcast_to(np.eye(n).ravel(), (K, n * n))
-    a_r = eye_r
-    a_c = (ks[:, None] - 1) * n + ci.ravel()[None, :]
-    a_v = -At[actions].reshape(K, n * n)
-    b_r = ks[:, None] * n + rb.ravel()[None, :]
-    b_c = n * K + ks[:, None] * m + cb.ravel()[None, :]
-    b_v = -Bt[actions].reshape(K, n * m)
-    blocks = [(eye_r, eye_c, eye_v), (a_r, a_c, a_v), (b_r, b_c, b_v)]
-    rows = np.concatenate([b[0] for b in blocks], axis=1)
-    cols = np.concatenate([b[1] for b in blocks], axis=1)
-    vals = np.concatenate([b[2] for b in blocks], axis=1)
-    keep = np.ones(rows.shape, dtype=bool)
-    keep[0, n * n : 2 * n * n] = False  # step 0 reads the known x_0 (it is in b_eq)
-    A_eq = coo_matrix((vals[keep], (rows[keep], cols[keep])), shape=(K * n, ncol)).tocsr()
+    cols_a = (ks[:, None, None] - 1) * n + np.arange(n)[None, None, :]  # (K, 1, n)
+    cols_e = ks[:, None, None] * n + np.arange(n)[None, None, :]
+    cols_b = K * n + ks[:, None, None] * m + np.arange(m)[None, None, :]
+    shape_a, shape_b = (K, n, n), (K, n, m)
+    data = np.concatenate(
+        [-At[actions], np.broadcast_to(np.eye(n), shape_a), -Bt[actions]], axis=2
+    )  # (K, n, 2n + m)
+    parts = ((cols_a, shape_a), (cols_e, shape_a), (cols_b, shape_b))
+    index = np.concatenate([np.broadcast_to(c, sh) for c, sh in parts], axis=2)
+    width = np.full(K * n, 2 * n + m)
+    width[:n] = n + m  # step 0 reads the known x_0 (it is in b_eq)
+    data, index = data.reshape(K * n, -1), index.reshape(K * n, -1)
+    data = np.concatenate([data[:n, n:].ravel(), data[n:].ravel()])
+    index = np.concatenate([index[:n, n:].ravel(), index[n:].ravel()])
+    indptr = np.concatenate([[0], np.cumsum(width)])
+    A_eq = csr_matrix((data, index, indptr), shape=(K * n, ncol))
     return A_eq, b_eq
 
 
@@ -371,12 +370,12 @@ def _control_rows(
     b_U = np.tile(-Uc, K)
     if K == 0 or nU == 0:
         return csr_matrix((K * nU, ncol)), b_U
-    ri, ci = np.indices(UH.shape)
-    ks = np.arange(K)[:, None]
-    rows = (ks * nU + ri.ravel()[None, :]).ravel()
-    cols = (K * n + ks * m + ci.ravel()[None, :]).ravel()
-    vals = np.tile(UH.ravel(), K)
-    return coo_matrix((vals, (rows, cols)), shape=(K * nU, ncol)).tocsr(), b_U
+    # Row (k, f) reads u_k: m coefficients (zeros kept), CSR built directly.
+    cols = K * n + np.arange(K)[:, None, None] * m + np.arange(m)[None, None, :]  # (K, 1, m)
+    index = np.broadcast_to(cols, (K, nU, m)).ravel()
+    data = np.tile(UH.ravel(), K)
+    indptr = np.arange(K * nU + 1) * m
+    return csr_matrix((data, index, indptr), shape=(K * nU, ncol)), b_U
 
 
 @dataclass(frozen=True)
@@ -457,7 +456,10 @@ def _face_rows(
     norms = np.empty(nrows)
     units = np.empty(nrows)
     owner = np.empty(nrows, dtype=int)
-    rr, cc, vv = [], [], []
+    # Every row reads one step's mean: n coefficients (zeros kept) in column order, so the CSR
+    # arrays are filled in place, row r at r * n.
+    data = np.empty((nrows, n))
+    index = np.empty((nrows, n), dtype=np.int64)
     cols_n = np.arange(n)
     for ok, fc, offs, ks in parts:
         F = fc.block.shape[0]
@@ -468,11 +470,9 @@ def _face_rows(
         norms[r] = fc.norm[None, :]
         units[r] = fc.inv[None, :]
         owner[r] = ok[:, None]
-        rr.append(np.repeat(r.ravel(), n))
-        first = (ks - 1)[:, None, None] * n  # the face reads the mean at its own step
-        cc.append(np.broadcast_to(first + cols_n[None, None, :], (ok.size, F, n)).ravel())
-        vv.append(np.broadcast_to(fc.block[None, :, :], (ok.size, F, n)).ravel())
-    face_H = _sparse(rr, cc, vv, nrows, ncol)
+        data[r] = fc.block[None, :, :]
+        index[r] = (ks - 1)[:, None, None] * n + cols_n[None, None, :]  # the mean at the face's step
+    face_H = csr_matrix((data.ravel(), index.ravel(), np.arange(nrows + 1) * n), shape=(nrows, ncol))
     impossible.sort(key=lambda t: (t[0], t[1]))
     return face_H, off, norms, units, owner, [requirements[r] for r, _, _ in impossible]
 
