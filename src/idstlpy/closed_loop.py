@@ -34,6 +34,7 @@ __all__ = [
     "box_bounds",
     "gains_for",
     "predicted_state",
+    "tracking_spread",
     "prob_le",
     "propagate",
     "real_modes_for",
@@ -46,7 +47,6 @@ def prob_le(mu: np.ndarray, sd: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         p = ndtr(-mu / sd)
     return np.where(sd > 0, p, (mu <= 0).astype(float))
-
 
 
 # --------------------------------------------------------------------------------------------
@@ -428,6 +428,76 @@ def propagate(
     return out
 
 
+def _planning_loop(
+    system: SwitchedSystem,
+    plan: ProbabilisticTSTrajectory,
+    control_domain: Polytope | None,
+    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None,
+    default_lqr: Mapping[str, Any] | None,
+) -> ClosedLoopMoments:
+    """The closed loop as the planner reads it (see :func:`predicted_state`)."""
+    n = system.n
+    N = plan.num_of_steps
+    actions = np.asarray(plan.get_action(), dtype=int)[:N]
+    P0 = plan.get_cov(0)
+    S0 = np.zeros((2 * n, 2 * n))
+    S0[:n, :n] = P0
+    return propagate(
+        system,
+        plan,
+        N,
+        list(system.system_modes),
+        gains_for(system, actions, lqr_gains, default_lqr),
+        "model",
+        np.zeros(2 * n),
+        S0,
+        P0.copy(),
+        "expected",
+        control_domain,
+        False,
+    )
+
+
+def tracking_spread(
+    system: SwitchedSystem,
+    plan: ProbabilisticTSTrajectory,
+    control_domain: Polytope,
+    *,
+    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
+    default_lqr: Mapping[str, Any] | None = None,
+) -> np.ndarray:
+    """Standard deviation of the tracking correction along every face of the control domain.
+
+    The executor applies ``v_k - K_k eta_k`` (``eta_k`` the estimate's deviation from the plan)
+    and clips it to the domain ``H u + c <= 0``. A plan whose inputs sit on a face leaves the
+    correction no room: it is clipped, the deviations it should remove stay, and the true state
+    drifts from the plan. Backing face ``f`` off by ``z`` times ``sd(H_f K_k eta_k)`` at step
+    ``k`` (of the unclipped loop) keeps the corrected input inside with probability ``Phi(z)``
+    per face and step: the tube of tube MPC, from the predicted loop.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    plan : ProbabilisticTSTrajectory
+        ``N`` steps (the spread depends on the modes, the plan length through the gains and,
+        under state-dependent noise, on the means).
+    control_domain : Polytope
+        ``F`` faces of dimension ``m``.
+    lqr_gains, default_lqr : optional
+        As in :func:`idstlpy.simulate`.
+
+    Returns
+    -------
+    ndarray, shape (N, F)
+    """
+    n, N = system.n, plan.num_of_steps
+    H = control_domain.H
+    if N == 0:
+        return np.zeros((0, H.shape[0]))
+    loop = _planning_loop(system, plan, None, lqr_gains, default_lqr)
+    HK = np.einsum("fi,kij->kfj", H, loop.K)  # (N, F, n)
+    S_eta = loop.cov[:N, n : 2 * n, n : 2 * n]
+    return np.sqrt(np.maximum(np.einsum("kfi,kij,kfj->kf", HK, S_eta, HK), 0.0))
 
 
 def predicted_state(
@@ -469,24 +539,7 @@ def predicted_state(
     """
     n = system.n
     N = plan.num_of_steps
-    actions = np.asarray(plan.get_action(), dtype=int)[:N]
-    P0 = plan.get_cov(0)
-    S0 = np.zeros((2 * n, 2 * n))
-    S0[:n, :n] = P0
-    loop = propagate(
-        system,
-        plan,
-        N,
-        list(system.system_modes),
-        gains_for(system, actions, lqr_gains, default_lqr),
-        "model",
-        np.zeros(2 * n),
-        S0,
-        P0.copy(),
-        "expected",
-        control_domain,
-        False,
-    )
+    loop = _planning_loop(system, plan, control_domain, lqr_gains, default_lqr)
     means = plan.get_mean()[: N + 1] + loop.mean[:, :n]
     covs = loop.cov[:, :n, :n]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))

@@ -50,7 +50,7 @@ from .plan_lp import Scaling
 from .proposer import BMCProposer
 from .results import SolveResult, SolveStats, Status
 from .sampler import SamplerTeacher
-from .teacher import LPTeacher, execution_margin, solve_plan_lp
+from .teacher import LPTeacher, closed_loop_round, execution_margin, solve_plan_lp
 
 __all__ = ["synthesize"]
 
@@ -204,6 +204,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                     _guide(proposer, abstraction, teacher, plan)
                 if not isinstance(verdict, Unknown):
                     break
+            if isinstance(verdict, Refuted) and sampler in teachers:
+                # A proof for this mode sequence only: the sampler chooses its own modes.
+                verdict = sampler.rescue(plan, verdict, budget, stats)
             if isinstance(verdict, Refuted):
                 proposer.block(verdict.conflict)
                 stats.refuted += 1
@@ -548,7 +551,7 @@ def _certify(
     """
     problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
     system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
-    exact = run.proofs_hold and problem.control_domain is None
+    exact = run.proofs_hold
     trust = np.inf
     rounds = max(2, options.polish_rounds)
     for r in range(rounds + 1):
@@ -576,6 +579,7 @@ def _certify(
         target = execution_margin(system, init, abstraction, plan)
         if not exact and not np.isfinite(trust):
             trust = 2.0 * max(target, 1e-3 * float(np.max(scaling.dx)))
+        backoff, covs = closed_loop_round(system, traj, problem.control_domain, predicted)
         with stats.clock("time_lp"):
             lp = solve_plan_lp(
                 system,
@@ -585,7 +589,8 @@ def _certify(
                 abstraction,
                 plan,
                 target,
-                covs=predicted.get_cov()[:L],
+                covs=covs[:L],
+                control_backoff=None if backoff is None else backoff[: L - 1],
                 anchor=means[:L],
                 trust=trust,
                 scaling=scaling,

@@ -17,6 +17,7 @@ it is a sound relaxation (``Refuted`` or ``Unknown``).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -26,8 +27,9 @@ from scipy.sparse import csr_matrix, hstack, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
-from ..closed_loop import predicted_state
+from ..closed_loop import predicted_state, tracking_spread
 from ..semantics import robustness
+from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan
@@ -41,7 +43,15 @@ from .plan_lp import (
 )
 from .results import SolveStats
 
-__all__ = ["LPOutcome", "LPTeacher", "covariance_schedule", "execution_margin", "solve_plan_lp"]
+__all__ = [
+    "LPOutcome",
+    "LPTeacher",
+    "BACKOFF_Z",
+    "closed_loop_round",
+    "covariance_schedule",
+    "execution_margin",
+    "solve_plan_lp",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -109,6 +119,7 @@ def solve_plan_lp(
     objective: str | None = None,
     effort_weights: np.ndarray | None = None,
     linearise: bool = False,
+    control_backoff: np.ndarray | None = None,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -147,6 +158,10 @@ def solve_plan_lp(
         With ``covs`` and ``anchor`` (a roll-out): add each standard-deviation term's
         first-order dependence on the means (:func:`~.plan_lp.covariance_jacobian`), the step of
         a sequential convex programme in belief space; ``trust`` should then be finite.
+    control_backoff : ndarray, shape (K, F), optional
+        Per step, how far inside each face of ``control_domain`` (its units) the input must stay
+        (room for the executor's tracking correction, :func:`closed_loop_round`). An
+        ``infeasible`` answer is then about the shrunk domain, no proof about the problem.
 
     Returns
     -------
@@ -180,6 +195,8 @@ def solve_plan_lp(
         budget=budget,
         linearisation=lin,
     )
+    if control_backoff is not None:
+        rows = _backed_off(rows, control_domain, scaling.du, np.asarray(control_backoff)[:K])
     if rows.impossible:
         return LPOutcome("infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs)
     limit = float(min(time_limit, 1e9))
@@ -208,6 +225,20 @@ def solve_plan_lp(
         involved = [r for r in range(ns) if slack[r] > FEASIBLE_TOL]
     conflict = [reqs[r] for r in involved]
     return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs)
+
+
+def _backed_off(rows: PlanRows, control_domain: Any, du: np.ndarray, backoff: np.ndarray) -> PlanRows:
+    """``rows`` with every control face ``f`` at step ``k`` moved ``backoff[k, f]`` inward.
+
+    The rows are normalised and faces with a zero row dropped as in
+    :func:`~.plan_lp.build_plan_rows`; a copy, because built rows may be cached.
+    """
+    unorm = np.linalg.norm(control_domain.H * du[None, :], axis=1)
+    keep = unorm > 0
+    shift = (backoff[:, keep] / unorm[keep][None, :]).ravel()
+    if shift.shape != rows.b_U.shape:
+        raise ValueError(f"control_backoff has {shift.size} entries for {rows.b_U.size} control rows")
+    return dataclasses.replace(rows, b_U=rows.b_U - shift)
 
 
 def _optimise(
@@ -363,6 +394,47 @@ def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: Dis
     return 0.0
 
 
+BACKOFF_Z = 2.0
+"""Standard deviations of the tracking correction kept free on every face of the control domain
+(``Phi(2) = 97.7%`` per face and step) by plans made under ``guarantee="closed_loop"``."""
+
+
+def closed_loop_round(
+    system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any, predicted: ProbabilisticTSTrajectory
+) -> tuple[np.ndarray | None, np.ndarray]:
+    """The input back-off and covariances of the next plan LP under ``guarantee="closed_loop"``.
+
+    Inputs on the domain's boundary leave the tracking correction no room (the executor clips
+    it and the true state drifts), so the next plan keeps ``BACKOFF_Z`` standard deviations of
+    the correction free on every face at every step
+    (:func:`idstlpy.closed_loop.tracking_spread`), capped at 40% of the domain's width along the
+    face so that it never empties the domain; its covariances are then those of the unclipped
+    loop.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    traj : ProbabilisticTSTrajectory
+        The current plan (its MLO roll-out), ``K`` steps.
+    control_domain : Polytope
+    predicted : ProbabilisticTSTrajectory
+        Its predicted true state, clipping included.
+
+    Returns
+    -------
+    backoff : ndarray, shape (K, F), or None
+        Per step and face, in the domain's units (None: no control domain faces).
+    covs : ndarray, shape (K + 1, n, n)
+    """
+    H = control_domain.H
+    if H.shape[0] == 0:
+        return None, predicted.get_cov()
+    spread = tracking_spread(system, traj, control_domain)
+    width = np.array([control_domain.support(h) + control_domain.support(-h) for h in H])
+    backoff = np.minimum(BACKOFF_Z * spread, 0.4 * width[None, :])
+    return backoff, predicted_state(system, traj, None).get_cov()
+
+
 class LPTeacher:
     """Decides candidates with the plan LP (exact without state-dependent noise).
 
@@ -481,15 +553,19 @@ class LPTeacher:
             if controls is None:
                 return None
             traj = rollout(system, init, actions, controls)
-            if self.closed_loop:
-                traj = predicted_state(system, traj, problem.control_domain)
-            if robustness(traj, formula) >= 0:
+            judged = predicted_state(system, traj, problem.control_domain) if self.closed_loop else traj
+            rho = robustness(judged, formula)
+            logger.debug("plan LP fixed point: %d steps, margin %.3g", plan.length - 1, rho)
+            if rho >= 0:
                 how = (
                     "the plan LP on predicted closed-loop covariances"
                     if self.closed_loop
-                    else ("the plan LP on re-rolled covariances")
+                    else "the plan LP on re-rolled covariances"
                 )
                 return Found(actions, controls, how, exact=out.exact)
+            backoff, covs = None, judged.get_cov()
+            if self.closed_loop:
+                backoff, covs = closed_loop_round(system, traj, problem.control_domain, judged)
             with stats.clock("time_lp"):
                 nxt = solve_plan_lp(
                     system,
@@ -499,7 +575,8 @@ class LPTeacher:
                     self.abs,
                     plan,
                     margin,
-                    covs=traj.get_cov(),
+                    covs=covs,
+                    control_backoff=backoff,
                     scaling=self.scaling,
                     backend=self.backend,
                     time_limit=max(budget.remaining(), 1e-3),
