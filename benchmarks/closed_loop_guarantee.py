@@ -1,0 +1,167 @@
+"""Issue 15, goal 2: plans made with ``guarantee="closed_loop"`` keep each chance constraint on the
+true state under execution, at most 3x the MLO solve time.
+
+For every problem (the paper's light-dark listing and the active-perception suite's instances)
+and seed: solve with ``guarantee="mlo"`` and ``"closed_loop"`` (alternating, in one process),
+then execute the closed-loop plan ``--runs`` times with :func:`idstlpy.simulate` (LQR tracking,
+Kalman filter, inputs clipped to the control domain), the true start drawn from the prior (the
+distribution the promise is about). A chance constraint ``P[h'x + c <= 0] >= 1 - eps`` is
+*promised* at step ``k`` when the plan's predicted true state meets it; its measured violation
+rate there must be at most ``eps``. Reported per problem: solve times and their ratio, the worst
+promised constraint's violation rate against its ``eps``, and how many promised (constraint,
+step) pairs exceed ``eps`` beyond the 95% Wilson interval (a real failure, not sampling noise).
+The MLO plan is executed the same way for comparison (its own promise is about the belief).
+
+    python -m benchmarks.closed_loop_guarantee --seeds 3 --runs 500 --size full \
+        --out benchmarks/closed_loop_guarantee_results.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import subprocess
+import time
+from typing import Any
+
+import numpy as np
+
+import idstlpy as stl
+from idstlpy import scenarios
+from idstlpy.chance import quantile
+from idstlpy.closed_loop import predicted_state
+from idstlpy.execution.validation import wilson_interval
+
+from . import perception_problems as pp
+
+SUITE_KINDS = (
+    "noisy_hold",
+    "double_integrator",
+    "detour",
+    "sequence",
+    "light_dark_3d",
+    "long_horizon",
+    "scaled_workspace",
+    "weaker_formula",
+    "sensor_switching",
+    "patrol",
+)
+
+
+def _problems(size: str, kinds: list[str]) -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for kind in kinds:
+        if kind == "listing":
+            out.append(("listing", lambda: scenarios.light_dark()))
+        else:
+            out.append((kind, lambda kind=kind: pp.build(kind, size)[0]))
+    return out
+
+
+def _faces(problem: Any) -> list[tuple[np.ndarray, float, float]]:
+    faces = []
+    for ap in problem.stl_formula.atomic_propositions():
+        for pred in getattr(ap, "predicates", ()):
+            faces.append((np.asarray(pred.h, dtype=float).reshape(-1), float(pred.c), float(pred.eps)))
+    return faces
+
+
+def _execute(problem: Any, plan: Any, runs: int, seed: int) -> dict[str, Any]:
+    """Per promised (face, step): violation counts of the true state over ``runs`` executions."""
+    system, domain = problem.switched_system, problem.control_domain
+    faces = _faces(problem)
+    pred = predicted_state(system, plan, domain)
+    L = plan.num_of_steps + 1
+    H = np.array([h for h, _, _ in faces])
+    c = np.array([cc for _, cc, _ in faces])
+    eps = np.array([e for _, _, e in faces])
+    mu = pred.get_mean() @ H.T + c  # (L, F)
+    sd = np.sqrt(np.maximum(np.einsum("fi,kij,fj->kf", H, pred.get_cov(), H), 0.0))
+    promised = mu + quantile(eps)[None, :] * sd <= 0
+    violations = np.zeros((L, len(faces)))
+    rng = np.random.default_rng(seed)
+    init = problem.initial_state
+    for _ in range(runs):
+        x0 = rng.multivariate_normal(init.mean, init.cov)
+        _, real = stl.simulate(system, plan, plan.num_of_steps, x0, system, seed=rng, control_domain=domain)
+        violations += real.get_state() @ H.T + c > 0
+    rate = violations / runs
+    worst, worst_eps, failures = 0.0, 0.0, 0
+    for k, f in zip(*np.nonzero(promised), strict=True):
+        if rate[k, f] - eps[f] > worst - worst_eps:
+            worst, worst_eps = float(rate[k, f]), float(eps[f])
+        lo, _ = wilson_interval(int(violations[k, f]), runs)
+        failures += int(lo > eps[f])
+    return {"worst": worst, "worst_eps": worst_eps, "failures": failures, "promised": int(promised.sum())}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--runs", type=int, default=500)
+    ap.add_argument("--size", choices=pp.SIZES, default="full")
+    ap.add_argument("--kinds", default="listing," + ",".join(SUITE_KINDS))
+    ap.add_argument("--time-limit", type=float, default=120.0)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout
+    lines = [
+        "# guarantee='closed_loop' under execution (issue 15, goal 2)",
+        "",
+        f"- command: `python -m benchmarks.closed_loop_guarantee --seeds {args.seeds} --runs {args.runs} "
+        f"--size {args.size} --kinds {args.kinds}`",
+        f"- commit {commit.strip()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+        f"{platform.machine()} nproc {__import__('os').cpu_count()}; cap {args.time_limit:g} s per solve",
+        "- executions: true start drawn from the prior, LQR tracking, Kalman filter, inputs clipped",
+        "- worst: the promised (constraint, step) pair furthest above its eps (rate / eps); failures: "
+        "promised pairs whose 95% Wilson interval lies above eps",
+        "",
+        "| problem | seed | MLO | closed_loop | time ratio | CL worst violation / eps | CL failures "
+        "(of promised) | MLO plan worst / eps | MLO failures |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    ratios: list[float] = []
+    for name, make in _problems(args.size, args.kinds.split(",")):
+        for seed in range(args.seeds):
+            row: dict[str, Any] = {}
+            for g in ("mlo", "closed_loop"):
+                problem = make()
+                t0 = time.perf_counter()
+                res = problem.solve_result(seed=seed, guarantee=g, time_limit=args.time_limit)
+                row[g] = (res, time.perf_counter() - t0, problem)
+            (rm, tm, pm), (rc, tc, pc) = row["mlo"], row["closed_loop"]
+            ratio = tc / tm if rm.found and rc.found else float("nan")
+            if np.isfinite(ratio):
+                ratios.append(ratio)
+            cl = _execute(pc, rc.trajectory, args.runs, 1000 + seed) if rc.found else None
+            ml = _execute(pm, rm.trajectory, args.runs, 1000 + seed) if rm.found else None
+
+            def cell(e: dict[str, Any] | None, what: str) -> str:
+                if e is None:
+                    return "-"
+                if what == "worst":
+                    return f"{e['worst']:.3f} / {e['worst_eps']:.2f}"
+                return f"{e['failures']} ({e['promised']})"
+
+            lines.append(
+                f"| {name} | {seed} | {rm.status} {tm:.2f} s | {rc.status} {tc:.2f} s | "
+                f"{ratio:.2f} | {cell(cl, 'worst')} | {cell(cl, 'failures')} | {cell(ml, 'worst')} | "
+                f"{cell(ml, 'failures')} |"
+            )
+            print(lines[-1], flush=True)
+    if ratios:
+        lines += [
+            "",
+            f"Median time ratio closed_loop / MLO over solved pairs: {statistics.median(ratios):.2f} "
+            f"(max {max(ratios):.2f}, {len(ratios)} pairs).",
+        ]
+    text = "\n".join(lines) + "\n"
+    if args.out:
+        with open(args.out, "w") as fh:
+            fh.write(text)
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
