@@ -87,7 +87,7 @@ def test_chunked_execution_with_failed_resolves_is_still_simulate(case):
 
 def test_same_seed_same_execution_and_replans(case):
     problem, plan, real, x0 = case
-    kw = {"replan": "every", "every": 3, "solver_options": OPTIONS}
+    kw = {"replan": "every", "every": 3, "solver_options": OPTIONS, "adopt": "always"}
     a = stl.execute(problem, plan, real, x0, seed=11, **kw)
     b = stl.execute(problem, plan, real, x0, seed=11, **kw)
     assert a.num_adopted >= 1
@@ -136,7 +136,9 @@ def test_forced_risk_triggers_a_replan_from_the_progressed_formula(case):
 
 def test_adopted_plan_is_followed(case):
     problem, plan, real, x0 = case
-    report = stl.execute(problem, plan, real, x0, seed=5, replan="every", every=4, solver_options=OPTIONS)
+    report = stl.execute(
+        problem, plan, real, x0, seed=5, replan="every", every=4, solver_options=OPTIONS, adopt="always"
+    )
     assert report.num_adopted >= 1
     ((k, new),) = [p for p in report.plans if p[0] == report.replans[0].step]
     # The new plan starts at the executed belief of step k and its modes are the ones executed.
@@ -155,6 +157,7 @@ def test_adopted_plan_is_followed(case):
         ({"risk_measure": "median"}, InvalidArgumentError, "risk_measure"),
         ({"risk_on": "plan"}, InvalidArgumentError, "risk_on"),
         ({"max_replans": -1}, InvalidArgumentError, "max_replans"),
+        ({"adopt": "never"}, InvalidArgumentError, "adopt"),
         ({"replan_time_limit": 0}, InvalidArgumentError, "replan_time_limit"),
         ({"seed": "x"}, InvalidTypeError, "seed"),
         ({"options": {"rrt_timeout": 1}}, InvalidTypeError, "options"),
@@ -205,7 +208,7 @@ def test_validate_runs_the_replanning_executor(case):
         seed=4,
         executor="serial",
         replan="every",
-        replan_options={"every": 3, "solver_options": OPTIONS},
+        replan_options={"every": 3, "solver_options": OPTIONS, "adopt": "always"},
     )
     assert len(live.replans) == 6 and sum(live.replans) >= 6
     assert live.as_dict()["replans"] == list(live.replans)
@@ -218,6 +221,7 @@ def test_validate_runs_the_replanning_executor(case):
         replan="every",
         every=3,
         solver_options=OPTIONS,
+        adopt="always",
     )
     assert live.belief_margins[0] == one.belief_margin
 
@@ -236,3 +240,14 @@ def test_validate_replan_bad_inputs(case, kw, error, name):
     problem, plan, real, x0 = case
     with pytest.raises(error, match=name):
         stl.validate(problem, plan, real, x0, runs=2, seed=0, executor="serial", **kw)
+
+
+def test_adopt_better_keeps_the_plan_predicted_to_do_better(case):
+    problem, plan, real, x0 = case
+    report = stl.execute(problem, plan, real, x0, seed=5, replan="every", every=3, solver_options=OPTIONS)
+    found = [r for r in report.replans if r.status == "found"]
+    assert found
+    for r in found:
+        assert 0.0 <= r.predicted <= 1.0 and 0.0 <= r.new_predicted <= 1.0
+        assert r.adopted == (r.new_predicted > r.predicted)
+    assert len(report.plans) == 1 + report.num_adopted

@@ -6,12 +6,16 @@
 decision steps re-solves the problem from the current executed belief:
 
 - ``replan=None``: never; the execution is bit-identical to ``simulate`` with the same seed;
-- ``replan="every"``: every ``every`` steps, the plan is replaced by the re-solved one when the
-  solver finds one (receding-horizon control);
+- ``replan="every"``: a re-solve every ``every`` steps (receding-horizon control);
 - ``replan="on_risk"``: every ``check_every`` steps the closed-loop prediction
   (:func:`~idstlpy.execution.prediction.predict_closed_loop`) of the *remaining* plan from the
   current belief gives the probability that the formula will hold; below ``risk`` the problem is
-  re-solved, and the new plan is adopted when its own predicted success is higher.
+  re-solved.
+
+A re-solved plan replaces the current one when its own predicted success is higher
+(``adopt="better"``, the default: a fresh MLO plan may have less room for the tracking error than
+the old one, and following it can make things worse), or whenever one is found
+(``adopt="always"``).
 
 What is re-solved
 -----------------
@@ -262,6 +266,7 @@ def execute(
     risk_on: Literal["belief", "state", "both"] = "both",
     risk_samples: int = 1000,
     max_replans: int = 20,
+    adopt: Literal["better", "always"] = "better",
     replan_time_limit: float = 30.0,
     options: Any = None,
     solver_options: Mapping[str, Any] | None = None,
@@ -305,6 +310,10 @@ def execute(
         Samples of the Gaussian model for ``risk_measure="estimate"``.
     max_replans : int
         At most this many re-solves per execution (>= 0).
+    adopt : {"better", "always"}
+        ``"better"`` (default): a re-solved plan replaces the current one only when its
+        predicted success from the current belief is higher (both predicted as for ``risk``);
+        ``"always"``: whenever the re-solve finds a plan (plain receding-horizon control).
     replan_time_limit : float
         Wall-clock cap (seconds) of one re-solve: the solver's ``time_limit`` is the smaller of
         this and the options' own.
@@ -353,6 +362,8 @@ def execute(
         raise InvalidArgumentError(f"risk_on must be 'belief', 'state' or 'both', got {risk_on!r}")
     risk_samples = as_int(risk_samples, "risk_samples", minimum=1)
     max_replans = as_int(max_replans, "max_replans", minimum=0)
+    if adopt not in ("better", "always"):
+        raise InvalidArgumentError(f"adopt must be 'better' or 'always', got {adopt!r}")
     replan_time_limit = as_float(replan_time_limit, "replan_time_limit", 0.0, low_open=True)
     if not isinstance(clip_controls, bool):
         raise InvalidTypeError(f"clip_controls must be a bool, got {type(clip_controls).__name__}")
@@ -476,10 +487,12 @@ def execute(
                         p_old,
                     )
                     attempts += 1
-                    if new_plan is not None and replan == "on_risk":
+                    if new_plan is not None and adopt == "better":
+                        # A fresh MLO plan may track worse than the old one: keep the better.
+                        if math.isnan(p_old):
+                            p_old = predicted_success(current, j, psi, belief)
                         p_new = predicted_success(new_plan, 0, psi, belief)
-                        adopt = p_new > p_old
-                        record = _with(record, new_predicted=p_new, adopted=adopt)
+                        record = _with(record, predicted=p_old, new_predicted=p_new, adopted=p_new > p_old)
                     if record.adopted and new_plan is not None:
                         current, start = new_plan, k
                         plans.append((k, new_plan))
