@@ -50,7 +50,7 @@ from .plan_lp import Scaling
 from .proposer import BMCProposer
 from .results import SolveResult, SolveStats, Status
 from .sampler import SamplerTeacher
-from .teacher import LPTeacher, closed_loop_round, execution_margin, solve_plan_lp
+from .teacher import LPOutcome, LPTeacher, closed_loop_lp, execution_margin, solve_plan_lp
 
 __all__ = ["synthesize"]
 
@@ -579,26 +579,38 @@ def _certify(
         target = execution_margin(system, init, abstraction, plan)
         if not exact and not np.isfinite(trust):
             trust = 2.0 * max(target, 1e-3 * float(np.max(scaling.dx)))
-        backoff, covs = closed_loop_round(system, traj, problem.control_domain, predicted)
-        with stats.clock("time_lp"):
-            lp = solve_plan_lp(
-                system,
-                problem.control_domain,
-                init.mean,
-                init.cov,
-                abstraction,
-                plan,
-                target,
-                covs=covs[:L],
-                control_backoff=None if backoff is None else backoff[: L - 1],
-                anchor=means[:L],
-                trust=trust,
-                scaling=scaling,
-                backend=get_backend(options.lp_backend),
-                time_limit=max(budget.remaining(), 1e-3),
-                budget=budget,
-            )
-        stats.lp_calls += 1
+
+        def solve(
+            backoff: np.ndarray | None,
+            covs: np.ndarray,
+            plan: DiscretePlan = plan,
+            target: float = target,
+            L: int = L,
+            means: np.ndarray = means,
+            trust: float = trust,
+        ) -> LPOutcome:
+            with stats.clock("time_lp"):
+                out = solve_plan_lp(
+                    system,
+                    problem.control_domain,
+                    init.mean,
+                    init.cov,
+                    abstraction,
+                    plan,
+                    target,
+                    covs=covs[:L],
+                    control_backoff=None if backoff is None else backoff[: L - 1],
+                    anchor=means[:L],
+                    trust=trust,
+                    scaling=scaling,
+                    backend=get_backend(options.lp_backend),
+                    time_limit=max(budget.remaining(), 1e-3),
+                    budget=budget,
+                )
+            stats.lp_calls += 1
+            return out
+
+        lp = closed_loop_lp(system, traj, problem.control_domain, predicted, solve)
         if not lp.feasible or lp.controls is None:
             if exact:
                 break

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -46,8 +47,8 @@ from .results import SolveStats
 __all__ = [
     "LPOutcome",
     "LPTeacher",
-    "BACKOFF_Z",
-    "closed_loop_round",
+    "BACKOFF_LEVELS",
+    "closed_loop_lp",
     "covariance_schedule",
     "execution_margin",
     "solve_plan_lp",
@@ -160,7 +161,7 @@ def solve_plan_lp(
         a sequential convex programme in belief space; ``trust`` should then be finite.
     control_backoff : ndarray, shape (K, F), optional
         Per step, how far inside each face of ``control_domain`` (its units) the input must stay
-        (room for the executor's tracking correction, :func:`closed_loop_round`). An
+        (room for the executor's tracking correction, :func:`closed_loop_lp`). An
         ``infeasible`` answer is then about the shrunk domain, no proof about the problem.
 
     Returns
@@ -394,22 +395,28 @@ def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: Dis
     return 0.0
 
 
-BACKOFF_Z = 2.0
+BACKOFF_LEVELS = (2.0, 1.0, 0.0)
 """Standard deviations of the tracking correction kept free on every face of the control domain
-(``Phi(2) = 97.7%`` per face and step) by plans made under ``guarantee="closed_loop"``."""
+by plans made under ``guarantee="closed_loop"``, tried in turn (``Phi(2) = 97.7%`` per face and
+step first; 0: no back-off, the clipping's effect on the covariances accepted)."""
 
 
-def closed_loop_round(
-    system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any, predicted: ProbabilisticTSTrajectory
-) -> tuple[np.ndarray | None, np.ndarray]:
-    """The input back-off and covariances of the next plan LP under ``guarantee="closed_loop"``.
+def closed_loop_lp(
+    system: Any,
+    traj: ProbabilisticTSTrajectory,
+    control_domain: Any,
+    predicted: ProbabilisticTSTrajectory,
+    solve: Callable[[np.ndarray | None, np.ndarray], LPOutcome],
+) -> LPOutcome:
+    """The next plan LP under ``guarantee="closed_loop"``, with room for the tracking correction.
 
     Inputs on the domain's boundary leave the tracking correction no room (the executor clips
-    it and the true state drifts), so the next plan keeps ``BACKOFF_Z`` standard deviations of
-    the correction free on every face at every step
-    (:func:`idstlpy.closed_loop.tracking_spread`), capped at 40% of the domain's width along the
-    face so that it never empties the domain; its covariances are then those of the unclipped
-    loop.
+    it and the true state drifts), so the next plan keeps ``z`` standard deviations of the
+    correction free on every face at every step (:func:`idstlpy.closed_loop.tracking_spread`,
+    capped at 40% of the domain's width along the face so it never empties the domain), its
+    covariances those of the unclipped loop. The levels of :data:`BACKOFF_LEVELS` are tried
+    until one LP is feasible; the last, no back-off, uses the ``predicted`` covariances
+    (clipping included).
 
     Parameters
     ----------
@@ -419,20 +426,28 @@ def closed_loop_round(
     control_domain : Polytope
     predicted : ProbabilisticTSTrajectory
         Its predicted true state, clipping included.
+    solve : callable
+        ``solve(control_backoff, covs)``: the plan LP with a back-off (shape (K, F), or None)
+        and frozen covariances (shape (K + 1, n, n)).
 
     Returns
     -------
-    backoff : ndarray, shape (K, F), or None
-        Per step and face, in the domain's units (None: no control domain faces).
-    covs : ndarray, shape (K + 1, n, n)
+    LPOutcome
+        The first feasible LP's, else the last one's.
     """
     H = control_domain.H
-    if H.shape[0] == 0:
-        return None, predicted.get_cov()
-    spread = tracking_spread(system, traj, control_domain)
-    width = np.array([control_domain.support(h) + control_domain.support(-h) for h in H])
-    backoff = np.minimum(BACKOFF_Z * spread, 0.4 * width[None, :])
-    return backoff, predicted_state(system, traj, None).get_cov()
+    out: LPOutcome | None = None
+    if H.shape[0] and traj.num_of_steps:
+        spread = tracking_spread(system, traj, control_domain)
+        width = np.array([control_domain.support(h) + control_domain.support(-h) for h in H])
+        covs = predicted_state(system, traj, None).get_cov()
+        for z in BACKOFF_LEVELS:
+            if z <= 0 or not np.any(spread > 0):
+                break
+            out = solve(np.minimum(z * spread, 0.4 * width[None, :]), covs)
+            if out.feasible:
+                return out
+    return solve(None, predicted.get_cov())
 
 
 class LPTeacher:
@@ -476,6 +491,10 @@ class LPTeacher:
         self.backend = backend
         self.rounds = rounds
         self.objective = objective if objective in ("effort", "margin") else None
+        # Under closed_loop the executor must track the plan: without an objective of its own, the
+        # plan LP's vertex solutions (saturated inputs flipping sign inside a region) are replaced
+        # by the least-effort plan that keeps the execution margin.
+        self._smooth = self.objective if self.objective is not None or not closed_loop else "effort"
         self.effort_weights = effort_weights
         self.last: LPOutcome | None = None
 
@@ -505,7 +524,7 @@ class LPTeacher:
                 backend=self.backend,
                 time_limit=max(budget.remaining(), 1e-3),
                 budget=budget,
-                objective=self.objective,
+                objective=self._smooth,
                 effort_weights=self.effort_weights,
             )
         stats.lp_calls += 1
@@ -563,26 +582,32 @@ class LPTeacher:
                     else "the plan LP on re-rolled covariances"
                 )
                 return Found(actions, controls, how, exact=out.exact)
-            backoff, covs = None, judged.get_cov()
+
+            def lp(backoff: np.ndarray | None, covs: np.ndarray) -> LPOutcome:
+                with stats.clock("time_lp"):
+                    out = solve_plan_lp(
+                        system,
+                        problem.control_domain,
+                        init.mean,
+                        init.cov,
+                        self.abs,
+                        plan,
+                        margin,
+                        covs=covs,
+                        control_backoff=backoff,
+                        objective=self._smooth,
+                        scaling=self.scaling,
+                        backend=self.backend,
+                        time_limit=max(budget.remaining(), 1e-3),
+                        budget=budget,
+                    )
+                stats.lp_calls += 1
+                return out
+
             if self.closed_loop:
-                backoff, covs = closed_loop_round(system, traj, problem.control_domain, judged)
-            with stats.clock("time_lp"):
-                nxt = solve_plan_lp(
-                    system,
-                    problem.control_domain,
-                    init.mean,
-                    init.cov,
-                    self.abs,
-                    plan,
-                    margin,
-                    covs=covs,
-                    control_backoff=backoff,
-                    scaling=self.scaling,
-                    backend=self.backend,
-                    time_limit=max(budget.remaining(), 1e-3),
-                    budget=budget,
-                )
-            stats.lp_calls += 1
+                nxt = closed_loop_lp(system, traj, problem.control_domain, judged, lp)
+            else:
+                nxt = lp(None, judged.get_cov())
             if not nxt.feasible:
                 return None
             controls = nxt.controls
