@@ -34,13 +34,17 @@ gains horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain). Per problem: 
 per-constraint |predicted - measured| violation rate (executed belief / true state), how many
 predicted rates fall outside the measured Wilson 95% interval, the formula's success bound and
 estimate against the measured rate, and, to find out why they disagree, the worst per-step
-difference, the largest clipping probability and the kind of sensor noise. It replaces (or
-appends) the ``## Goal`` section of ``--out``, leaving the rest of the file as it is.
+difference, the largest clipping probability and the kind of sensor noise. With ``--why`` a
+problem with a per-constraint rate outside its interval is validated and predicted again with
+unclipped inputs (same seeds): what remains is the state-dependent sensor linearisation, the only
+other approximation of the prediction (exact for constant noise without clipping). It replaces
+(or appends) the ``## Goal`` section of ``--out``, leaving the rest of the file as it is.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import sys
 import time
@@ -340,8 +344,9 @@ def goal_cases(kinds: tuple[str, ...], size: str, solve_seed: int, time_limit: f
             yield f"light_dark: no plan ({problem.last_result.status})"
         else:
             _gains(problem)
-            yield Case("light_dark", problem, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE,
-                       solve_s=solve_s)
+            caps = problem.last_result.stats.caps_hit
+            yield Case("light_dark" + (f" (caps hit: {', '.join(caps)})" if caps else ""), problem, plan,
+                       light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE, solve_s=solve_s)
     for kind in kinds:
         if kind == "light_dark":
             continue
@@ -352,8 +357,9 @@ def goal_cases(kinds: tuple[str, ...], size: str, solve_seed: int, time_limit: f
             yield f"{kind}: no plan ({res.status}, {solve_s:.0f} s)"
             continue
         _gains(problem)
-        yield Case(kind, problem, plan, pp.real_system(problem), pp.real_initial_state(kind, problem),
-                   solve_s=solve_s)
+        caps = problem.last_result.stats.caps_hit
+        yield Case(kind + (f" (caps hit: {', '.join(caps)})" if caps else ""), problem, plan,
+                   pp.real_system(problem), pp.real_initial_state(kind, problem), solve_s=solve_s)
 
 
 def _noise_kind(problem: Any) -> str:
@@ -417,6 +423,14 @@ def _is_box(domain: Any) -> bool:
     return bool(np.all(np.count_nonzero(np.abs(H) > 1e-12, axis=1) <= 1))
 
 
+def _noclip_cell(r: dict[str, Any]) -> str:
+    nc = r.get("noclip")
+    if nc is None:
+        return "-"
+    return (f"{nc['pred_belief_maxdiff']:.3f} / {nc['pred_state_maxdiff']:.3f}; "
+            f"{nc['outside']} / {nc['compared']}")
+
+
 def _opt_pct(x: float | None) -> str:
     return "n/a" if x is None or not np.isfinite(x) else _pct(x)
 
@@ -427,7 +441,8 @@ def goal_table(rows: list[dict[str, Any]], skipped: list[str]) -> str:
             "\\|pred - meas\\| belief / state (max measured rate) | rates outside the 95% CI | "
             "per step: max \\|diff\\| belief / state | "
             "success, belief: bound / estimate / measured [95% CI] | "
-            "success, true state: bound / estimate / measured [95% CI] | validate (s) |")
+            "success, true state: bound / estimate / measured [95% CI] | "
+            "unclipped (--why): worst \\|pred - meas\\| belief / state; outside | validate (s) |")
     lines = [head, "|" + "---|" * (head.count(" | ") + 1)]
     for r in rows:
         lines.append(
@@ -443,9 +458,13 @@ def goal_table(rows: list[dict[str, Any]], skipped: list[str]) -> str:
                 f"{_pct(r[f'{k}_measured'])} [{_pct(r[f'{k}_ci'][0])}, {_pct(r[f'{k}_ci'][1])}]"
                 for k in ("belief", "state")
             )
-            + f" | {r['validate_s']:.1f} |")
+            + f" | {_noclip_cell(r)} | {r['validate_s']:.1f} |")
     out = "\n".join(lines)
-    flagged = [f"- {r['case']}: " + "; ".join(r["outside_names"]) for r in rows if r["outside_names"]]
+    flagged = [
+        f"- {r['case']}: " + "; ".join(r["outside_names"])
+        + (f"; unclipped: {'; '.join(r['noclip']['outside_names']) or 'none'}" if r.get("noclip") else "")
+        for r in rows if r["outside_names"]
+    ]
     if flagged:
         out += "\n\nPer-constraint rates outside the interval:\n\n" + "\n".join(flagged)
     if skipped:
@@ -483,6 +502,8 @@ def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
             print(case, flush=True)
             continue
         row = goal_row(case, a.runs)
+        if a.why and row["outside_names"]:
+            row["noclip"] = goal_row(dataclasses.replace(case, clip=False), a.runs)
         rows.append(row)
         print(f"{row['case']}: {row['steps']} steps, worst per-constraint |diff| belief "
               f"{row['pred_belief_maxdiff']:.3f} state {row['pred_state_maxdiff']:.3f}, outside "
@@ -534,6 +555,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", default="full", choices=("small", "full"), help="(--goal) perception size")
     p.add_argument("--solve-seed", type=int, default=0, help="(--goal) the solver's seed")
     p.add_argument("--time-limit", type=float, default=120.0, help="(--goal) seconds per solve")
+    p.add_argument("--why", action="store_true",
+                   help="(--goal) re-run a problem with a flagged rate without clipping")
     a = p.parse_args(argv)
     if a.goal:
         return goal_main(a, argv)
