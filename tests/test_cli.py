@@ -370,3 +370,20 @@ def test_solve_objective_flag_reaches_the_result(tmp_path):
     (record,) = [json.loads(p.read_text()) for p in out.glob("*.json")]
     assert record["status"] == "found" and record["objective"] == "effort"
     assert record["optimal"] and record["objective_value"] > 0
+
+
+def test_solve_guarantee_flag_reaches_the_result(tmp_path):
+    """`--guarantee closed_loop`: the record carries the predicted true state the monitor verified."""
+    from idstlpy.cli import main
+    from idstlpy.synthesis.results import SolveResult
+
+    problem = tmp_path / "ld.toml"
+    assert main(["example", "light-dark", "--out", str(problem)]) == 0
+    out = tmp_path / "res"
+    assert main(["solve", str(problem), "--guarantee", "closed_loop", "--quiet", "--out", str(out)]) == 0
+    (record,) = [json.loads(p.read_text()) for p in out.glob("*.json")]
+    assert record["status"] == "found" and record["guarantee"] == "closed_loop"
+    result = SolveResult.from_dict(record)
+    assert result.predicted is not None
+    # The predicted true state is wider than the plan's MLO belief somewhere.
+    assert (result.predicted.get_cov() - result.trajectory.get_cov()).max() > 0
