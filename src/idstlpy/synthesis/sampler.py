@@ -35,7 +35,7 @@ import numpy as np
 from ..belief import belief_step, rollout, rollout_arrays
 from ..semantics import robustness
 from .abstraction import Abstraction
-from .interfaces import Budget, Found, Unknown, Verdict
+from .interfaces import Budget, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan, evaluate_bool, extract_witness
 from .plan_lp import Scaling
 from .proposer import BMCProposer
@@ -417,6 +417,8 @@ class BeliefSampler:
         events = [self._events(plan)]
         iters = 0
         capped = False
+        alive: set[int] = set()  # nodes whose prefix was checked completable
+        dropped = 0
         while iters < iterations:
             if not iters % 32 and time.perf_counter() >= deadline:
                 capped = True
@@ -431,9 +433,7 @@ class BeliefSampler:
                 stages = tree.stage[act]
                 act = act[stages == stages.max()]
             ref = int(act[int(np.argmin(tree.unc[act]))])
-            ev_steps, ev_atoms = events[int(tree.plan[ref])]
-            st = int(tree.stage[ref])
-            goal: int | None = int(ev_atoms[min(st, ev_atoms.size - 1)]) if ev_atoms.size else None
+            goal = self._next_goal(tree, ref, events[int(tree.plan[ref])])
             aim_goal = goal is not None and rng.random() < opt.goal_bias
             s = self._sample_in_atom(goal) if aim_goal and goal is not None else None
             if s is None:
@@ -453,6 +453,7 @@ class BeliefSampler:
                 pool = off if off.size else act
             node = self._select(tree, pool, s, goal)
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
+            prefer = self._extension_mode(tree, node, goal, rng)
             cur = node
             for j in range(steps):
                 k = int(tree.k[cur]) + 1
@@ -462,7 +463,10 @@ class BeliefSampler:
                 allowed = self._allowed_modes(pl, k)
                 if not allowed:
                     break
-                q = allowed[0] if len(allowed) == 1 else int(rng.choice(allowed))
+                if prefer in allowed:
+                    q = prefer
+                else:
+                    q = allowed[0] if len(allowed) == 1 else int(rng.choice(allowed))
                 u = self._steer(q, tree.mean[cur], s, steps - j)
                 mean, cov = belief_step(modes[q], tree.mean[cur], tree.cov[cur], u)
                 truth = abs_.truth(mean, cov, q)
@@ -477,6 +481,13 @@ class BeliefSampler:
                 stage = int(np.searchsorted(events[pid][0], k, side="right"))
                 cur = tree.add(mean, cov, k, cur, q, u, truth, pid, stage)
             if cur == node:
+                # Not one step was possible: if the node's own prefix can no longer be completed
+                # (a deadline of the formula has passed), it is dead: never select it again.
+                if node not in alive and not self._alive(tree, node):
+                    tree.active[node] = False
+                    dropped += 1
+                else:
+                    alive.add(node)
                 continue
             leaf = cur
             if self._satisfied(tree, leaf):
@@ -487,10 +498,11 @@ class BeliefSampler:
                 )
             self._drain(tree, leaf, act)
         logger.info(
-            "sampler: %s after %d iterations, %d nodes",
+            "sampler: %s after %d iterations, %d nodes (%d dead nodes dropped)",
             "wall-clock cap" if capped else "budget spent",
             iters,
             tree.size,
+            dropped,
         )
         if logger.isEnabledFor(logging.DEBUG):
             names = abs_.names()
@@ -502,6 +514,61 @@ class BeliefSampler:
                 len(plans),
             )
         return SamplerOutcome(None, None, tree.size, iters, capped)
+
+    def _next_goal(self, tree: _Tree, node: int, events: tuple[np.ndarray, np.ndarray]) -> int | None:
+        """The region ``node`` should make for: the first event of its plan after its step whose
+        region it is not in (a patrol's next stop, a sequence's next region), else the region of
+        its plan's last event (a hold); ``None`` without events.
+        """
+        ev_steps, ev_atoms = events
+        if not ev_atoms.size:
+            return None
+        later = ev_steps > tree.k[node]
+        todo = later & ~tree.truth[node, ev_atoms]
+        if np.any(todo):
+            return int(ev_atoms[int(np.argmax(todo))])
+        if np.any(later):
+            return int(ev_atoms[int(np.argmax(later))])
+        return int(ev_atoms[-1])
+
+    def _alive(self, tree: _Tree, node: int) -> bool:
+        """Whether the realised prefix up to ``node`` can still be completed (one SAT call).
+
+        The root is always alive (the candidate itself completes it).
+        """
+        if tree.parent[node] < 0:
+            return True
+        path = tree.path(node)
+        truth = tree.truth[path].T
+        modes = tree.action[path[1:]].astype(int)
+        return self.proposer.complete(truth, modes) is not None
+
+    def _extension_mode(
+        self, tree: _Tree, node: int, goal: int | None, rng: np.random.Generator
+    ) -> int:
+        """The mode one extension prefers (kept over its steps when the plan allows it).
+
+        With one mode, that mode. Otherwise a uniformly random mode, except when the node is
+        holding its goal region or is less certain than the region needs: then, three times in
+        four, the mode whose next belief is least uncertain (a sensing mode where it senses), so
+        holds and approaches under process noise re-sense instead of drifting blind.
+        """
+        num = self.system.num_modes
+        if num == 1:
+            return 0
+        needs_sensing = goal is not None and (
+            bool(tree.truth[node, goal]) or tree.unc[node] > self._floor(goal)
+        )
+        if needs_sensing and rng.random() < 0.75:
+            best, best_unc = 0, np.inf
+            zero = np.zeros(self.system.m)
+            for q, mode in enumerate(self.system.system_modes):
+                _, cov = belief_step(mode, tree.mean[node], tree.cov[node], zero)
+                unc = float(np.trace(cov))
+                if unc < best_unc:
+                    best, best_unc = q, unc
+            return best
+        return int(rng.integers(num))
 
     def _select(self, tree: _Tree, pool: np.ndarray, s: np.ndarray, goal: int | None) -> int:
         """Least uncertain node within ``delta_near`` of ``s`` (else the nearest).
@@ -639,6 +706,26 @@ class SamplerTeacher:
         with stats.clock("time_lp"):
             actions, controls = self._polish(actions, controls, stats)
         return Found(actions, controls, "the belief-space sampler")
+
+    def rescue(self, plan: DiscretePlan, refuted: Refuted, budget: Budget, stats: SolveStats) -> Verdict:
+        """Search belief space for a candidate the LP refuted for its mode sequence only.
+
+        With several modes an LP conflict names the modes of the candidate, so the proposer
+        would enumerate mode sequences one by one (``2^k`` of them for ``k`` steps); the sampler
+        chooses its own modes, so it gets the candidate's requirements on the 1st, 2nd, 4th,
+        8th, ... such refutation (a deterministic schedule). Returns ``refuted`` unchanged
+        unless the sampler finds a plan (which the loop's monitor then checks).
+        """
+        conflict = refuted.conflict
+        if conflict.modes is None or self.problem.switched_system.num_modes < 2:
+            return refuted
+        self._mode_refutations = getattr(self, "_mode_refutations", 0) + 1
+        n = self._mode_refutations
+        if n & (n - 1):
+            return refuted
+        logger.info("sampler: rescuing candidate refuted for its modes only (%d such refutations)", n)
+        verdict = self.teach(plan, budget, stats)
+        return verdict if isinstance(verdict, Found) else refuted
 
     def _polish(
         self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats
