@@ -1,25 +1,29 @@
 """Replanning under real noise (issue 15): a fixed plan against ``execute(replan="on_risk" | "every")``.
 
-Run: ``python -m benchmarks.replanning [--runs 100] [--kinds a,b,...] [--size full] [--solve-seed 0]
-[--time-limit 60] [--jobs 2] [--out benchmarks/replanning_results.md]``.
+Run: ``python -m benchmarks.replanning [--runs 50] [--kinds a,b,...] [--size full] [--solve-seed 0]
+[--time-limit 60] [--replan-time-limit 5] [--max-replans 3] [--jobs 2] [--resume]
+[--out benchmarks/replanning_results.md]``.
 
-Problems: the paper's listing (light-dark) and every kind of the active-perception suite
-(:mod:`benchmarks.perception_problems`, ``--size``), each solved once with ``--solve-seed`` and
-the listing's sampler parameters (``--time-limit`` per solve); a kind without a plan is listed
-with the solver's status. Every plan is executed ``--runs`` times in three ways, with the *same*
-execution seeds (run ``i`` uses child ``i`` of ``SeedSequence(--exec-seed)``; the three columns
-are paired: until its first re-plan, a run of the replanning executor is the fixed run, bit for
-bit):
+Problems: the paper's listing (light-dark, kind ``listing``) and every kind of the
+active-perception suite (:mod:`benchmarks.perception_problems`, ``--size``), in :data:`ORDER`
+(cheap and informative first), each solved once with ``--solve-seed`` and the listing's sampler
+parameters (``--time-limit`` per solve); a kind without a plan is listed with the solver's
+status. Every plan is executed ``--runs`` times in three ways, with the *same* execution seeds
+(run ``i`` uses child ``i`` of ``SeedSequence(--exec-seed)``; the three columns are paired: until
+its first adopted re-plan, a run of the replanning executor is the fixed run, bit for bit):
 
 - ``fixed``: ``execute(replan=None)``, i.e. ``simulate`` (what ``validate`` measures);
 - ``on_risk``: ``execute(replan="on_risk", risk=0.99)``, the remaining plan's success predicted
-  (sound bound, executed belief and true state) every ``check`` steps;
-- ``every``: ``execute(replan="every")``, a re-solve every ``every`` steps.
+  (sound bound, the smaller of executed belief and true state) every ``check`` steps;
+- ``every``: ``execute(replan="every")``, a re-solve every ``every`` steps;
+- ``on_risk_cl``: ``on_risk`` whose re-solves plan against the predicted true state
+  (``solver_options={"guarantee": "closed_loop"}``), the other options unchanged.
 
 ``check`` and ``every`` scale with the plan (``check = max(5, N // 10)``, ``every =
 max(10, N // 5)``, ``N`` the plan's length) so a run costs about ten predictions or five re-solves
-whatever the horizon. Re-solves use the listing's sampler parameters, ``--replan-time-limit``
-seconds each (default 10) and seeds derived from the run's seed.
+whatever the horizon. Re-solves use the listing's sampler parameters, at most ``--max-replans``
+per run, ``--replan-time-limit`` seconds each, seeds derived from the run's seed, and the default
+``adopt="better"`` (a re-solved plan is followed only when its predicted success is higher).
 
 Real system, true start and tracking: the suite's (every planning mode's ``A, B`` as
 ``mk_lcs``, process noise of the planning mode, start offset from the prior mean like the
@@ -28,7 +32,9 @@ paper's, LQR horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain).
 Reported per problem and executor: success of the executed belief and of the true state (the
 formula's deterministic reading) with Wilson 95% intervals, re-solves and adopted plans per run
 (mean / max), re-solve outcomes, seconds per run. The goal: on every problem where the fixed
-plan reaches 90% (per measure), replanning reaches 99%.
+plan reaches 90% (per measure), replanning reaches 99%. Each kind's runs are recorded in
+``--work`` (default ``results/replanning/<kind>.json``, git-ignored) and the report is rewritten
+after every kind, so an interrupted run keeps what it measured (``--resume`` continues it).
 """
 
 from __future__ import annotations
@@ -59,7 +65,7 @@ SAMPLER: dict[str, Any] = {
     "min_num_of_steps": 3,
     "max_num_of_steps": 15,
 }
-MODES = ("fixed", "on_risk", "every")
+MODES = ("fixed", "on_risk", "every", "on_risk_cl")
 RISK = 0.99
 
 
@@ -107,11 +113,13 @@ def run_batch(
     problem, real, x0 = _setup(kind, size)
     check, every = schedule(plan.num_of_steps)
     kw: dict[str, Any] = {}
-    if mode == "on_risk":
+    options = stl.SolverOptions.make(**SAMPLER)
+    if mode in ("on_risk", "on_risk_cl"):
         kw = {"replan": "on_risk", "risk": RISK, "check_every": check}
     elif mode == "every":
         kw = {"replan": "every", "every": every}
-    options = stl.SolverOptions.make(**SAMPLER)
+    if mode == "on_risk_cl":  # the re-solves plan against the predicted true state
+        options = options.with_(guarantee="closed_loop")
     out = []
     for ss in seeds:
         t0 = time.perf_counter()
@@ -159,8 +167,8 @@ def _rate(runs: list[dict[str, Any]], key: str) -> str:
 
 def summarise(kind: str, plan_len: int, by_mode: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
     """Rates, re-plans and time per executor, and the goal's verdict for one problem."""
-    row: dict[str, Any] = {"kind": kind, "steps": plan_len}
-    for mode in MODES:
+    row: dict[str, Any] = {"kind": kind, "steps": plan_len, "modes": [m for m in MODES if by_mode.get(m)]}
+    for mode in row["modes"]:
         runs = by_mode[mode]
         n = len(runs)
         row[mode] = {
@@ -182,7 +190,7 @@ def summarise(kind: str, plan_len: int, by_mode: dict[str, list[dict[str, Any]]]
         if row["fixed"][measure] < 0.90:
             verdicts.append(f"{measure}: fixed < 90%, not in the goal")
             continue
-        for mode in ("on_risk", "every"):
+        for mode in [m for m in row["modes"] if m != "fixed"]:
             ok = row[mode][measure] >= 0.99
             verdicts.append(f"{measure} {mode}: {'met' if ok else 'MISSED'} ({_pct(row[mode][measure])})")
     row["goal"] = "; ".join(verdicts)
@@ -205,14 +213,15 @@ def markdown(
         f"{args.exec_seed} (paired across executors)",
         f"- on_risk: risk = {RISK}, sound bound, min(belief, state), every `check = max(5, N // 10)` steps; "
         f"every: a re-solve every `max(10, N // 5)` steps; at most {args.max_replans} re-solves per run, "
-        f"each capped at {args.replan_time_limit:g} s",
+        f"each capped at {args.replan_time_limit:g} s; on_risk_cl: on_risk whose re-solves use "
+        "guarantee='closed_loop'",
         "",
         "| problem | steps | executor | belief success [95% CI] | state success [95% CI] "
         "| re-solves / run (max) | adopted / run | re-solve outcomes | s / run |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
-        for mode in MODES:
+        for mode in row["modes"]:
             m = row[mode]
             outcomes = ", ".join(f"{k} {v}" for k, v in sorted(m["statuses"].items())) or "-"
             if m["caps"]:
@@ -250,14 +259,21 @@ ORDER = (
 """Kinds in the order they run (cheap and informative first: a run cut short still says most)."""
 
 
-def run_kind(pool: Any, kind: str, args: argparse.Namespace, seeds: list[Any]) -> dict[str, Any]:
-    """Solve one kind, execute its plan with the three executors; plain JSON-able data."""
+def run_kind(
+    pool: Any, kind: str, args: argparse.Namespace, seeds: list[Any], record: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Solve one kind, execute its plan with the executors ``args.modes`` not yet in ``record``."""
     s = pool.submit(solve_job, kind, args.size, args.solve_seed, args.time_limit).result()
-    record: dict[str, Any] = {k: s[k] for k in ("kind", "status", "solve_s", "reason")}
     print(f"{kind}: {s['status']} in {s['solve_s']:.1f} s", file=sys.stderr, flush=True)
+    if record is not None and s["plan"] is not None and record.get("steps") != s["plan"].num_of_steps:
+        record = None  # the solver gave another plan than the recorded one: measure everything again
+    if record is None:
+        record = {k: s[k] for k in ("kind", "status", "solve_s", "reason")}
     if s["plan"] is None:
         return record
     record["steps"] = s["plan"].num_of_steps
+    runs = record.setdefault("runs", {})
+    todo = [m for m in args.modes if m not in runs]
     chunk = max(1, math.ceil(len(seeds) / 4))
     futures = {
         (mode, i): pool.submit(
@@ -270,12 +286,13 @@ def run_kind(pool: Any, kind: str, args: argparse.Namespace, seeds: list[Any]) -
             args.replan_time_limit,
             args.max_replans,
         )
-        for mode in MODES
+        for mode in todo
         for i in range(0, len(seeds), chunk)
     }
-    record["runs"] = {mode: [] for mode in MODES}
+    for mode in todo:
+        runs[mode] = []
     for (mode, _), fut in futures.items():
-        record["runs"][mode].extend(fut.result())
+        runs[mode].extend(fut.result())
     return record
 
 
@@ -296,11 +313,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-replans", type=int, default=3, help="re-solves per run at most")
     p.add_argument("--jobs", type=int, default=2)
     p.add_argument("--work", default=str(ROOT / "results" / "replanning"), help="per-kind JSON records")
-    p.add_argument("--resume", action="store_true", help="keep the kinds already recorded in --work")
+    p.add_argument("--resume", action="store_true", help="keep the executors already recorded in --work")
+    p.add_argument("--modes", default=",".join(MODES), help=f"comma-separated executors of {MODES}")
     p.add_argument("--out", default=str(ROOT / "benchmarks" / "replanning_results.md"))
     args = p.parse_args(argv)
     args.argv = argv
     kinds = [k for k in args.kinds.split(",") if k] or list(ORDER)
+    args.modes = [m for m in args.modes.split(",") if m]
+    if not set(args.modes) <= set(MODES):
+        p.error(f"--modes must be among {MODES}")
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
@@ -308,9 +329,10 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(args.jobs) as pool:
         for kind in kinds:
             path = work / f"{kind}.json"
-            if args.resume and path.exists():
+            old = json.loads(path.read_text()) if args.resume and path.exists() else None
+            if old is not None and ("runs" not in old or all(m in old["runs"] for m in args.modes)):
                 continue
-            record = run_kind(pool, kind, args, seeds)
+            record = run_kind(pool, kind, args, seeds, old)
             path.write_text(json.dumps(record))
             write_report(kinds, args, work, time.perf_counter() - t_start)
     print(Path(args.out).read_text())
