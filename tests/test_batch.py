@@ -112,7 +112,10 @@ def test_validate_a_saved_plan_without_solving(tmp_path):
     assert record["plan"] == solved["plan"] and record["validation"]["runs"] == 3
     assert "solver" not in record["timing"]  # nothing was solved
     # the same plan under a stricter problem is rejected, with a reason
-    strict = Job.from_file(LIGHT_DARK, "validate", {"propositions.target.confidence": 0.9999}, plan=solved)
+    # (a hold of 400 steps: no plan of the original problem is that long, whatever the sampler drew)
+    strict = Job.from_file(
+        LIGHT_DARK, "validate", {"formula": "(free_space U[0,240] G[0,400] target)"}, plan=solved
+    )
     rejected = run_job(strict)
     assert rejected["status"] == "rejected" and not rejected["check"]["satisfies"]
     assert "does not satisfy" in rejected["reason"] and rejected["validation"] is None

@@ -232,7 +232,8 @@ def test_validate_a_saved_plan(tmp_path, capsys, solved):
     assert record["plan_source"] == "saved" and record["check"]["same_problem"] is True
     assert record["plan"] == json.loads(path.read_text())["plan"] and record["validation"]["runs"] == 4
     # a plan of another problem is rejected: exit 1
-    stricter = ["--set", "propositions.target.confidence=0.9999"]
+    # (a hold of 400 steps: no plan of the original problem is that long, whatever the sampler drew)
+    stricter = ["--set", 'formula="(free_space U[0,240] G[0,400] target)"']
     assert (
         main(["validate", str(LIGHT_DARK), "--plan", str(path), "--out", str(out), *stricter]) == EXIT_NO_PLAN
     )

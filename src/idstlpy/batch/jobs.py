@@ -289,6 +289,8 @@ def run_job(job: Job | Mapping[str, Any]) -> dict[str, Any]:
         spec = apply_overrides(load_problem(job.problem_text, name=job.problem_name), job.overrides)
         record["problem"] = problem_section(spec)
         problem, solver_kwargs, execution = spec.build()
+        # The executor's gains before solving: guarantee="closed_loop" plans against them.
+        _apply_lqr(problem, execution)
         record["formula"] = str(problem.stl_formula)
         seed, source = _seed(job, spec)
         solver_kwargs["seed"] = seed
@@ -386,20 +388,26 @@ def result_to_plan(traj: Any) -> dict[str, Any]:
     return result_to_dict(SolveResult("found", traj, ""))["plan"]  # type: ignore[no-any-return]
 
 
+def _apply_lqr(problem: Any, execution: ExecutionSettings) -> None:
+    """Give every mode the tracking gains of the file's ``[execution.lqr]`` (if any)."""
+    if execution.lqr is None:
+        return
+    for mode in problem.switched_system.system_modes:
+        mode.compute_finite_horizon_lqr(
+            horizon=execution.lqr["horizon"],
+            Q_final=execution.lqr["Q_final"],
+            Q=execution.lqr["Q"],
+            R=execution.lqr["R"],
+        )
+
+
 def _validate(
     problem: Any, trajectory: Any, execution: ExecutionSettings, seed: int, seed_from_job: bool
 ) -> dict[str, Any]:
     """Execute the plan ``execution.runs`` times in this process; returns the report as data."""
     from ..execution import validate
 
-    if execution.lqr is not None:
-        for mode in problem.switched_system.system_modes:
-            mode.compute_finite_horizon_lqr(
-                horizon=execution.lqr["horizon"],
-                Q_final=execution.lqr["Q_final"],
-                Q=execution.lqr["Q"],
-                R=execution.lqr["R"],
-            )
+    _apply_lqr(problem, execution)
     # a job's seed decides everything; otherwise the file's [validation] seed, else a child of
     # the solver's seed (never fresh entropy: the same job gives the same record)
     if seed_from_job or execution.seed is None:
