@@ -89,6 +89,8 @@ class _Tree:
         self.run = grow(g(self, "run", None), (), np.int64)
         self.plan = grow(g(self, "plan", None), (), np.int64)
         self.stage = grow(g(self, "stage", None), (), np.int64)
+        self.last = grow(g(self, "last", None), (), np.int64)  # region last entered (patrols)
+        self.lastk = grow(g(self, "lastk", None), (), np.int64)  # the step it was entered
         self.cap = cap
 
     def add(self, mean, cov, k, parent, action, control, truth, plan, stage=0) -> int:
@@ -105,6 +107,8 @@ class _Tree:
         self.run[i] = self.run[parent] + 1 if same else 0
         self.plan[i] = plan
         self.stage[i] = stage
+        self.last[i] = self.last[parent] if parent >= 0 else -1
+        self.lastk[i] = self.lastk[parent] if parent >= 0 else 0
         self.active[i] = False
         self.size += 1
         return i
@@ -415,6 +419,12 @@ class BeliefSampler:
         tree.active[root] = True
         H = self.proposer.cap
         events = [self._events(plan)]
+        # A patrol (some region required again and again): progress is the number of
+        # alternating visits a lineage has made, not the plan's events (re-timing defers them).
+        ev_atoms0 = events[0][1].tolist()
+        cycle = list(dict.fromkeys(ev_atoms0))
+        recurring = len(cycle) >= 2 and len(ev_atoms0) > len(cycle)
+        gap = 2 * opt.max_num_of_steps
         iters = 0
         capped = False
         alive: set[int] = set()  # nodes whose prefix was checked completable
@@ -432,8 +442,15 @@ class BeliefSampler:
             if rng.random() < _FOCUS:
                 stages = tree.stage[act]
                 act = act[stages == stages.max()]
-            ref = int(act[int(np.argmin(tree.unc[act]))])
-            goal = self._next_goal(tree, ref, events[int(tree.plan[ref])])
+            goal: int | None
+            if recurring:
+                unc = tree.unc[act]
+                sure = act[unc <= max(float(unc.min()), self._floor(cycle[0]))]
+                ref = int(sure[int(rng.integers(sure.size))])
+                goal = self._cycle_goal(tree, ref, cycle)
+            else:
+                ref = int(act[int(np.argmin(tree.unc[act]))])
+                goal = self._next_goal(tree, ref, events[int(tree.plan[ref])])
             aim_goal = goal is not None and rng.random() < opt.goal_bias
             s = self._sample_in_atom(goal) if aim_goal and goal is not None else None
             if s is None:
@@ -451,7 +468,7 @@ class BeliefSampler:
                 # sample must not drag a lineage out of the region it is holding.
                 off = act[~tree.truth[act, goal]]
                 pool = off if off.size else act
-            node = self._select(tree, pool, s, goal)
+            node = ref if recurring and aim_goal else self._select(tree, pool, s, goal)
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             prefer = self._extension_mode(tree, node, goal, rng)
             cur = node
@@ -478,8 +495,13 @@ class BeliefSampler:
                     plans.append(new)
                     events.append(self._events(new))
                     pid = len(plans) - 1
-                stage = int(np.searchsorted(events[pid][0], k, side="right"))
+                if recurring:
+                    stage = self._visit(tree, cur, truth, k, cycle, gap)
+                else:
+                    stage = int(np.searchsorted(events[pid][0], k, side="right"))
                 cur = tree.add(mean, cov, k, cur, q, u, truth, pid, stage)
+                if recurring:
+                    self._record_visit(tree, cur, truth, k, cycle)
             if cur == node:
                 # Not one step was possible: if the node's own prefix can no longer be completed
                 # (a deadline of the formula has passed), it is dead: never select it again.
@@ -531,6 +553,42 @@ class BeliefSampler:
             return int(ev_atoms[int(np.argmax(later))])
         return int(ev_atoms[-1])
 
+    @staticmethod
+    def _entered(tree: _Tree, parent: int, truth: np.ndarray, cycle: list[int]) -> int:
+        """The patrol region a step from ``parent`` newly enters (not the last one), or -1."""
+        last = int(tree.last[parent])
+        for a in cycle:
+            if truth[a] and not tree.truth[parent, a] and a != last:
+                return a
+        return -1
+
+    def _visit(self, tree: _Tree, parent: int, truth: np.ndarray, k: int, cycle: list[int], gap: int) -> int:
+        """Patrol progress of a step from ``parent``: one more alternating visit when it enters
+        the next region within ``gap`` steps of the last visit; 0 once a lineage has stalled."""
+        a = self._entered(tree, parent, truth, cycle)
+        since = k - int(tree.lastk[parent])
+        if a >= 0:
+            return int(tree.stage[parent]) + 1 if since <= gap or tree.last[parent] < 0 else 1
+        return int(tree.stage[parent]) if since <= gap else 0
+
+    def _record_visit(self, tree: _Tree, node: int, truth: np.ndarray, k: int, cycle: list[int]) -> None:
+        """Remember the patrol region ``node`` newly entered (and when)."""
+        parent = int(tree.parent[node])
+        a = self._entered(tree, parent, truth, cycle)
+        if a >= 0:
+            tree.last[node], tree.lastk[node] = a, k
+
+    @staticmethod
+    def _cycle_goal(tree: _Tree, node: int, cycle: list[int]) -> int:
+        """A patrol's next region for ``node``: the one after the region it last entered."""
+        last = int(tree.last[node])
+        if last < 0:
+            for a in cycle:
+                if not tree.truth[node, a]:
+                    return a
+            return cycle[0]
+        return cycle[(cycle.index(last) + 1) % len(cycle)]
+
     def _alive(self, tree: _Tree, node: int) -> bool:
         """Whether the realised prefix up to ``node`` can still be completed (one SAT call).
 
@@ -543,9 +601,7 @@ class BeliefSampler:
         modes = tree.action[path[1:]].astype(int)
         return self.proposer.complete(truth, modes) is not None
 
-    def _extension_mode(
-        self, tree: _Tree, node: int, goal: int | None, rng: np.random.Generator
-    ) -> int:
+    def _extension_mode(self, tree: _Tree, node: int, goal: int | None, rng: np.random.Generator) -> int:
         """The mode one extension prefers (kept over its steps when the plan allows it).
 
         With one mode, that mode. Otherwise a uniformly random mode, except when the node is
