@@ -61,6 +61,13 @@ class LinearModel:
     mip_rel_gap : float, optional
         Relative optimality gap at which a MILP may stop; ``None``: 1e-7 when the objective is
         not zero (an optimum is asked for), the back-end's default otherwise.
+    cuts : bool, default True
+        False asks a MILP back-end to skip cutting planes (SCIP: no separation rounds; HiGHS has
+        no such switch and ignores it), for models whose relaxation is already as tight as the
+        cuts would make it.
+    node_limit : int, optional
+        Branch-and-bound nodes after which a MILP back-end stops (``time_limit`` status): a
+        deterministic budget, unlike the wall clock.
     """
 
     c: np.ndarray
@@ -71,6 +78,8 @@ class LinearModel:
     ub: np.ndarray
     integrality: np.ndarray | None = None
     mip_rel_gap: float | None = None
+    cuts: bool = True
+    node_limit: int | None = None
 
     @property
     def num_vars(self) -> int:
@@ -214,6 +223,11 @@ def _highs_direct(model: LinearModel, limit: float) -> BackendSolution | None:
     h = core._Highs()
     h.setOptionValue("output_flag", False)
     h.setOptionValue("time_limit", float(limit))
+    if mip:
+        # HiGHS' own default gap (1e-4) would call a plan optimal that is not (see _gap).
+        h.setOptionValue("mip_rel_gap", _gap(model))
+        if model.node_limit is not None:
+            h.setOptionValue("mip_max_nodes", int(model.node_limit))
     with quiet_stdout():
         h.passModel(lp)
         h.run()
@@ -309,7 +323,12 @@ class HighsBackend:
                 integrality=model.integrality,
                 bounds=Bounds(model.lb, model.ub),
                 constraints=LinearConstraint(model.A, model.row_lo, model.row_hi),
-                options={"time_limit": limit, "disp": False, "mip_rel_gap": _gap(model)},
+                options={
+                    "time_limit": limit,
+                    "disp": False,
+                    "mip_rel_gap": _gap(model),
+                    **({} if model.node_limit is None else {"node_limit": int(model.node_limit)}),
+                },
             )
         status: SolutionStatus
         if res.status == 0:

@@ -71,6 +71,13 @@ class ScipBackend:
                 s.readProblem(path)
         s.setParam("limits/time", limit)
         s.setParam("parallel/maxnthreads", 1)
+        if model.mip_rel_gap is not None:
+            s.setParam("limits/gap", float(model.mip_rel_gap))
+        if not model.cuts:
+            s.setParam("separating/maxrounds", 0)
+            s.setParam("separating/maxroundsroot", 0)
+        if model.node_limit is not None:
+            s.setParam("limits/nodes", int(model.node_limit))
         for key, val in self.params.items():
             s.setParam(key, val)
         by_name = {v.name: v for v in s.getVars()}

@@ -23,6 +23,18 @@ Its ``infeasible`` is a proof for plans of at most ``bound + 1`` steps only when
 finite and moderate (a bounded control domain, or invariants that bound the means); otherwise
 the model is not built (``unsupported``) and the lazy loop goes on. Variables are scaled and
 rows normalised as in the plan LP (:mod:`.plan_lp`), so tolerances are relative to the problem.
+
+With ``objective="margin"`` (largest robustness) the margin ``t`` is a column added to every face
+row, and three things make the model fast and its answer a proof:
+
+- ``t`` is capped by the formula's robustness evaluated on upper bounds of every proposition's
+  margin (:func:`_margin_cap`: sound, so the cap never cuts the optimum), which keeps every
+  big-M small and the relaxation's bound at most the cap;
+- a feasibility probe with ``t`` at the cap runs first: where the cap is attained (a goal's
+  centre reachable) the plan it finds is optimal by the cap alone;
+- the big-M rows have no integrality room, so the model is a relaxation and its bound a bound on
+  every plan; the plan's exact margin comes from the LP over its rounded letters
+  (:func:`_polish`), and the optimum is *proven* only when the two meet within ``_PROOF_TOL``.
 """
 
 from __future__ import annotations
@@ -34,9 +46,10 @@ from typing import Any, Literal
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, hstack, vstack
 
-from ..backends import Backend, LinearModel
+from ..backends import Backend, BackendSolution, HighsBackend, LinearModel
 from ..chance import std_terms
 from ..formulas import STLAnd, STLAtomicProposition, STLRelease
+from ..semantics import formula_margins
 from .abstraction import Abstraction
 from .bmc import BMCEncoder
 from .interfaces import Budget
@@ -48,6 +61,10 @@ logger = logging.getLogger(__name__)
 
 _INT_TOL = 2e-6  # above HiGHS' mip_feasibility_tolerance (1e-6): a binary may be off by that much
 _MAX_BIG_M = 1e7  # in normalised, scaled units: beyond this the model is numerically unreliable
+# A margin is proven optimal when the exact LP value of the MILP's plan is this close (relative,
+# at least absolute) to the MILP's bound: the MILP's rows hold only within its feasibility
+# tolerance (1e-6 of a scaled row), so its bound can exceed the true optimum by about that much.
+_PROOF_TOL = 1e-6
 
 MILPStatus = Literal["found", "infeasible", "timeout", "unsupported"]
 
@@ -243,6 +260,117 @@ def _state_boxes(
     return low, high
 
 
+def _common_slack(Hf: np.ndarray, bound: np.ndarray) -> float:
+    """``max s`` such that ``h_f' x + s <= bound_f`` for every face ``f`` (``inf`` if unbounded)."""
+    if not np.all(np.isfinite(bound)):
+        return float(np.min(bound)) if np.any(bound == -np.inf) else np.inf
+    nf, n = Hf.shape
+    A = csr_matrix(np.hstack([Hf, np.ones((nf, 1))]))
+    c = np.zeros(n + 1)
+    c[-1] = -1.0
+    model = LinearModel(
+        c, A, np.full(nf, -np.inf), bound, np.full(n + 1, -np.inf), np.full(n + 1, np.inf)
+    )
+    sol = HighsBackend().solve(model, 10.0)
+    if sol.status == "optimal" and sol.x is not None:
+        # The LP's own tolerance must not make the cap cut the optimum.
+        return float(sol.x[-1]) + 1e-9 * max(1.0, abs(float(sol.x[-1])))
+    if sol.status == "infeasible":
+        return -np.inf
+    return np.inf
+
+
+def _margin_cap(
+    formula: Any,
+    abstraction: Abstraction,
+    covs: np.ndarray,
+    reach_min: np.ndarray,
+    box_low: np.ndarray,
+    box_high: np.ndarray,
+    H: int,
+) -> tuple[float, bool]:
+    """An upper bound on the robustness of every plan of ``H + 1`` steps, and whether it is finite.
+
+    Each face's slack at step ``k`` is at most its bound minus the least value the face takes
+    over the reachable means (support functions, and the box the invariants leave); the
+    monitor's min / max recursion is monotone, so evaluating it on those per-proposition bounds
+    bounds the robustness itself (single mode: the arriving mode is 0).
+    """
+    F = abstraction.H
+    L = H + 1
+    face_ub = np.empty((L, F.shape[0]))
+    for k in range(L):
+        bound = -(abstraction.c + std_terms(F, abstraction.z, covs[k]))
+        with np.errstate(invalid="ignore"):
+            box_min = np.where(F > 0, F * box_low[k], F * box_high[k])
+        box_min = np.where(F == 0, 0.0, box_min).sum(axis=1)
+        face_ub[k] = bound - np.maximum(reach_min[k], box_min)
+    face_ub = np.where(np.isnan(face_ub), np.inf, face_ub)
+    atoms: dict[int, np.ndarray] = {}
+    widest = np.max([-(abstraction.c + std_terms(F, abstraction.z, covs[k])) for k in range(L)], axis=0)
+    for i, ap in enumerate(abstraction.atoms):
+        faces = abstraction.owner == i
+        ub = face_ub[:, faces].min(axis=1) if faces.any() else np.full(L, np.inf)
+        if np.sum(faces) > 1:
+            # The faces cannot all have their largest slack at once: the largest common slack
+            # over the whole space (at the widest bounds of any step) bounds every step.
+            ub = np.minimum(ub, _common_slack(F[faces], widest[faces]))
+        if ap.modes is not None and 0 not in ap.modes:
+            ub[1:] = -np.inf
+        atoms[id(ap)] = ub
+    cap = float(formula_margins(formula, atoms, L)[0])
+    if not np.isfinite(cap):
+        return 0.0, False
+    return max(cap, 0.0), True
+
+
+_PROBE_NODES = 2000
+
+
+def _probe(
+    model: LinearModel, backend: Backend, tcol: int, t_cap: float, budget: Budget
+) -> BackendSolution | None:
+    """A plan whose margin reaches the cap, by a feasibility MILP (``None`` if none is found).
+
+    When the cap is attained (a goal's centre is reachable, say) the optimisation only has to
+    find such a plan, and a feasibility search with the margin fixed there is 2-5x faster than
+    the optimisation; when it is not, the probe fails within a deterministic node budget and
+    the full MILP runs.
+    """
+    lb = model.lb.copy()
+    lb[tcol] = t_cap * (1.0 - 1e-7)
+    probe = LinearModel(
+        np.zeros_like(model.c),
+        model.A,
+        model.row_lo,
+        model.row_hi,
+        lb,
+        model.ub,
+        model.integrality,
+        cuts=False,
+        node_limit=_PROBE_NODES,
+    )
+    sol = backend.solve(probe, max(budget.remaining(), 1e-3))
+    logger.info("MILP margin: probe at the cap %.9g: %s", t_cap, sol.message)
+    if sol.status in ("optimal", "time_limit") and sol.x is not None:
+        return sol  # any plan of the probe is at the cap
+    return None
+
+
+def _polish(model: LinearModel, x: np.ndarray, tcol: int, budget: Budget) -> np.ndarray | None:
+    """The LP of ``model`` with its integer columns fixed at ``x`` rounded (``None`` if it fails)."""
+    assert model.integrality is not None
+    ints = model.integrality != 0
+    lb, ub = model.lb.copy(), model.ub.copy()
+    lb[ints] = ub[ints] = np.round(x[ints])
+    lp = LinearModel(model.c, model.A, model.row_lo, model.row_hi, lb, ub)
+    sol = HighsBackend().solve(lp, max(budget.remaining(), 1e-3))
+    if sol.status != "optimal" or sol.x is None:
+        logger.info("MILP margin: the LP over the MILP's letters did not solve (%s)", sol.message)
+        return None
+    return sol.x
+
+
 def solve_milp(
     enc: BMCEncoder,
     abstraction: Abstraction,
@@ -298,6 +426,10 @@ def solve_milp(
     nb = enc.num_vars
     nx, nu = H * n, H * m
     nt = 1 if objective == "margin" else 0
+    # With the margin, p = 1 - 2e-6 may relax a face by that much of its big-M: the model is a
+    # relaxation, its bound a bound on every plan, and the plan itself is re-solved exactly
+    # (_polish). Otherwise the face is enforced within the integrality tolerance.
+    int_tol = 0.0 if nt else _INT_TOL
     na = nu if objective == "effort" else 0
     tcol, acol = nb + nx + nu, nb + nx + nu + nt
     nvar = nb + nx + nu + nt + na
@@ -360,15 +492,32 @@ def solve_milp(
         reach_max = np.einsum("kfn,n->kf", powers, mean0)
         with np.errstate(invalid="ignore"):
             reach_max[1:] += np.cumsum(gain, axis=0)
+        if nt:
+            loss = (
+                np.stack([_support(points, -(powers[j] @ B)) for j in range(H)])
+                if H
+                else np.zeros((0, F.shape[0]))
+            )
+            reach_min = np.einsum("kfn,n->kf", powers, mean0)
+            with np.errstate(invalid="ignore"):
+                reach_min[1:] -= np.cumsum(loss, axis=0)
         inv_low, inv_high = _invariant_box(enc.formula, abstraction, n, H)
         box_low, box_high = _state_boxes(A, B, points, mean0, inv_low, inv_high, H)
         G = F * dx[None, :]
         g = np.linalg.norm(G, axis=1)
         g = np.where(g > 0, g, 1.0)
         Gn = G / g[:, None]
-        # The margin t (raw slack, the monitor's units) is capped at t_cap; an optimum at the cap
-        # is reported as not proven.
-        t_cap = 10.0 * float(np.max(dx)) * float(np.max(np.linalg.norm(F, axis=1))) if nt else 0.0
+        # The margin t (raw slack, the monitor's units) is capped at t_cap. The formula evaluated
+        # on upper bounds of every proposition's margin bounds every plan's robustness, so that
+        # cap never cuts the optimum, and it keeps the big-M of every face small; without it (no
+        # finite bound) a generous heuristic cap stands, and an optimum at it is not proven.
+        t_cap, t_sound = 0.0, False
+        if nt:
+            t_cap, t_sound = _margin_cap(
+                enc.formula, abstraction, covs, reach_min, box_low, box_high, H
+            )
+            if not t_sound:
+                t_cap = 10.0 * float(np.max(dx)) * float(np.max(np.linalg.norm(F, axis=1)))
         r_parts: list[np.ndarray] = []
         c_parts: list[np.ndarray] = []
         v_parts: list[np.ndarray] = []
@@ -414,7 +563,7 @@ def solve_milp(
                 coefs = [Gn[faces]]
                 if faces is sel:  # big-M: p = 1 (within the integrality tolerance) enforces the face
                     cols.append(p_cols[faces][:, None])
-                    coefs.append((big[faces] / (1.0 - _INT_TOL))[:, None])
+                    coefs.append((big[faces] / (1.0 - int_tol))[:, None])
                 if nt:
                     cols.append(np.full((faces.size, 1), tcol))
                     coefs.append((1.0 / g[faces])[:, None])
@@ -465,16 +614,44 @@ def solve_milp(
     for letters in (np.asarray(enc.alive), enc.p.ravel(), enc.m.ravel()):
         integrality[np.asarray(letters, dtype=np.int64) - 1] = 1
     logger.info("MILP: %d binaries, %d continuous, %d rows", int(integrality.sum()), nx + nu, A_all.shape[0])
-    model = LinearModel(cost, A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality)
-    sol = backend.solve(model, max(budget.remaining(), 1e-3))
+    if nt:
+        logger.info("MILP: t_cap %.9g (sound %s)", t_cap, t_sound)
+    # The margin MILP's relaxation is as tight as the cap makes it: cutting planes cost SCIP 2-4x
+    # the time without moving its bound (measured on stlpy's scenarios, BENCHMARKS.md).
+    model = LinearModel(
+        cost, A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality, cuts=not nt
+    )
+    sol = _probe(model, backend, tcol, t_cap, budget) if nt and t_sound and t_cap > 0 else None
+    probed = sol is not None
+    if sol is None:
+        sol = backend.solve(model, max(budget.remaining(), 1e-3))
     if sol.status in ("optimal", "time_limit") and sol.x is not None:
         controls = sol.x[nb + nx : nb + nx + nu].reshape(H, m) * scaling.du
         claims = np.round(sol.x[enc.p - 1]).astype(bool) if enc.p.size else np.zeros((0, H + 1), bool)
         out = MILPOutcome("found", actions, controls, claims)
         out.proven = sol.status == "optimal"
         if objective == "margin":
-            out.value, out.bound = float(sol.x[tcol]), -float(sol.bound)
-            out.proven = out.proven and out.value < t_cap * (1 - 1e-9)
+            # A plan at the cap is optimal by the cap itself (a bound on every plan).
+            out.value, out.bound = float(sol.x[tcol]), t_cap if probed else -float(sol.bound)
+            out.proven = out.proven or probed
+            exact = _polish(model, sol.x, tcol, budget)
+            if exact is not None:
+                # The big-M rows of the margin MILP are a relaxation (no integrality room), so its
+                # bound is a bound on every plan; the LP over the rounded letters gives the exact
+                # margin of its plan, and the two must meet for a proof.
+                out.value = float(exact[tcol])
+                out.controls = exact[nb + nx : nb + nx + nu].reshape(H, m) * scaling.du
+            slack = _PROOF_TOL * max(1.0, abs(out.bound))
+            out.proven = (
+                out.proven
+                and exact is not None
+                and out.value >= out.bound - slack
+                and (t_sound or out.value < t_cap * (1 - 1e-9))
+            )
+            logger.info(
+                "MILP margin: %.12g, exact %.12g, bound %.12g, proven %s",
+                float(sol.x[tcol]), out.value, out.bound, out.proven,
+            )
         elif objective == "effort":
             out.value, out.bound = float(sol.objective), float(sol.bound)
         elif objective == "time":
