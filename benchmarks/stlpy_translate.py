@@ -40,6 +40,8 @@ __all__ = [
     "Translator",
     "translate_system",
     "make_problem",
+    "box_formula",
+    "HARD_WEIGHT",
     "stlpy_robustness_reference",
 ]
 
@@ -230,20 +232,31 @@ def translate_system(A: Any, B: Any) -> Any:
     return I.mk_switched_sys([I.mk_lbs(A=A, B=B, W=np.zeros((A.shape[0], 1)))])
 
 
-def box_formula(x: Any, low: Any, high: Any, eps: float = EPS) -> STLAtomicProposition:
-    """``low <= x <= high`` as one atomic proposition (infinite bounds are skipped)."""
+HARD_WEIGHT = 1e7
+"""Weight of the state box's predicates in robustness mode (``make_problem(..., hard_box=True)``)."""
+
+
+def box_formula(
+    x: Any, low: Any, high: Any, eps: float = EPS, weight: float = 1.0
+) -> STLAtomicProposition:
+    """``low <= x <= high`` as one atomic proposition (infinite bounds are skipped).
+
+    ``weight`` multiplies every predicate (``weight * (x_i - high_i) <= 0``): the same set,
+    with a raw slack ``weight`` times the distance to the face.
+    """
     low = np.asarray(low, dtype=float)
     high = np.asarray(high, dtype=float)
+    w = float(weight)
     preds = []
     n = low.shape[0]
     for i in range(n):
         e = np.zeros(n)
-        e[i] = 1.0
+        e[i] = w
         if np.isfinite(low[i]):
-            preds.append(ProbabilisticLinearPredicate(-e, float(low[i]), x, eps))
+            preds.append(ProbabilisticLinearPredicate(-e, w * float(low[i]), x, eps))
         if np.isfinite(high[i]):
-            preds.append(ProbabilisticLinearPredicate(e, -float(high[i]), x, eps))
-    return STLAtomicProposition(preds)
+            preds.append(ProbabilisticLinearPredicate(e, -w * float(high[i]), x, eps))
+    return STLAtomicProposition(preds, name="state_box")
 
 
 def make_problem(
@@ -259,11 +272,22 @@ def make_problem(
     x_min: Any = None,
     x_max: Any = None,
     eps: float = EPS,
+    *,
+    hard_box: bool = False,
 ) -> tuple[Any, Translator]:
     """An idstlpy :class:`~idstlpy.Problem` equivalent to stlpy's MICP problem.
 
     The state bounds stlpy's examples pass to ``AddStateBounds`` (every ``t`` in ``0..T``)
     become ``G[0,T] box``; the control bounds become the control domain.
+
+    ``hard_box=True`` is for robustness mode: stlpy keeps the box as hard constraints outside
+    its ``rho``, whereas idstlpy has only the formula, whose robustness would count the distance
+    to the box faces too. The box's predicates are then weighted by :data:`HARD_WEIGHT`: the
+    same set, but a raw slack ``HARD_WEIGHT`` times the distance to a face, so the box limits
+    the robustness only within ``rho / HARD_WEIGHT`` of its faces (the plan keeps that much
+    room inside the box). Every layer of idstlpy (monitor, plan LP, MILP) measures the margin in
+    raw slack, so none needs to know. Compare ``robustness(plan, translator(spec))``, the
+    specification's own robustness, with stlpy's ``rho``.
     """
     tr = Translator(C, D, eps=eps)
     formula = tr(spec)
@@ -271,7 +295,8 @@ def make_problem(
         n = np.asarray(A).shape[0]
         lo = np.full(n, -np.inf) if x_min is None else np.asarray(x_min, dtype=float)
         hi = np.full(n, np.inf) if x_max is None else np.asarray(x_max, dtype=float)
-        formula = I.logical_and(formula, I.always(0, int(T), box_formula(tr.x, lo, hi, eps)))
+        weight = HARD_WEIGHT if hard_box else 1.0
+        formula = I.logical_and(formula, I.always(0, int(T), box_formula(tr.x, lo, hi, eps, weight)))
     m = np.asarray(B).shape[1]
     u = I.mk_variable(m, name="u")
     lo_u = np.asarray(u_min, dtype=float)
