@@ -150,6 +150,8 @@ class BeliefSampler:
         self._full_rank = [
             np.linalg.matrix_rank(mode.B) >= self.system.n for mode in self.system.system_modes
         ]
+        self._underactuated = not all(self._full_rank)
+        self._pareto = any(np.any(mode.process_cov != 0) for mode in self.system.system_modes)
         self._regions = [abstraction.region(i) for i in range(abstraction.num_atoms)]
         self._boxes = []
         self._centers = []
@@ -265,10 +267,16 @@ class BeliefSampler:
         high = np.where(np.isfinite(high), high, np.maximum(wh, low))
         region = self._regions[i]
         center = self._centers[i]
+        # Under-actuated dynamics: coordinates the region leaves open (a velocity) take the
+        # centre's value, so a branch arrives at rest rather than passing through.
+        pin = self._underactuated and center is not None
+        both_open = ~np.isfinite(self._boxes[i][0]) & ~np.isfinite(self._boxes[i][1])
         for _ in range(20):
             s = self.rng.uniform(low, high)
             if center is not None:
                 s = center + 0.5 * (s - center)
+                if pin:
+                    s = np.where(both_open, center, s)
             if np.all(region.H @ s + region.c <= 0):
                 return s
         return center
@@ -302,6 +310,12 @@ class BeliefSampler:
                 return np.asarray(seq[0])
             if h == hi:
                 u = seq[0]
+                if not self._full_rank[q]:
+                    # receding horizon of the longest extension: it can always still stop
+                    Ah, G = gains[-1]
+                    part = self._partial(mean, target, Ah, G, len(gains))
+                    if part is not None:
+                        return part
         if u is None:  # pragma: no cover - the loop always runs at least once
             u = np.zeros(m)
         slack = self.UH @ u + self.Uc
@@ -314,6 +328,30 @@ class BeliefSampler:
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(rate > 1e-12, room / rate, np.inf)
         return c0 + min(1.0, float(np.min(t))) * d
+
+    def _partial(
+        self, mean: np.ndarray, target: np.ndarray, Ah: np.ndarray, G: np.ndarray, h: int
+    ) -> np.ndarray | None:
+        """First input of the admissible ``h``-step sequence that goes furthest toward ``target``.
+
+        Under-actuated dynamics (a double integrator) cannot reach a far sample within one
+        extension; clipping the least-norm sequence then leaves the branch at speed, unable to
+        brake before a wall. The sequence to the state ``mean + a (target - mean)`` is affine in
+        ``a``; the largest ``a`` in ``[0, 1]`` whose inputs all lie in the control domain is a
+        ratio test per input row. ``None`` when even ``a = 0`` (come to rest where it is, in the
+        sample's direction of travel) is out of reach.
+        """
+        m = self.system.m
+        base = (G @ (mean - Ah @ mean)).reshape(h, m)
+        slope = (G @ (target - mean)).reshape(h, m)
+        rows0 = base @ self.UH.T + self.Uc  # (h, faces): must stay <= 0
+        rate = slope @ self.UH.T
+        if np.any(rows0 > 1e-12):
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(rate > 1e-12, -rows0 / rate, np.inf)
+        a = min(1.0, float(np.min(t)))
+        return np.asarray(base[0] + a * slope[0])
 
     # -- plans ------------------------------------------------------------------------------------
     def _allowed_modes(self, plan: DiscretePlan, k: int) -> list[int]:
@@ -469,6 +507,16 @@ class BeliefSampler:
                 off = act[~tree.truth[act, goal]]
                 pool = off if off.size else act
             node = ref if recurring and aim_goal else self._select(tree, pool, s, goal)
+            if (
+                self._underactuated
+                and aim_goal
+                and goal is not None
+                and self._centers[goal] is not None
+                and tree.truth[node, goal]
+            ):
+                # Holding with under-actuated dynamics: settle at the centre (every position off
+                # it is margin the growing covariance will need later).
+                s = np.asarray(self._centers[goal])
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             prefer = self._extension_mode(tree, node, goal, rng)
             cur = node
@@ -662,6 +710,16 @@ class BeliefSampler:
         """Keep the least uncertain node among same-label, same-progress neighbours of ``leaf``."""
         d = np.linalg.norm(tree.mean[act] - tree.mean[leaf], axis=1)
         close = act[d <= self.opt.delta_drain]
+        if self._pareto:
+            # Under process noise a hold costs certainty: a longer hold must not lose to a fresh
+            # arrival that is merely less uncertain. Keep the Pareto front of (run, certainty).
+            close = close[np.all(tree.truth[close] == tree.truth[leaf], axis=1)]
+            run, unc = tree.run[leaf], tree.unc[leaf]
+            if np.any((tree.run[close] >= run) & (tree.unc[close] <= unc)):
+                return
+            tree.active[close[(tree.run[close] <= run) & (tree.unc[close] >= unc)]] = False
+            tree.active[leaf] = True
+            return
         if close.size:
             same = np.all(tree.truth[close] == tree.truth[leaf], axis=1)
             same &= _bucket(tree.run[close]) == _bucket(tree.run[leaf])
