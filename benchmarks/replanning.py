@@ -209,16 +209,16 @@ def markdown(
         f"- machine: {info.get('nproc', '?')} cores, {info.get('cpu', '?')}; idstlpy revision "
         f"{info.get('git', '?')}",
         f"- plans: solver seed {args.solve_seed}, the listing's sampler parameters, "
-        f"{args.time_limit:g} s cap; executions: {args.runs} per executor, seeds spawned from "
+        f"{args.time_limit:g} s cap; executions: the table's runs per executor, seeds spawned from "
         f"{args.exec_seed} (paired across executors)",
         f"- on_risk: risk = {RISK}, sound bound, min(belief, state), every `check = max(5, N // 10)` steps; "
         f"every: a re-solve every `max(10, N // 5)` steps; at most {args.max_replans} re-solves per run, "
         f"each capped at {args.replan_time_limit:g} s; on_risk_cl: on_risk whose re-solves use "
         "guarantee='closed_loop'",
         "",
-        "| problem | steps | executor | belief success [95% CI] | state success [95% CI] "
+        "| problem | steps | executor | runs | belief success [95% CI] | state success [95% CI] "
         "| re-solves / run (max) | adopted / run | re-solve outcomes | s / run |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         for mode in row["modes"]:
@@ -227,7 +227,8 @@ def markdown(
             if m["caps"]:
                 outcomes += f" (caps hit: {m['caps']})"
             lines.append(
-                f"| {row['kind']} | {row['steps']} | {mode} | {m['belief_txt']} | {m['state_txt']} | "
+                f"| {row['kind']} | {row['steps']} | {mode} | {m['n']} | "
+                f"{m['belief_txt']} | {m['state_txt']} | "
                 f"{m['replans_mean']:.2f} ({m['replans_max']}) | {m['adopted_mean']:.2f} | {outcomes} | "
                 f"{m['seconds']:.2f} |"
             )
@@ -335,6 +336,7 @@ def main(argv: list[str] | None = None) -> int:
             record = run_kind(pool, kind, args, seeds, old)
             path.write_text(json.dumps(record))
             write_report(kinds, args, work, time.perf_counter() - t_start)
+    write_report(kinds, args, work, time.perf_counter() - t_start)
     print(Path(args.out).read_text())
     return 0
 
