@@ -517,6 +517,9 @@ class BeliefSampler:
                 # Holding with under-actuated dynamics: settle at the centre (every position off
                 # it is margin the growing covariance will need later).
                 s = np.asarray(self._centers[goal])
+                settle = True
+            else:
+                settle = False
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             prefer = self._extension_mode(tree, node, goal, rng)
             cur = node
@@ -553,7 +556,9 @@ class BeliefSampler:
             if cur == node:
                 # Not one step was possible: if the node's own prefix can no longer be completed
                 # (a deadline of the formula has passed), it is dead: never select it again.
-                if node not in alive and not self._alive(tree, node):
+                if settle or (node not in alive and not self._alive(tree, node)):
+                    # (a holder that cannot take one more step toward the centre never will:
+                    # that steering is deterministic)
                     tree.active[node] = False
                     dropped += 1
                 else:
@@ -688,7 +693,12 @@ class BeliefSampler:
         floor = self._floor(goal)
         unc = tree.unc[near]
         progress = np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
-        order = np.lexsort((unc, -progress, np.maximum(unc, floor)))
+        key = np.maximum(unc, floor)
+        if self._pareto and self._underactuated and goal is not None and self.rng.random() < 0.5:
+            # Under process noise a hold loses certainty as it goes on: a holding node that still
+            # has three quarters of the region's room counts as certain enough (progress decides).
+            key = np.where(tree.truth[near, goal] & (unc <= 9.0 * floor), floor, key)
+        order = np.lexsort((unc, -progress, key))
         return int(near[order[0]])
 
     def _floor(self, goal: int | None) -> float:
