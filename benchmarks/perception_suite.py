@@ -15,7 +15,8 @@ A row whose status contradicts what is known is flagged in ``check``: ``UNSOUND`
 ``infeasible`` on a kind with a verified witness or ``found`` on the infeasible kind, ``BAD PLAN``
 when a returned plan fails an independent re-roll and monitor.
 
-Outputs in ``--out`` (default ``results/perception``, git-ignored): ``perception_<size>.csv`` (one
+Outputs in ``--out`` (default ``benchmarks/results/perception``, committed with the section of
+BENCHMARKS.md they back): ``perception_<size>.csv`` (one
 row per kind and seed, written as jobs finish; ``--resume`` skips the rows already there) and
 ``perception_<size>.md`` (one summary line per kind).
 """
@@ -282,7 +283,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--size", choices=pp.SIZES, default="full")
     parser.add_argument("--time-limit", type=float, default=120.0, help="seconds per solve (default 120)")
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "perception")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "perception")
     parser.add_argument(
         "--resume", action="store_true", help="keep the CSV's rows, run only the missing ones"
     )
