@@ -122,6 +122,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--backend", default="auto", help="idstlpy's milp_backend")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "robustness_results.md"))
     a = ap.parse_args(argv)
+    git = ["git", "rev-parse", "--short", "HEAD"]
+    commit = subprocess.run(git, capture_output=True, text=True).stdout.strip()  # what is measured
     names = a.scenarios.split(",")
     peers = a.peers.split(",")
     horizons = [int(t) for t in a.T.split(",")]
@@ -144,8 +146,6 @@ def main(argv: list[str] | None = None) -> None:
             got = {b: store[f"{name}/T{T}/{b}/{a.timeout:g}"] for b in peers}
             rows.append((name, T, ours, got))
             print(name, T, ours, flush=True)
-    git = ["git", "rev-parse", "--short", "HEAD"]
-    commit = subprocess.run(git, capture_output=True, text=True).stdout.strip()
     lines = [
         '# Robustness mode: idstlpy `objective="margin"` vs stlpy\'s MICP (maximise rho)',
         "",
@@ -167,7 +167,8 @@ def main(argv: list[str] | None = None) -> None:
     for name, T, ours, got in rows:
         value = ours.get("value", float("nan"))
         for backend, p in got.items():
-            pr, ps, pc = p.get("stlpy_robustness"), p.get("e2e_s"), p.get("cpu_s")
+            pr, ps = p.get("stlpy_robustness"), p.get("e2e_s")
+            pc = p.get("cpu_s") if ps is not None else None  # a peer not run only built its model
             diff = (value - pr) if pr is not None and "value" in ours else float("nan")
             proven = p.get("status") == "solved"
             same = "yes" if proven and abs(diff) <= MATCH_TOL else ("no" if proven and diff == diff else "-")
