@@ -27,6 +27,7 @@ __all__ = [
     "GaussianBelief",
     "to_belief",
     "predict",
+    "kalman_gain",
     "kalman_update",
     "belief_step",
     "rollout",
@@ -131,6 +132,36 @@ def predict(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tupl
     return A @ mean + mode.B @ u, A @ cov @ A.T + mode.process_cov
 
 
+def kalman_gain(C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The Kalman gain ``P C' (C P C' + R)^-1``, shape (n, p).
+
+    Parameters
+    ----------
+    C : ndarray, shape (p, n)
+        Sensor matrix.
+    P : ndarray, shape (n, n)
+        Predicted covariance.
+    R : ndarray, shape (p, p)
+        Observation noise covariance.
+
+    Returns
+    -------
+    ndarray, shape (n, p)
+    """
+    S = C @ P @ C.T + R
+    PCt = P @ C.T
+    try:
+        with np.errstate(all="ignore"):
+            K = np.linalg.solve(S.T, PCt.T).T
+        if not np.all(np.isfinite(K)):
+            raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
+    except np.linalg.LinAlgError:
+        # A (near-)singular innovation covariance: a perfect sensor of a direction the prior
+        # already knows. The pseudo-inverse gives the exact limit.
+        K = PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True)
+    return np.asarray(K)
+
+
 def kalman_update(
     mode: Any,
     mean_pred: np.ndarray,
@@ -165,17 +196,7 @@ def kalman_update(
     C = mode.C
     if R is None:
         R = mode.noise_cov(mean_pred if x_noise is None else x_noise)
-    S = C @ P @ C.T + R
-    PCt = P @ C.T
-    try:
-        with np.errstate(all="ignore"):
-            K = np.linalg.solve(S.T, PCt.T).T
-        if not np.all(np.isfinite(K)):
-            raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
-    except np.linalg.LinAlgError:
-        # A (near-)singular innovation covariance: a perfect sensor of a direction the prior
-        # already knows. The pseudo-inverse gives the exact limit.
-        K = PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True)
+    K = kalman_gain(C, P, R)
     IKC = np.eye(P.shape[0]) - K @ C
     cov = IKC @ P @ IKC.T + K @ R @ K.T
     cov = 0.5 * (cov + cov.T)

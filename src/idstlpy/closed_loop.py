@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
-from .belief import kalman_update
+from .belief import kalman_gain, kalman_update
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from .sets import Polytope
-from .tracking import mode_gains
+from .tracking import box_bounds, mode_gains
 from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
@@ -138,45 +138,8 @@ def _cubature(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.vstack([eye, -eye]), np.full(2 * n, 1.0 / (2 * n))
 
 
-def _kalman_gain(mode: LCS, P: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The gain :func:`idstlpy.belief.kalman_update` uses (same fallback), shape (n, p)."""
-    C = mode.C
-    S = C @ P @ C.T + R
-    PCt = P @ C.T
-    try:
-        with np.errstate(all="ignore"):
-            K = np.linalg.solve(S.T, PCt.T).T
-        if not np.all(np.isfinite(K)):
-            raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
-    except np.linalg.LinAlgError:
-        K = PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True)
-    return K
-
-
 # --------------------------------------------------------------------------------------------
 # The closed loop
-
-
-def box_bounds(domain: Polytope | None, m: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Bounds ``(low, high)`` (m,) when ``domain`` is a box (every face touches one input), else None."""
-    if domain is None:
-        return None
-    if not isinstance(domain, Polytope):
-        raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
-    if domain.dim != m:
-        raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
-    H, c = domain.H, domain.c
-    if not H.shape[0] or not np.all((np.abs(H) > 0).sum(axis=1) == 1):
-        return None
-    low, high = np.full(m, -np.inf), np.full(m, np.inf)
-    for row, cst in zip(H, c, strict=True):
-        i = int(np.flatnonzero(row)[0])
-        bound = -cst / row[i]
-        if row[i] > 0:
-            high[i] = min(high[i], bound)
-        else:
-            low[i] = max(low[i], bound)
-    return low, high
 
 
 def _clipped_moments(
@@ -374,7 +337,7 @@ def propagate(
         x_lin = nominal_pred if sensor_noise == "plan" or not state_dep else m_next + eta_pred_mean
         if mode.p:
             R_filter = mode.noise_cov(x_lin)
-            Lk = _kalman_gain(mode, P_pred, R_filter)
+            Lk = kalman_gain(mode.C, P_pred, R_filter)
             _, P = kalman_update(mode, x_lin, P_pred, R=R_filter)
             LC = Lk @ mode.C
         else:

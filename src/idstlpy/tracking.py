@@ -30,7 +30,14 @@ from .sets import Polytope
 if TYPE_CHECKING:  # dynamical_system builds gains through this module (no runtime cycle)
     from .dynamical_system import LCS
 
-__all__ = ["DEFAULT_LQR", "control_projector", "finite_horizon_lqr", "mode_gains", "riccati_costs"]
+__all__ = [
+    "DEFAULT_LQR",
+    "box_bounds",
+    "control_projector",
+    "finite_horizon_lqr",
+    "mode_gains",
+    "riccati_costs",
+]
 
 
 def _validate(
@@ -127,6 +134,7 @@ DEFAULT_LQR: dict[str, Any] = {"horizon": 5, "Q_final": 1.0, "Q": 1.0, "R": 0.05
 """Weights used for a mode without gains: the paper's ``h = 5``, ``Q_final = Q = I``, ``R = 0.05 I``
 (scalars multiply the identity)."""
 
+
 def _weight(value: Any, size: int) -> Any:
     if np.isscalar(value):
         return float(value) * np.eye(size)  # type: ignore[arg-type]
@@ -197,16 +205,9 @@ def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray],
     if domain.dim != m:
         raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
     H, c = domain.H, domain.c
-    nz = np.abs(H) > 0
-    if H.shape[0] and np.all(nz.sum(axis=1) == 1):
-        low, high = np.full(m, -np.inf), np.full(m, np.inf)
-        for row, cst in zip(H, c, strict=True):
-            i = int(np.flatnonzero(row)[0])
-            bound = -cst / row[i]
-            if row[i] > 0:
-                high[i] = min(high[i], bound)
-            else:
-                low[i] = max(low[i], bound)
+    box = box_bounds(domain, m)
+    if box is not None:
+        low, high = box
         if np.any(low > high):
             raise InvalidArgumentError("control_domain is empty: no admissible input")
         return lambda u: np.clip(u, low, high)
@@ -227,3 +228,37 @@ def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray],
         return np.asarray(res.x, dtype=float)
 
     return project
+
+
+def box_bounds(domain: Polytope | None, m: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Bounds ``(low, high)`` when ``domain`` is a box (every face touches one input), else None.
+
+    Parameters
+    ----------
+    domain : Polytope or None
+        Admissible inputs ``{u : H u + c <= 0}``.
+    m : int
+        Input dimension.
+
+    Returns
+    -------
+    (ndarray, ndarray), each shape (m,), or None
+    """
+    if domain is None:
+        return None
+    if not isinstance(domain, Polytope):
+        raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
+    if domain.dim != m:
+        raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
+    H, c = domain.H, domain.c
+    if not H.shape[0] or not np.all((np.abs(H) > 0).sum(axis=1) == 1):
+        return None
+    low, high = np.full(m, -np.inf), np.full(m, np.inf)
+    for row, cst in zip(H, c, strict=True):
+        i = int(np.flatnonzero(row)[0])
+        bound = -cst / row[i]
+        if row[i] > 0:
+            high[i] = min(high[i], bound)
+        else:
+            low[i] = max(low[i], bound)
+    return low, high

@@ -24,7 +24,8 @@ import numpy as np
 
 from .._checks import as_int, as_vector
 from ..belief import GaussianBelief, kalman_update, predict
-from ..dynamical_system import LCS, SwitchedSystem
+from ..closed_loop import real_modes_for
+from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..sets import Polytope
 from ..tracking import control_projector, mode_gains
@@ -35,27 +36,6 @@ __all__ = ["simulate"]
 ProcessNoise = Literal["model", "real", "none"]
 
 logger = logging.getLogger(__name__)
-
-def _real_modes(real_system: Any, n: int, m: int, needed: np.ndarray) -> list[LCS]:
-    if isinstance(real_system, LCS):
-        real_system = SwitchedSystem([real_system])
-    if not isinstance(real_system, SwitchedSystem):
-        raise InvalidTypeError(
-            f"real_system must be made by mk_switched_sys (or mk_lcs), got {type(real_system).__name__}"
-        )
-    if (real_system.n, real_system.m) != (n, m):
-        raise DimensionError(
-            f"real_system has (n, m) = ({real_system.n}, {real_system.m}); the model has ({n}, {m})"
-        )
-    modes = list(real_system.system_modes)
-    if len(modes) == 1:
-        return modes
-    if needed.size and int(needed.max()) >= len(modes):
-        raise DimensionError(
-            f"the plan uses mode {int(needed.max())}, real_system has modes 0..{len(modes) - 1} "
-            "(give one real mode per planning mode, or a single mode used for all)"
-        )
-    return modes
 
 
 def simulate(
@@ -149,7 +129,7 @@ def simulate(
             f"the plan uses modes {sorted(set(actions.tolist()))}, the system has 0..{system.num_modes - 1}"
         )
     x = as_vector(real_initial_state, "real_initial_state", n)
-    real_modes = _real_modes(real_system, n, m, actions)
+    real_modes = real_modes_for(real_system, system, actions)
     if process_noise not in ("model", "real", "none"):
         raise InvalidArgumentError(f"process_noise must be 'model', 'real' or 'none', got {process_noise!r}")
     project = control_projector(control_domain, m)
