@@ -45,7 +45,7 @@ from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Tea
 from .milp import solve_milp, switch_to_eager
 from .objectives import better, objective_value, refine
 from .options import SolverOptions
-from .plan import DiscretePlan, extract_witness
+from .plan import DiscretePlan, extract_witness, trajectory_plan
 from .plan_lp import Scaling
 from .proposer import BMCProposer
 from .results import SolveResult, SolveStats, Status
@@ -564,18 +564,11 @@ def _certify(
         if r == rounds:
             break
         predicted = predicted_state(system, traj, problem.control_domain)
-        acts = traj.get_action()
-        modes = np.concatenate([[-1], acts]).astype(int)
-        means, covs = traj.get_mean(), traj.get_cov()
-        truth = np.stack(
-            [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
-            axis=1,
-        )
-        witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
-        if witness is None:
+        acts, means = traj.get_action(), traj.get_mean()
+        found_plan = trajectory_plan(formula, abstraction, traj)
+        if found_plan is None:
             break
-        required, L = witness
-        plan = DiscretePlan(required[:, :L], modes[:L], L)
+        plan, L = found_plan, found_plan.length
         target = execution_margin(system, init, abstraction, plan)
         if not exact and not np.isfinite(trust):
             trust = 2.0 * max(target, 1e-3 * float(np.max(scaling.dx)))

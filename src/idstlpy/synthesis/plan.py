@@ -10,12 +10,13 @@ constraints that matter.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 
-__all__ = ["DiscretePlan", "evaluate_bool", "extract_witness"]
+__all__ = ["DiscretePlan", "evaluate_bool", "extract_witness", "trajectory_plan"]
 
 
 @dataclass
@@ -217,3 +218,38 @@ def extract_witness(
         else:
             raise TypeError(f"cannot justify {type(f).__name__}")
     return required, last + 1
+
+
+def trajectory_plan(formula: STLFormula, abstraction: Any, traj: Any) -> DiscretePlan | None:
+    """The requirements a belief trajectory meets, as the discrete plan of its earliest witness.
+
+    Labels every step of ``traj`` with the propositions its belief satisfies (``abstraction.truth``)
+    and keeps the witness of ``formula`` those labels contain (earliest until-steps), with the
+    trajectory's modes: what the plan LP must keep when it moves the trajectory.
+
+    Parameters
+    ----------
+    formula : STLFormula
+    abstraction : Abstraction
+        Its ``truth(mean, cov, mode)`` and ``index``.
+    traj : ProbabilisticTSTrajectory
+        ``K`` steps.
+
+    Returns
+    -------
+    DiscretePlan or None
+        ``None`` when the trajectory's labels satisfy no witness of the formula.
+    """
+    modes = np.concatenate([[-1], traj.get_action()]).astype(int)
+    truth = np.stack(
+        [
+            abstraction.truth(mu, cov, int(q))
+            for mu, cov, q in zip(traj.get_mean(), traj.get_cov(), modes, strict=True)
+        ],
+        axis=1,
+    )
+    witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
+    if witness is None:
+        return None
+    required, L = witness
+    return DiscretePlan(required[:, :L], modes[:L], L)
