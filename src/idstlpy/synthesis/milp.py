@@ -621,7 +621,15 @@ def solve_milp(
     model = LinearModel(
         cost, A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality, cuts=not nt
     )
-    sol = _probe(model, backend, tcol, t_cap, budget) if nt and t_sound and t_cap > 0 else None
+    sol, exact = None, None
+    if nt and t_sound and t_cap > 0:
+        sol = _probe(model, backend, tcol, t_cap, budget)
+        if sol is not None and sol.x is not None:
+            exact = _polish(model, sol.x, tcol, budget)
+            if exact is None or exact[tcol] < t_cap - _PROOF_TOL * max(1.0, t_cap):
+                # The probe reached the cap only within the solver's tolerances: optimise.
+                logger.info("MILP margin: the probe's plan is below the cap, optimising")
+                sol, exact = None, None
     probed = sol is not None
     if sol is None:
         sol = backend.solve(model, max(budget.remaining(), 1e-3))
@@ -634,7 +642,8 @@ def solve_milp(
             # A plan at the cap is optimal by the cap itself (a bound on every plan).
             out.value, out.bound = float(sol.x[tcol]), t_cap if probed else -float(sol.bound)
             out.proven = out.proven or probed
-            exact = _polish(model, sol.x, tcol, budget)
+            if exact is None:
+                exact = _polish(model, sol.x, tcol, budget)
             if exact is not None:
                 # The big-M rows of the margin MILP are a relaxation (no integrality room), so its
                 # bound is a bound on every plan; the LP over the rounded letters gives the exact
