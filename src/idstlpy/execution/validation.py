@@ -726,7 +726,10 @@ def validate(
         Also predict the execution (:func:`~idstlpy.execution.prediction.predict_closed_loop`
         with this call's gains, control-domain projection, process noise, real system, true
         initial state and number of steps) into :attr:`ValidationReport.predicted`; see
-        :meth:`ValidationReport.prediction_comparison`.
+        :meth:`ValidationReport.prediction_comparison`. With ``replan`` it still predicts the
+        fixed plan's execution (the loop re-planning departs from). A predicted success bound
+        above the measured interval is logged as a warning: the linearised model (clipping,
+        state-dependent sensor noise) is then off for this plan.
     predict_options : mapping, optional
         Further options of the prediction: ``sensor_noise``, ``filter_sensitivity``, ``samples``
         (default :data:`PREDICT_SAMPLES`), ``seed`` (of the model sampling, default 0). The
@@ -843,9 +846,27 @@ def validate(
     finally:
         if own_pool is not None:
             own_pool.shutdown()
-    return _report(
+    report = _report(
         problem.stl_formula, solution, steps, root, results, time.perf_counter() - t0, predicted=predicted
     )
+    comparison = report.prediction_comparison()
+    if comparison is not None:
+        for reading, entry in comparison["success"].items():
+            if entry["bound_holds"] is False:
+                # the bound is sound for the Gaussian model only: say when the model failed the plan
+                logger.warning(
+                    "validate: the predicted %s success bound %.4g is above the measured rate's 95%% "
+                    "interval [%.4g, %.4g] (largest predicted clip probability %.2g): the linearised "
+                    "closed loop does not describe this execution",
+                    reading,
+                    entry["bound"],
+                    entry["ci"][0],
+                    entry["ci"][1],
+                    float(predicted.clip_probability.max())
+                    if predicted is not None and predicted.num_of_steps
+                    else 0.0,
+                )
+    return report
 
 
 def _report(
