@@ -34,6 +34,8 @@ __all__ = [
     "box_bounds",
     "gains_for",
     "predicted_state",
+    "trackable",
+    "tracking_backoff",
     "tracking_spread",
     "prob_le",
     "propagate",
@@ -461,6 +463,69 @@ def tracking_spread(
     HK = np.einsum("fi,kij->kfj", H, loop.K)  # (N, F, n)
     S_eta = loop.cov[:N, n : 2 * n, n : 2 * n]
     return np.sqrt(np.maximum(np.einsum("kfi,kij,kfj->kf", HK, S_eta, HK), 0.0))
+
+
+TRACKABLE_Z = 1.0
+"""A plan is trackable when its inputs leave this many standard deviations of the tracking
+correction free on every face of the control domain at every step (per face and step, the
+correction is clipped with probability at most ``1 - Phi(1) = 16%``)."""
+
+
+def tracking_backoff(
+    system: SwitchedSystem, plan: ProbabilisticTSTrajectory, control_domain: Polytope, z: float
+) -> np.ndarray:
+    """Per step and face, ``z`` standard deviations of the tracking correction, capped at 40% of
+    the domain's width along the face (so that a back-off never empties the domain).
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    plan : ProbabilisticTSTrajectory
+        ``N`` steps.
+    control_domain : Polytope
+        ``F`` faces.
+    z : float
+
+    Returns
+    -------
+    ndarray, shape (N, F)
+        In the domain's units: face ``f`` at step ``k`` becomes ``H_f u + c_f + b_kf <= 0``.
+    """
+    H = control_domain.H
+    spread = tracking_spread(system, plan, control_domain)
+    width = np.array([control_domain.support(h) + control_domain.support(-h) for h in H])
+    return np.minimum(z * spread, 0.4 * width[None, :])
+
+
+def trackable(
+    system: SwitchedSystem, plan: ProbabilisticTSTrajectory, control_domain: Polytope, z: float = TRACKABLE_Z
+) -> bool:
+    """Whether the plan's inputs leave the tracking correction room (:data:`TRACKABLE_Z`).
+
+    The closed-loop prediction models the clipping of the corrected input by its statistical
+    linearisation, which stays Gaussian: for a plan that rides on a face of the domain for many
+    steps the clipped loop is a rectifier (lags build up on one side) and the prediction
+    under-states the spread. The planner under ``guarantee="closed_loop"`` therefore prefers
+    trackable plans, which keep the prediction in the regime where it is accurate.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    plan : ProbabilisticTSTrajectory
+    control_domain : Polytope
+    z : float
+
+    Returns
+    -------
+    bool
+    """
+    H, c = control_domain.H, control_domain.c
+    N = plan.num_of_steps
+    if N == 0 or H.shape[0] == 0:
+        return True
+    backoff = tracking_backoff(system, plan, control_domain, z)
+    lhs = plan.get_control()[:N] @ H.T + c[None, :] + backoff
+    return bool(np.all(lhs <= 1e-9 * max(1.0, float(np.max(np.abs(c))))))
 
 
 def predicted_state(

@@ -37,7 +37,6 @@ import numpy as np
 
 from ..backends import get_backend
 from ..belief import rollout
-from ..closed_loop import predicted_state
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -50,7 +49,14 @@ from .plan_lp import Scaling
 from .proposer import BMCProposer
 from .results import SolveResult, SolveStats, Status
 from .sampler import SamplerTeacher
-from .teacher import LPOutcome, LPTeacher, closed_loop_lp, execution_margin, solve_plan_lp
+from .teacher import (
+    LPOutcome,
+    LPTeacher,
+    closed_loop_check,
+    closed_loop_lp,
+    execution_margin,
+    solve_plan_lp,
+)
 
 __all__ = ["synthesize"]
 
@@ -512,9 +518,11 @@ def _check(run: _Run, traj: ProbabilisticTSTrajectory | None) -> Verified | None
     if not run.closed_loop:
         margin = robustness(traj, formula)
         return Verified(traj, margin, None) if margin >= 0 else None
-    predicted = predicted_state(run.problem.switched_system, traj, run.problem.control_domain)
-    margin = robustness(predicted, formula)
-    return Verified(traj, margin, predicted) if margin >= 0 else None
+    problem = run.problem
+    predicted, margin, ok, _ = closed_loop_check(
+        problem.switched_system, traj, problem.control_domain, formula
+    )
+    return Verified(traj, margin, predicted) if ok else None
 
 
 def _verify(
@@ -547,23 +555,27 @@ def _certify(
     execution margin where it can, re-rolls the MLO belief and checks the prediction again.
     Under constant sensor noise and without clipping the predicted covariances depend on the
     modes only, so one round is exact; otherwise the means may move at most ``trust`` per round
-    (halved after a round that did not help). Returns ``None`` when no round passes.
+    (halved after a round that did not help). A plan whose prediction passes but whose inputs
+    leave the tracking correction no room (:func:`idstlpy.closed_loop.trackable`) is repaired too,
+    and kept if no round gives a trackable one. Returns ``None`` when no plan passes.
     """
     problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
     system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
     exact = run.proofs_hold
     trust = np.inf
     rounds = max(2, options.polish_rounds)
+    fallback: Verified | None = None
     for r in range(rounds + 1):
         budget.check("the closed-loop certification")
-        checked = _check(run, traj)
-        if checked is not None:
+        predicted, margin, ok, tracks = closed_loop_check(system, traj, problem.control_domain, formula)
+        if ok and tracks:
             if r:
                 logger.info("closed-loop repair: the plan keeps its promise after %d round(s)", r)
-            return checked
+            return Verified(traj, margin, predicted)
+        if ok and fallback is None:
+            fallback = Verified(traj, margin, predicted)
         if r == rounds:
             break
-        predicted = predicted_state(system, traj, problem.control_domain)
         acts, means = traj.get_action(), traj.get_mean()
         found_plan = trajectory_plan(formula, abstraction, traj)
         if found_plan is None:
@@ -610,5 +622,11 @@ def _certify(
             trust *= 0.5
             continue
         traj = rollout(system, init, acts[: L - 1], lp.controls)
+    if fallback is not None:
+        logger.info(
+            "closed-loop check: no trackable plan found; the plan's inputs ride the control domain's "
+            "faces, where the prediction linearises the clipping"
+        )
+        return fallback
     logger.info("closed-loop repair failed: the predicted true state breaks the formula")
     return None

@@ -28,7 +28,7 @@ from scipy.sparse import csr_matrix, hstack, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
-from ..closed_loop import predicted_state, tracking_spread
+from ..closed_loop import TRACKABLE_Z, predicted_state, trackable, tracking_backoff
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -48,6 +48,7 @@ __all__ = [
     "LPOutcome",
     "LPTeacher",
     "BACKOFF_LEVELS",
+    "closed_loop_check",
     "closed_loop_lp",
     "covariance_schedule",
     "execution_margin",
@@ -395,10 +396,34 @@ def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: Dis
     return 0.0
 
 
-BACKOFF_LEVELS = (2.0, 1.0, 0.0)
+BACKOFF_LEVELS = (2.0, TRACKABLE_Z)
 """Standard deviations of the tracking correction kept free on every face of the control domain
 by plans made under ``guarantee="closed_loop"``, tried in turn (``Phi(2) = 97.7%`` per face and
-step first; 0: no back-off, the clipping's effect on the covariances accepted)."""
+step first; the last level is what :func:`idstlpy.closed_loop.trackable` asks of a plan)."""
+
+
+def closed_loop_check(
+    system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any, formula: Any
+) -> tuple[ProbabilisticTSTrajectory, float, bool, bool]:
+    """What ``guarantee="closed_loop"`` verifies of a plan.
+
+    Returns
+    -------
+    predicted : ProbabilisticTSTrajectory
+        The true state predicted under the executor (:func:`idstlpy.closed_loop.predicted_state`).
+    margin : float
+        The monitor's robustness of ``predicted``.
+    ok : bool
+        ``margin >= 0``.
+    tracks : bool
+        Whether the plan is trackable (:func:`idstlpy.closed_loop.trackable`): the prediction
+        linearises the clipping of the correction, and is accurate where the inputs leave the
+        correction room. The planner prefers such plans and accepts others only when it finds
+        no trackable one.
+    """
+    predicted = predicted_state(system, traj, control_domain)
+    margin = robustness(predicted, formula)
+    return predicted, margin, margin >= 0, trackable(system, traj, control_domain)
 
 
 def closed_loop_lp(
@@ -412,11 +437,10 @@ def closed_loop_lp(
 
     Inputs on the domain's boundary leave the tracking correction no room (the executor clips
     it and the true state drifts), so the next plan keeps ``z`` standard deviations of the
-    correction free on every face at every step (:func:`idstlpy.closed_loop.tracking_spread`,
-    capped at 40% of the domain's width along the face so it never empties the domain), its
-    covariances those of the unclipped loop. The levels of :data:`BACKOFF_LEVELS` are tried
-    until one LP is feasible; the last, no back-off, uses the ``predicted`` covariances
-    (clipping included).
+    correction free on every face at every step (:func:`idstlpy.closed_loop.tracking_backoff`),
+    its covariances those of the unclipped loop. The levels of :data:`BACKOFF_LEVELS` are tried
+    until one LP is feasible. A domain without faces needs no back-off: the ``predicted``
+    covariances are used as they are.
 
     Parameters
     ----------
@@ -435,19 +459,15 @@ def closed_loop_lp(
     LPOutcome
         The first feasible LP's, else the last one's.
     """
-    H = control_domain.H
-    out: LPOutcome | None = None
-    if H.shape[0] and traj.num_of_steps:
-        spread = tracking_spread(system, traj, control_domain)
-        width = np.array([control_domain.support(h) + control_domain.support(-h) for h in H])
-        covs = predicted_state(system, traj, None).get_cov()
-        for z in BACKOFF_LEVELS:
-            if z <= 0 or not np.any(spread > 0):
-                break
-            out = solve(np.minimum(z * spread, 0.4 * width[None, :]), covs)
-            if out.feasible:
-                return out
-    return solve(None, predicted.get_cov())
+    if not control_domain.H.shape[0] or not traj.num_of_steps:
+        return solve(None, predicted.get_cov())
+    covs = predicted_state(system, traj, None).get_cov()
+    out = solve(tracking_backoff(system, traj, control_domain, BACKOFF_LEVELS[0]), covs)
+    for z in BACKOFF_LEVELS[1:]:
+        if out.feasible:
+            break
+        out = solve(tracking_backoff(system, traj, control_domain, z), covs)
+    return out
 
 
 class LPTeacher:
@@ -568,14 +588,22 @@ class LPTeacher:
         problem = self.problem
         system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
         controls = out.controls
+        fallback: np.ndarray | None = None
         for _ in range(self.rounds):
             if controls is None:
-                return None
+                break
             traj = rollout(system, init, actions, controls)
-            judged = predicted_state(system, traj, problem.control_domain) if self.closed_loop else traj
-            rho = robustness(judged, formula)
+            if self.closed_loop:
+                judged, rho, ok, tracks = closed_loop_check(system, traj, problem.control_domain, formula)
+                if ok and not tracks:
+                    # Kept in case no trackable plan turns up (see closed_loop_check).
+                    fallback = fallback or controls
+                    ok = False
+            else:
+                judged, rho = traj, robustness(traj, formula)
+                ok = rho >= 0
             logger.debug("plan LP fixed point: %d steps, margin %.3g", plan.length - 1, rho)
-            if rho >= 0:
+            if ok:
                 how = (
                     "the plan LP on predicted closed-loop covariances"
                     if self.closed_loop
@@ -609,6 +637,10 @@ class LPTeacher:
             else:
                 nxt = lp(None, judged.get_cov())
             if not nxt.feasible:
-                return None
+                break
             controls = nxt.controls
+        if fallback is not None:
+            return Found(
+                actions, fallback, "the plan LP on predicted closed-loop covariances", exact=out.exact
+            )
         return None
