@@ -348,7 +348,7 @@ class BeliefSampler:
         rate = slope @ self.UH.T
         if np.any(rows0 > 1e-12):
             return None
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             t = np.where(rate > 1e-12, -rows0 / rate, np.inf)
         a = min(1.0, float(np.min(t)))
         return np.asarray(base[0] + a * slope[0])
