@@ -556,8 +556,8 @@ def _certify(
     Under constant sensor noise and without clipping the predicted covariances depend on the
     modes only, so one round is exact; otherwise the means may move at most ``trust`` per round
     (halved after a round that did not help). A plan whose prediction passes but whose inputs
-    leave the tracking correction no room (:func:`idstlpy.closed_loop.trackable`) is repaired too,
-    and kept if no round gives a trackable one. Returns ``None`` when no plan passes.
+    leave the tracking correction no room (:func:`idstlpy.closed_loop.trackable`) gets one repair
+    round and is kept if that does not give a trackable plan. Returns ``None`` when no plan passes.
     """
     problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
     system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
@@ -572,7 +572,9 @@ def _certify(
             if r:
                 logger.info("closed-loop repair: the plan keeps its promise after %d round(s)", r)
             return Verified(traj, margin, predicted)
-        if ok and fallback is None:
+        if fallback is not None:
+            break  # one repair of a passing plan that rides the faces, no more (it rarely pays)
+        if ok:
             fallback = Verified(traj, margin, predicted)
         if r == rounds:
             break

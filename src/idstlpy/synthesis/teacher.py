@@ -418,8 +418,8 @@ def closed_loop_check(
     tracks : bool
         Whether the plan is trackable (:func:`idstlpy.closed_loop.trackable`): the prediction
         linearises the clipping of the correction, and is accurate where the inputs leave the
-        correction room. The planner prefers such plans and accepts others only when it finds
-        no trackable one.
+        correction room. The planner tries one repair of a passing plan that is not trackable
+        and keeps it if the repair does not give a trackable one.
     """
     predicted = predicted_state(system, traj, control_domain)
     margin = robustness(predicted, formula)
@@ -588,17 +588,13 @@ class LPTeacher:
         problem = self.problem
         system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
         controls = out.controls
-        fallback: np.ndarray | None = None
         for _ in range(self.rounds):
             if controls is None:
-                break
+                return None
             traj = rollout(system, init, actions, controls)
             if self.closed_loop:
-                judged, rho, ok, tracks = closed_loop_check(system, traj, problem.control_domain, formula)
-                if ok and not tracks:
-                    # Kept in case no trackable plan turns up (see closed_loop_check).
-                    fallback = fallback or controls
-                    ok = False
+                # Trackability is the loop's last word (cegis._certify tries one repair).
+                judged, rho, ok, _ = closed_loop_check(system, traj, problem.control_domain, formula)
             else:
                 judged, rho = traj, robustness(traj, formula)
                 ok = rho >= 0
@@ -637,10 +633,6 @@ class LPTeacher:
             else:
                 nxt = lp(None, judged.get_cov())
             if not nxt.feasible:
-                break
+                return None
             controls = nxt.controls
-        if fallback is not None:
-            return Found(
-                actions, fallback, "the plan LP on predicted closed-loop covariances", exact=out.exact
-            )
         return None
