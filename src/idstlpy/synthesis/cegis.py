@@ -565,9 +565,18 @@ def _certify(
     trust = np.inf
     rounds = max(2, options.polish_rounds)
     fallback: Verified | None = None
+    best: tuple[ProbabilisticTSTrajectory, float] | None = None
     for r in range(rounds + 1):
         budget.check("the closed-loop certification")
         predicted, margin, ok, tracks = closed_loop_check(system, traj, problem.control_domain, formula)
+        logger.debug("closed-loop repair round %d: margin %.3g, trackable %s", r, margin, tracks)
+        if best is not None and not ok and margin < best[1]:
+            # The round made it worse: back to the best plan, with smaller steps.
+            traj, trust = best[0], trust * 0.5
+            if exact or r == rounds:
+                break
+            continue
+        best = (traj, margin)
         if ok and tracks:
             if r:
                 logger.info("closed-loop repair: the plan keeps its promise after %d round(s)", r)

@@ -439,8 +439,8 @@ def closed_loop_lp(
     it and the true state drifts), so the next plan keeps ``z`` standard deviations of the
     correction free on every face at every step (:func:`idstlpy.closed_loop.tracking_backoff`),
     its covariances those of the unclipped loop. The levels of :data:`BACKOFF_LEVELS` are tried
-    until one LP is feasible. A domain without faces needs no back-off: the ``predicted``
-    covariances are used as they are.
+    until one LP is feasible; last, no back-off with the ``predicted`` covariances (clipping
+    included), which is also what a domain without faces gets.
 
     Parameters
     ----------
@@ -465,9 +465,13 @@ def closed_loop_lp(
     out = solve(tracking_backoff(system, traj, control_domain, BACKOFF_LEVELS[0]), covs)
     for z in BACKOFF_LEVELS[1:]:
         if out.feasible:
-            break
+            return out
         out = solve(tracking_backoff(system, traj, control_domain, z), covs)
-    return out
+    if out.feasible:
+        return out
+    # No trackable plan on these requirements: one that rides the faces, judged with the
+    # clipping's linearisation, is better than none (the loop flags it, see closed_loop_check).
+    return solve(None, predicted.get_cov())
 
 
 class LPTeacher:
