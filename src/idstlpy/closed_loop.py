@@ -26,7 +26,7 @@ from .belief import kalman_gain, kalman_update
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from .sets import Polytope
-from .tracking import box_bounds, mode_gains
+from .tracking import box_bounds, gain_at, system_gains
 from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
@@ -106,14 +106,7 @@ def gains_for(
         Mode -> list of gains, each shape (m, n).
     """
 
-    def override(q: int) -> Sequence[np.ndarray] | None:
-        if lqr_gains is None:
-            return None
-        if isinstance(lqr_gains, Mapping):
-            return lqr_gains.get(q)
-        return lqr_gains[q] if q < len(lqr_gains) else None
-
-    return {q: mode_gains(system.mode(q), override(q), default_lqr) for q in sorted(set(actions.tolist()))}
+    return system_gains(system, lqr_gains, default_lqr, actions.tolist())
 
 
 def sqrt_psd(S: np.ndarray) -> np.ndarray:
@@ -302,8 +295,7 @@ def propagate(
         mode = system.mode(q)
         real = real_modes[0] if len(real_modes) == 1 else real_modes[q]
         Ks = gains[q]
-        remaining = N_ref - k
-        Kt = Ks[0] if remaining >= len(Ks) else Ks[len(Ks) - remaining]
+        Kt = gain_at(Ks, N_ref - k)
         A, B, Ar, Br = mode.A, mode.B, real.A, real.B
         W = mode.W if process_noise == "model" else real.W if process_noise == "real" else None
         Qw = W @ W.T if W is not None and W.shape[1] else Z

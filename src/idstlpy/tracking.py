@@ -18,7 +18,7 @@ only ``K_0`` is applied at every step (``K_j`` when only ``h - j`` plan steps re
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -31,6 +31,8 @@ if TYPE_CHECKING:  # dynamical_system builds gains through this module (no runti
     from .dynamical_system import LCS
 
 __all__ = [
+    "gain_at",
+    "system_gains",
     "DEFAULT_LQR",
     "box_bounds",
     "control_projector",
@@ -262,3 +264,59 @@ def box_bounds(domain: Polytope | None, m: int) -> tuple[np.ndarray, np.ndarray]
         else:
             low[i] = max(low[i], bound)
     return low, high
+
+
+GainsOverride = Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None
+"""Per-mode tracking gains given by the caller: a mapping mode -> gains, or a sequence indexed by mode."""
+
+
+def system_gains(
+    system: Any,
+    lqr_gains: GainsOverride = None,
+    default_lqr: Mapping[str, Any] | None = None,
+    modes: Iterable[int] | None = None,
+) -> dict[int, list[np.ndarray]]:
+    """The tracking gains of every mode (or of ``modes``): the caller's, else the mode's, else defaults.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    lqr_gains : mapping or sequence, optional
+        Per mode, gains (m, n) overriding ``mode.lqr_gains`` (modes it does not name keep theirs).
+    default_lqr : mapping, optional
+        Weights for modes without gains (see :data:`DEFAULT_LQR`).
+    modes : iterable of int, optional
+        The modes wanted (default all).
+
+    Returns
+    -------
+    dict
+        Mode -> list of gains, each shape (m, n), in increasing mode order.
+    """
+
+    def override(q: int) -> Sequence[np.ndarray] | None:
+        if lqr_gains is None:
+            return None
+        if isinstance(lqr_gains, Mapping):
+            return lqr_gains.get(q)
+        return lqr_gains[q] if q < len(lqr_gains) else None
+
+    wanted = range(system.num_modes) if modes is None else sorted({int(q) for q in modes})
+    return {q: mode_gains(system.mode(q), override(q), default_lqr) for q in wanted}
+
+
+def gain_at(gains: Sequence[np.ndarray], remaining: int) -> np.ndarray:
+    """The receding-horizon gain with ``remaining`` plan steps left: ``K_0``, or ``K_j`` near the end.
+
+    Parameters
+    ----------
+    gains : sequence of ndarray (m, n)
+        ``K_0 .. K_{h-1}`` of the mode.
+    remaining : int
+        Plan steps left (``N - k`` at step ``k`` of an ``N``-step plan).
+
+    Returns
+    -------
+    ndarray, shape (m, n)
+    """
+    return gains[0] if remaining >= len(gains) else gains[len(gains) - remaining]

@@ -58,7 +58,7 @@ from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
 from ..formulas import FALSE, TRUE, STLFormula
 from ..progression import progress
 from ..semantics import robustness
-from ..tracking import mode_gains
+from ..tracking import system_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
 
@@ -389,16 +389,7 @@ def execute(
 
     system = problem.switched_system
     formula = problem.stl_formula
-    gains = []
-    for q, mode in enumerate(system.system_modes):
-        override = None
-        if lqr_gains is not None:
-            override = (
-                lqr_gains.get(q)
-                if isinstance(lqr_gains, Mapping)
-                else (lqr_gains[q] if q < len(lqr_gains) else None)
-            )
-        gains.append(mode_gains(mode, override, default_lqr))
+    gains = list(system_gains(system, lqr_gains, default_lqr).values())
     sim_options: dict[str, Any] = {
         "control_domain": problem.control_domain if clip_controls else None,
         "process_noise": process_noise,

@@ -28,7 +28,7 @@ from ..closed_loop import real_modes_for
 from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..sets import Polytope
-from ..tracking import control_projector, mode_gains
+from ..tracking import control_projector, gain_at, system_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
 __all__ = ["simulate"]
@@ -145,14 +145,7 @@ def simulate(
             raise DimensionError(f"initial_belief must be a GaussianBelief of dimension {n}")
         mean, cov = initial_belief.mean.copy(), initial_belief.cov.copy()
 
-    def override(q: int) -> Sequence[np.ndarray] | None:
-        if lqr_gains is None:
-            return None
-        if isinstance(lqr_gains, Mapping):
-            return lqr_gains.get(q)
-        return lqr_gains[q] if q < len(lqr_gains) else None
-
-    gains = {q: mode_gains(system.mode(q), override(q), default_lqr) for q in sorted(set(actions.tolist()))}
+    gains = system_gains(system, lqr_gains, default_lqr, actions.tolist())
     p_max = max((mode.p for mode in system.system_modes), default=0)
 
     means = np.empty((N + 1, n))
@@ -166,8 +159,7 @@ def simulate(
         mode = system.mode(q)
         real = real_modes[0] if len(real_modes) == 1 else real_modes[q]
         Ks = gains[q]
-        remaining = N_ref - k
-        K = Ks[0] if remaining >= len(Ks) else Ks[len(Ks) - remaining]
+        K = gain_at(Ks, N_ref - k)
         u = project(plan_u[k] - K @ (mean - ref.get_mean(k)))
         controls[k] = u
         # True state (real dynamics + disturbance), then the sensor of the planning mode at it.

@@ -63,7 +63,7 @@ from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins, robustness
-from ..tracking import mode_gains
+from ..tracking import system_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
 
@@ -774,16 +774,7 @@ def validate(
     children = root.spawn(runs)
 
     system = problem.switched_system
-    gains = []
-    for q, mode in enumerate(system.system_modes):
-        override = None
-        if lqr_gains is not None:
-            override = (
-                lqr_gains.get(q)
-                if isinstance(lqr_gains, Mapping)
-                else (lqr_gains[q] if q < len(lqr_gains) else None)
-            )
-        gains.append(mode_gains(mode, override, default_lqr))
+    gains = list(system_gains(system, lqr_gains, default_lqr).values())
     sim_options: dict[str, Any] = {
         "control_domain": problem.control_domain if clip_controls else None,
         "process_noise": process_noise,
