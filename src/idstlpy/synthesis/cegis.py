@@ -582,6 +582,8 @@ def _certify(
                 logger.info("closed-loop repair: the plan keeps its promise after %d round(s)", r)
             return Verified(traj, margin, predicted)
         if fallback is not None:
+            if ok and margin > fallback.margin:
+                fallback = Verified(traj, margin, predicted)
             break  # one repair of a passing plan that rides the faces, no more (it rarely pays)
         if ok:
             fallback = Verified(traj, margin, predicted)
@@ -622,6 +624,9 @@ def _certify(
                     backend=get_backend(options.lp_backend),
                     time_limit=max(budget.remaining(), 1e-3),
                     budget=budget,
+                    # Under state-dependent noise the covariances move with the means: a step of
+                    # sequential convex programming, not a frozen-covariance LP.
+                    linearise=not exact,
                 )
             stats.lp_calls += 1
             return out
