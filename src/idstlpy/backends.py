@@ -216,8 +216,7 @@ def _highs_direct(model: LinearModel, limit: float) -> BackendSolution | None:
     lp.a_matrix_.index_ = A.indices.astype(np.int32)
     lp.a_matrix_.value_ = A.data.astype(float)
     mip = model.is_mip
-    if mip:
-        assert model.integrality is not None
+    if mip and model.integrality is not None:  # is_mip implies it; the test narrows the type
         kinds = core.HighsVarType
         lp.integrality_ = [kinds.kInteger if v else kinds.kContinuous for v in model.integrality]
     h = core._Highs()

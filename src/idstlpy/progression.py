@@ -105,7 +105,8 @@ def _subsume(items: list[STLFormula], conjunction: bool) -> list[STLFormula]:
     reading). A conjunction keeps the strongest of each group, a disjunction the weakest: the
     holds in progress of ``F G`` formulas otherwise pile up as ``G[1,20] t | G[1,21] t | ...``.
     """
-    groups: dict[tuple[Any, ...], int] = {}
+    # Per group: where its representative sits in ``out``, and the representative itself.
+    groups: dict[tuple[Any, ...], tuple[int, STLUntil | STLRelease]] = {}
     out: list[STLFormula] = []
     for f in items:
         if not isinstance(f, STLUntil | STLRelease):
@@ -113,17 +114,16 @@ def _subsume(items: list[STLFormula], conjunction: bool) -> list[STLFormula]:
             continue
         key = (type(f), f.a, f.left, f.right)
         if key not in groups:
-            groups[key] = len(out)
+            groups[key] = (len(out), f)
             out.append(f)
             continue
-        i = groups[key]
-        g = out[i]
-        assert isinstance(g, STLUntil | STLRelease)
+        i, g = groups[key]
         # The stronger of the two: the smaller b for until, the larger for release.
         stronger_is_smaller = isinstance(f, STLUntil)
         f_stronger = (f.b < g.b) == stronger_is_smaller
         if f_stronger == conjunction:
             out[i] = f
+            groups[key] = (i, f)
     return out
 
 

@@ -397,7 +397,8 @@ class ValidationReport:
     def _prediction_dict(self) -> dict[str, Any]:
         """The comparison plus the prediction's own summary numbers (no per-step arrays)."""
         pred = self.predicted
-        assert pred is not None
+        if pred is None:
+            return {}
         out = dict(self.prediction_comparison() or {})
         out["sensor_noise"] = pred.sensor_noise
         out["samples"] = pred.samples

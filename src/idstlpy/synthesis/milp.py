@@ -359,8 +359,7 @@ def _probe(
 
 def _polish(model: LinearModel, x: np.ndarray, tcol: int, budget: Budget) -> np.ndarray | None:
     """The LP of ``model`` with its integer columns fixed at ``x`` rounded (``None`` if it fails)."""
-    assert model.integrality is not None
-    ints = model.integrality != 0
+    ints = np.zeros(model.num_vars, dtype=bool) if model.integrality is None else model.integrality != 0
     lb, ub = model.lb.copy(), model.ub.copy()
     lb[ints] = ub[ints] = np.round(x[ints])
     lp = LinearModel(model.c, model.A, model.row_lo, model.row_hi, lb, ub)
