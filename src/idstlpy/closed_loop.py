@@ -464,7 +464,11 @@ correction is clipped with probability at most ``1 - Phi(1) = 16%``)."""
 
 
 def tracking_backoff(
-    system: SwitchedSystem, plan: ProbabilisticTSTrajectory, control_domain: Polytope, z: float
+    system: SwitchedSystem,
+    plan: ProbabilisticTSTrajectory,
+    control_domain: Polytope,
+    z: float,
+    spread: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per step and face, ``z`` standard deviations of the tracking correction, capped at 40% of
     the domain's width along the face (so that a back-off never empties the domain).
@@ -477,6 +481,8 @@ def tracking_backoff(
     control_domain : Polytope
         ``F`` faces.
     z : float
+    spread : ndarray, shape (N, F), optional
+        :func:`tracking_spread` of the plan, when the caller already has it.
 
     Returns
     -------
@@ -484,7 +490,8 @@ def tracking_backoff(
         In the domain's units: face ``f`` at step ``k`` becomes ``H_f u + c_f + b_kf <= 0``.
     """
     H = control_domain.H
-    spread = tracking_spread(system, plan, control_domain)
+    if spread is None:
+        spread = tracking_spread(system, plan, control_domain)
     width = np.array([control_domain.support(h) + control_domain.support(-h) for h in H])
     return np.minimum(z * spread, 0.4 * width[None, :])
 

@@ -28,7 +28,7 @@ from scipy.sparse import csr_matrix, hstack, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
-from ..closed_loop import TRACKABLE_Z, predicted_state, trackable, tracking_backoff
+from ..closed_loop import TRACKABLE_Z, predicted_state, trackable, tracking_backoff, tracking_spread
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -462,11 +462,12 @@ def closed_loop_lp(
     if not control_domain.H.shape[0] or not traj.num_of_steps:
         return solve(None, predicted.get_cov())
     covs = predicted_state(system, traj, None).get_cov()
-    out = solve(tracking_backoff(system, traj, control_domain, BACKOFF_LEVELS[0]), covs)
+    spread = tracking_spread(system, traj, control_domain)
+    out = solve(tracking_backoff(system, traj, control_domain, BACKOFF_LEVELS[0], spread), covs)
     for z in BACKOFF_LEVELS[1:]:
         if out.feasible:
             return out
-        out = solve(tracking_backoff(system, traj, control_domain, z), covs)
+        out = solve(tracking_backoff(system, traj, control_domain, z, spread), covs)
     if out.feasible:
         return out
     # No trackable plan on these requirements: one that rides the faces, judged with the
@@ -530,20 +531,28 @@ class LPTeacher:
         """Exact when no mode's noise depends on the state."""
         return not any(m.has_state_dependent_noise for m in problem.switched_system.system_modes)
 
-    def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
-        """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`)."""
+    def _solve(
+        self,
+        plan: DiscretePlan,
+        margin: float,
+        budget: Budget,
+        stats: SolveStats,
+        covs: np.ndarray | None = None,
+        control_backoff: np.ndarray | None = None,
+    ) -> LPOutcome:
+        """:func:`solve_plan_lp` for ``plan`` with this teacher's problem, units, back-end and objective."""
         problem = self.problem
-        system, init = problem.switched_system, problem.initial_state
-        margin = execution_margin(system, init, self.abs, plan)
         with stats.clock("time_lp"):
             out = solve_plan_lp(
-                system,
+                problem.switched_system,
                 problem.control_domain,
-                init.mean,
-                init.cov,
+                problem.initial_state.mean,
+                problem.initial_state.cov,
                 self.abs,
                 plan,
                 margin,
+                covs=covs,
+                control_backoff=control_backoff,
                 scaling=self.scaling,
                 backend=self.backend,
                 time_limit=max(budget.remaining(), 1e-3),
@@ -552,6 +561,14 @@ class LPTeacher:
                 effort_weights=self.effort_weights,
             )
         stats.lp_calls += 1
+        return out
+
+    def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
+        """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`)."""
+        problem = self.problem
+        system, init = problem.switched_system, problem.initial_state
+        margin = execution_margin(system, init, self.abs, plan)
+        out = self._solve(plan, margin, budget, stats)
         self.last = out
         if out.status == "infeasible":
             last = max((k for k, _ in out.conflict), default=0)
@@ -591,6 +608,10 @@ class LPTeacher:
         """
         problem = self.problem
         system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
+
+        def lp(backoff: np.ndarray | None, covs: np.ndarray) -> LPOutcome:
+            return self._solve(plan, margin, budget, stats, covs=covs, control_backoff=backoff)
+
         controls = out.controls
         for _ in range(self.rounds):
             if controls is None:
@@ -610,27 +631,6 @@ class LPTeacher:
                     else "the plan LP on re-rolled covariances"
                 )
                 return Found(actions, controls, how, exact=out.exact)
-
-            def lp(backoff: np.ndarray | None, covs: np.ndarray) -> LPOutcome:
-                with stats.clock("time_lp"):
-                    out = solve_plan_lp(
-                        system,
-                        problem.control_domain,
-                        init.mean,
-                        init.cov,
-                        self.abs,
-                        plan,
-                        margin,
-                        covs=covs,
-                        control_backoff=backoff,
-                        objective=self._smooth,
-                        scaling=self.scaling,
-                        backend=self.backend,
-                        time_limit=max(budget.remaining(), 1e-3),
-                        budget=budget,
-                    )
-                stats.lp_calls += 1
-                return out
 
             if self.closed_loop:
                 nxt = closed_loop_lp(system, traj, problem.control_domain, judged, lp)
