@@ -40,7 +40,7 @@ from .plan import DiscretePlan, evaluate_bool, extract_witness
 from .plan_lp import Scaling
 from .proposer import BMCProposer
 from .results import SolveStats
-from .teacher import execution_margin, solve_plan_lp
+from .room import Room, execution_room, room_lp
 
 __all__ = ["BeliefSampler", "SamplerOutcome", "SamplerTeacher"]
 
@@ -854,60 +854,83 @@ class SamplerTeacher:
     def _polish(
         self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Move a sampled plan away from the boundaries it grazes, keeping its modes.
+        """Give a sampled plan the room its execution needs, keeping its modes.
 
         The sampler stops at the first belief that meets the plan, often a hair inside a
-        required region, and such a plan breaks under execution noise. Each round freezes the
-        trajectory's exact covariances, asks the plan LP for the controls that maximise the
-        smallest slack of the requirements the trajectory meets (means may move by at most
-        ``trust``), re-rolls the exact belief dynamics and keeps the result only if the
-        monitor's margin grew; ``trust`` halves after a round that did not help.
+        required region and with inputs on their bounds, and such a plan breaks under execution
+        noise. Each round takes the requirements the trajectory meets (its witness), predicts the
+        closed loop around it (:func:`.room.execution_room`: per required face and step, the
+        room the executed belief and the true state need; per input face, the room the tracking
+        correction needs), and solves one step of sequential convex programming toward that
+        room (:func:`.room.room_lp`, means within ``trust``); the re-rolled plan is kept only if
+        the monitor still accepts it and the smallest fraction of needed room it keeps grew;
+        ``trust`` halves after a round that did not help. The rounds are a work budget
+        (``2 * max(polish_rounds, 4)``).
         """
         problem = self.problem
         init, system, formula = problem.initial_state, problem.switched_system, problem.stl_formula
+        domain = problem.control_domain
         traj = rollout(system, init, actions, controls)
-        margin = robustness(traj, formula)
-        if margin < 0:
+        if robustness(traj, formula) < 0:
             return actions, controls  # the loop's monitor will reject it; nothing to polish
         trust = np.inf
-        for _ in range(self.options.polish_rounds):
-            acts = traj.get_action()
-            modes = np.concatenate([[-1], acts]).astype(int)
-            means, covs = traj.get_mean(), traj.get_cov()
-            truth = np.stack(
-                [self.abs.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
-                axis=1,
-            )
-            witness = extract_witness(formula, truth, self.abs.index, prefer_late=False)
-            if witness is None:
+        rounds = 2 * max(self.options.polish_rounds, 4) if self.options.polish_rounds else 0
+        current: tuple[DiscretePlan, Room] | None = None
+        for _ in range(rounds):
+            if current is None:
+                found = self._witness_plan(traj)
+                if found is None:
+                    break
+                room = execution_room(system, domain, self.abs, found, traj)
+                if room is None:
+                    break
+                current = (found, room)
+            plan, room = current
+            score = room.score
+            if score >= 1.0:
                 break
-            required, L = witness
-            plan = DiscretePlan(required[:, :L], modes[:L], L)
-            target = execution_margin(system, init, self.abs, plan)
-            if target <= margin:
-                break
-            trust = min(trust, 2.0 * target)
-            lp = solve_plan_lp(
-                system,
-                problem.control_domain,
-                init.mean,
-                init.cov,
-                self.abs,
-                plan,
-                target,
-                covs=covs[:L],
-                anchor=means[:L],
-                trust=trust,
-                scaling=self.scaling,
-                linearise=True,
-            )
+            if not np.isfinite(trust):
+                trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(self.scaling.dx)))
             stats.lp_calls += 1
-            if lp.feasible and lp.controls is not None:
-                moved = rollout(system, init, acts[: L - 1], lp.controls)
-                moved_margin = robustness(moved, formula)
-                if moved_margin > margin:
-                    logger.debug("polish: margin %.3g -> %.3g (trust %.3g)", margin, moved_margin, trust)
-                    traj, margin = moved, moved_margin
-                    continue
+            out = room_lp(system, domain, init, self.abs, plan, traj, room, trust, self.scaling)
+            if out is not None:
+                acts = traj.get_action()[: plan.length - 1]
+                moved = rollout(system, init, acts, out[0])
+                if robustness(moved, formula) >= 0:
+                    moved_plan = self._witness_plan(moved)
+                    moved_room = None
+                    if moved_plan is not None:
+                        moved_room = execution_room(system, domain, self.abs, moved_plan, moved)
+                    if moved_plan is not None and moved_room is not None and moved_room.score > score + 1e-6:
+                        logger.debug(
+                            "polish: execution room %.3g -> %.3g (trust %.3g, LP fraction %.3g)",
+                            score,
+                            moved_room.score,
+                            trust,
+                            out[1],
+                        )
+                        traj, current = moved, (moved_plan, moved_room)
+                        continue
             trust *= 0.5
+        if current is not None:
+            logger.info(
+                "polish: the plan keeps %.3g of the room its execution needs (z %.2f belief, %.2f state)",
+                current[1].score,
+                current[1].z_belief,
+                current[1].z_state,
+            )
         return traj.get_action(), traj.get_control()
+
+    def _witness_plan(self, traj: Any) -> DiscretePlan | None:
+        """The requirements ``traj`` meets (the earliest witness of the formula), or None."""
+        modes = np.concatenate([[-1], traj.get_action()]).astype(int)
+        means, covs = traj.get_mean(), traj.get_cov()
+        truth = np.stack(
+            [self.abs.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
+            axis=1,
+        )
+        witness = extract_witness(self.problem.stl_formula, truth, self.abs.index, prefer_late=False)
+        if witness is None:
+            return None
+        required, L = witness
+        return DiscretePlan(required[:, :L], modes[:L], L)
