@@ -17,7 +17,10 @@ its first adopted re-plan, a run of the replanning executor is the fixed run, bi
   (sound bound, the smaller of executed belief and true state) every ``check`` steps;
 - ``every``: ``execute(replan="every")``, a re-solve every ``every`` steps;
 - ``on_risk_cl``: ``on_risk`` whose re-solves plan against the predicted true state
-  (``solver_options={"guarantee": "closed_loop"}``), the other options unchanged.
+  (``solver_options={"guarantee": "closed_loop"}``), the other options unchanged;
+- ``on_drift``: ``on_risk`` that also checks whenever the executed belief's mean leaves the 95%
+  ellipse of its last predicted distribution (``drift=0.95``), so a run going astray is checked
+  before the schedule's next check.
 
 ``check`` and ``every`` scale with the plan (``check = max(5, N // 10)``, ``every =
 max(10, N // 5)``, ``N`` the plan's length) so a run costs about ten predictions or five re-solves
@@ -65,8 +68,9 @@ SAMPLER: dict[str, Any] = {
     "min_num_of_steps": 3,
     "max_num_of_steps": 15,
 }
-MODES = ("fixed", "on_risk", "every", "on_risk_cl")
+MODES = ("fixed", "on_risk", "every", "on_risk_cl", "on_drift")
 RISK = 0.99
+DRIFT = 0.95
 
 
 def _setup(kind: str, size: str) -> tuple[Any, Any, np.ndarray]:
@@ -116,6 +120,8 @@ def run_batch(
     options = stl.SolverOptions.make(**SAMPLER)
     if mode in ("on_risk", "on_risk_cl"):
         kw = {"replan": "on_risk", "risk": RISK, "check_every": check}
+    elif mode == "on_drift":  # on_risk, also checked whenever the belief leaves its predicted ellipse
+        kw = {"replan": "on_risk", "risk": RISK, "check_every": check, "drift": DRIFT}
     elif mode == "every":
         kw = {"replan": "every", "every": every}
     if mode == "on_risk_cl":  # the re-solves plan against the predicted true state
@@ -214,7 +220,8 @@ def markdown(
         f"- on_risk: risk = {RISK}, sound bound, min(belief, state), every `check = max(5, N // 10)` steps; "
         f"every: a re-solve every `max(10, N // 5)` steps; at most {args.max_replans} re-solves per run, "
         f"each capped at {args.replan_time_limit:g} s; on_risk_cl: on_risk whose re-solves use "
-        "guarantee='closed_loop'",
+        f"guarantee='closed_loop'; on_drift: on_risk also checked whenever the executed belief's mean "
+        f"leaves the {DRIFT:.0%} ellipse of its last prediction",
         "",
         "| problem | steps | executor | runs | belief success [95% CI] | state success [95% CI] "
         "| re-solves / run (max) | adopted / run | re-solve outcomes | s / run |",

@@ -177,6 +177,168 @@ def _clipped_moments(
     return np.where(pos, e1, det), np.where(pos, var, 0.0), np.where(pos, p_in, inside)
 
 
+_GH3 = np.sqrt(3.0)
+
+
+@dataclass
+class NoiseInterpolant:
+    """A state-dependent sensor's noise factor ``n(x)`` around a Gaussian ``N(c, T T')``, as the
+    tensor-product quadratic that interpolates it at the 3-node Gauss-Hermite points (the points
+    :func:`propagate`'s expectation of ``R`` already evaluates): exact for a noise factor that is
+    quadratic in ``x``, evaluated on many samples at once. At most four directions (the largest
+    of ``T``) are resolved; along the others ``n`` is frozen at the centre.
+    """
+
+    center: np.ndarray  # (n,)
+    inv: np.ndarray  # (r, n): standardised coordinates xi = inv (x - center)
+    values: np.ndarray  # (3^r, p, q): n(x) at the grid points
+
+    @staticmethod
+    def fit(mode: LCS, center: np.ndarray, cov: np.ndarray) -> NoiseInterpolant:
+        w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+        order = np.argsort(w)[::-1]
+        w, V = w[order], V[:, order]
+        keep = w > 1e-14 * max(1.0, float(w.max(initial=0.0)))
+        r = min(int(np.sum(keep)), 4)
+        T = V[:, :r] * np.sqrt(w[:r])
+        inv = (V[:, :r] / np.sqrt(w[:r])).T if r else np.zeros((0, center.shape[0]))
+        nodes = np.array([-_GH3, 0.0, _GH3])
+        grid = np.zeros((1, 0))
+        if r:
+            grid = np.stack([g.reshape(-1) for g in np.meshgrid(*([nodes] * r), indexing="ij")], axis=1)
+        values = np.stack([mode.noise(center + T @ xi) for xi in grid])
+        return NoiseInterpolant(center, inv, values)
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        """``n(x)`` for samples ``X`` (S, n): shape (S, p, q)."""
+        r = self.inv.shape[0]
+        if r == 0:
+            return np.broadcast_to(self.values[0], (X.shape[0], *self.values.shape[1:]))
+        xi = (X - self.center) @ self.inv.T  # (S, r)
+        # Lagrange weights of the nodes -sqrt(3), 0, sqrt(3) per direction: (S, r, 3)
+        lag = np.stack([xi * (xi - _GH3) / 6.0, 1.0 - xi**2 / 3.0, xi * (xi + _GH3) / 6.0], axis=2)
+        wts = lag[:, 0]
+        for i in range(1, r):
+            wts = (wts[:, :, None] * lag[:, i][:, None, :]).reshape(X.shape[0], -1)
+        G, p, q = self.values.shape
+        return (wts @ self.values.reshape(G, p * q)).reshape(X.shape[0], p, q)
+
+
+@dataclass
+class LoopStep:
+    """One step of the closed loop around the plan, as a map on samples of ``z = (delta, eta[, dP])``.
+
+    The moment propagation (:func:`propagate`) linearises the clip of the corrected input
+    statistically and keeps the loop Gaussian; this map applies the clip itself to every sample
+    (the rest of the loop is the same: the filter's gains at the predicted mean, the sensor noise
+    at the predicted true state). :meth:`advance` is what ``closure="particles"`` propagates and
+    what :func:`idstlpy.execution.prediction.predict_closed_loop` samples its rates from.
+    """
+
+    K: np.ndarray  # (m, n) tracking gain
+    v: np.ndarray  # (m,) planned input
+    low: np.ndarray | None  # (m,) box of the inputs (None: not clipped)
+    high: np.ndarray | None
+    Ar: np.ndarray
+    Br: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    d: np.ndarray  # model mismatch A_r m + B_r v - m_next
+    r: np.ndarray  # m_next - A m - B v
+    LC: np.ndarray
+    Lk: np.ndarray  # (n, p)
+    W_root: np.ndarray  # (n, n) process noise root
+    R_root: np.ndarray  # (p, p) sensor noise root (at the predicted true state)
+    sens: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # (kron(Phi, Phi), J, x_lin - m_next)
+    # A state-dependent sensor, per sample (closure "particles"): its noise factor's interpolant,
+    # the plan's next mean, C, the process covariance and the nominal filter covariances P_k, P_{k+1}.
+    noise: NoiseInterpolant | None = None
+    m_next: np.ndarray | None = None
+    C: np.ndarray | None = None
+    Qp: np.ndarray | None = None
+    P_prev: np.ndarray | None = None
+    P_next: np.ndarray | None = None
+
+    def advance(self, Z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Samples (S, D) of ``z_k`` -> samples of ``z_{k+1}`` (fresh noise from ``rng``).
+
+        With a :class:`NoiseInterpolant` the sensor noise is drawn at each sample's true state,
+        and, when the filter-sensitivity coordinates are carried, each sample's filter runs on
+        its own covariance (nominal plus the sample's ``dP``) with ``R`` at its own predicted
+        mean, as :func:`idstlpy.simulate`'s does; ``dP`` is then the exact deviation.
+        """
+        n = self.A.shape[0]
+        if self.noise is not None:
+            return self._advance_state_dependent(Z, rng)
+        delta, eta = Z[:, :n], Z[:, n : 2 * n]
+        y = self.v - eta @ self.K.T
+        if self.low is not None and self.high is not None:
+            y = np.clip(y, self.low, self.high)
+        c = y - self.v
+        delta_n = delta @ self.Ar.T + c @ self.Br.T + self.d
+        if self.W_root.size:
+            delta_n = delta_n + rng.standard_normal((Z.shape[0], self.W_root.shape[1])) @ self.W_root.T
+        eta_pred = eta @ self.A.T + c @ self.B.T - self.r
+        eta_n = eta_pred + (delta_n - eta_pred) @ self.LC.T
+        if self.R_root.size:
+            nu = rng.standard_normal((Z.shape[0], self.R_root.shape[1])) @ self.R_root.T
+            eta_n = eta_n + nu @ self.Lk.T
+        out = np.empty_like(Z)
+        out[:, :n], out[:, n : 2 * n] = delta_n, eta_n
+        if Z.shape[1] > 2 * n:
+            if self.sens is None:
+                out[:, 2 * n :] = Z[:, 2 * n :]
+            else:
+                kron, J, off = self.sens
+                out[:, 2 * n :] = Z[:, 2 * n :] @ kron.T + (eta_pred - off) @ J.T
+        return out
+
+    def _advance_state_dependent(self, Z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        noise, m_next, C = self.noise, self.m_next, self.C
+        if noise is None or m_next is None or C is None:  # pragma: no cover - set together
+            raise InvalidArgumentError("a state-dependent loop step needs its noise model")
+        n, S = self.A.shape[0], Z.shape[0]
+        delta, eta = Z[:, :n], Z[:, n : 2 * n]
+        y = self.v - eta @ self.K.T
+        if self.low is not None and self.high is not None:
+            y = np.clip(y, self.low, self.high)
+        c = y - self.v
+        delta_n = delta @ self.Ar.T + c @ self.Br.T + self.d
+        if self.W_root.size:
+            delta_n = delta_n + rng.standard_normal((S, self.W_root.shape[1])) @ self.W_root.T
+        eta_pred = eta @ self.A.T + c @ self.B.T - self.r
+        nx = noise(m_next + delta_n)  # (S, p, q): the sensor at the true state
+        nu = (nx @ rng.standard_normal((S, nx.shape[2], 1)))[:, :, 0]
+        out = np.empty_like(Z)
+        out[:, :n] = delta_n
+        per_sample = Z.shape[1] > 2 * n and self.P_prev is not None and self.P_next is not None
+        if not per_sample:
+            innov = (delta_n - eta_pred) @ C.T + nu
+            out[:, n : 2 * n] = eta_pred + innov @ self.Lk.T
+            if Z.shape[1] > 2 * n:
+                out[:, 2 * n :] = Z[:, 2 * n :]
+            return out
+        Pk = self.P_prev + Z[:, 2 * n :].reshape(S, n, n)  # type: ignore[operator]
+        P_pred = self.A @ Pk @ self.A.T + self.Qp
+        nf = noise(m_next + eta_pred)  # the filter's R at its own predicted mean
+        R = nf @ np.swapaxes(nf, 1, 2)
+        PCt = P_pred @ C.T  # (S, n, p)
+        Sinn = C @ PCt + R  # (S, p, p)
+        try:
+            with np.errstate(all="ignore"):
+                Lg = np.swapaxes(np.linalg.solve(Sinn, np.swapaxes(PCt, 1, 2)), 1, 2)  # Sinn symmetric
+            if not np.all(np.isfinite(Lg)):
+                raise np.linalg.LinAlgError("non-finite gain")
+        except np.linalg.LinAlgError:  # a singular innovation covariance (noise-free sensor): as kalman_gain
+            Lg = PCt @ np.linalg.pinv(0.5 * (Sinn + np.swapaxes(Sinn, 1, 2)), rcond=1e-12, hermitian=True)
+        innov = (delta_n - eta_pred) @ C.T + nu
+        out[:, n : 2 * n] = eta_pred + (Lg @ innov[:, :, None])[:, :, 0]
+        IKC = np.eye(n) - Lg @ C
+        P_new = IKC @ P_pred @ np.swapaxes(IKC, 1, 2) + Lg @ R @ np.swapaxes(Lg, 1, 2)
+        out[:, 2 * n :] = (0.5 * (P_new + np.swapaxes(P_new, 1, 2)) - self.P_next).reshape(S, n * n)
+        return out
+
+
 @dataclass
 class ClosedLoopMoments:
     """Moments of the closed loop's joint state ``z = (delta, eta[, dP])`` (``D`` coordinates).
@@ -185,7 +347,10 @@ class ClosedLoopMoments:
     (N, D, D), offsets ``g`` (N, D) and noise covariances ``Q`` (N, D, D); the filter covariance
     ``P`` (L, n, n); the tracking gains ``K`` (N, m, n) and Kalman gains ``L`` (n, p each); an
     upper bound on the probability that the input is clipped, ``clip`` (N,); ``sensitivity``:
-    whether the ``n^2`` filter-sensitivity coordinates are carried.
+    whether the ``n^2`` filter-sensitivity coordinates are carried; ``steps``: the per-step maps
+    on samples (:class:`LoopStep`); ``closure``: how the moments were closed (``"gaussian"``:
+    the clip linearised statistically; ``"particles"``: the moments of samples propagated through
+    the clip, ``F, g, Q`` their statistical linear regression).
     """
 
     mean: np.ndarray  # (L, D)
@@ -198,6 +363,8 @@ class ClosedLoopMoments:
     L: list[np.ndarray]
     clip: np.ndarray  # (N,)
     sensitivity: bool
+    steps: list[LoopStep] | None = None
+    closure: str = "gaussian"
 
 
 def _noise_cov_jacobian(mode: LCS, x: np.ndarray) -> np.ndarray:
@@ -224,6 +391,9 @@ def propagate(
     sensor_noise: str,
     domain: Polytope | None,
     filter_sensitivity: bool,
+    closure: str = "gaussian",
+    particles: int = 4000,
+    seed: int = 0,
 ) -> ClosedLoopMoments:
     """Propagate the closed loop's first two moments over ``N`` steps of ``plan``.
 
@@ -252,6 +422,21 @@ def propagate(
         The control domain the corrected input is projected on.
     filter_sensitivity : bool
         Carry the first-order variation of the filter covariance (``n^2`` coordinates).
+    closure : {"gaussian", "particles", "auto"}
+        ``"gaussian"``: the clip of the corrected input by its statistical linearisation, exact
+        for one step from a Gaussian, but it keeps the loop Gaussian: a plan that rides an input
+        bound makes the clipped loop a rectifier (deviations on one side are not corrected and
+        accumulate) whose spread this under-states. ``"particles"``: ``particles`` samples of
+        ``z`` are propagated through the clip itself (:class:`LoopStep`, seeded by ``seed``:
+        deterministic); the moments are theirs, and ``F, g, Q`` their statistical linear
+        regression (``F = Cov(z_{k+1}, z_k) Cov(z_k)^+``, ``Q`` the residual covariance), so the
+        Gauss-Markov model has the samples' per-step moments and one-step covariances.
+        With a state-dependent sensor the samples also draw its noise at their own true state
+        and run their own filter (:class:`LoopStep`): the skew such a sensor gives the loop is
+        kept. ``"auto"``: particles under a state-dependent sensor or when a box clips the input
+        with probability above 1% at some step, the (exact) Gaussian closure otherwise.
+    particles : int
+    seed : int
 
     Returns
     -------
@@ -289,6 +474,33 @@ def propagate(
     )
     out.mean[0, : 2 * n], out.cov[0, : 2 * n, : 2 * n], out.P[0] = z0, S0, P0
     cub = _cubature(n) if sensor_noise == "expected" else None
+    state_dependent = any(system.mode(q).p and system.mode(q).has_state_dependent_noise for q in used)
+    if closure not in ("auto", "gaussian", "particles"):
+        raise InvalidArgumentError(f"closure must be 'auto', 'gaussian' or 'particles', got {closure!r}")
+    if closure == "auto":
+        if N == 0:
+            closure = "gaussian"
+        elif state_dependent:
+            closure = "particles"
+        elif box is None:
+            closure = "gaussian"
+        else:
+            first = propagate(
+                system, plan, N, real_modes, gains, process_noise, z0, S0, P0, sensor_noise, domain,
+                filter_sensitivity, "gaussian",
+            )  # fmt: skip
+            if float(first.clip.max()) <= 0.01:
+                return first
+            closure = "particles"
+    use_particles = closure == "particles" and N > 0
+    out.closure = "particles" if use_particles else "gaussian"
+    out.steps = []
+    rng = np.random.default_rng(seed)
+    Zp = np.zeros((0, D))
+    if use_particles:
+        Zp = np.zeros((particles, D))
+        Zp[:, : 2 * n] = z0 + rng.standard_normal((particles, 2 * n)) @ sqrt_psd(S0).T
+        Zp[:, : 2 * n] += z0 - Zp[:, : 2 * n].mean(axis=0)  # the exact mean
     z, S, P = out.mean[0], out.cov[0], P0
     for k in range(N):
         q = int(actions[k])
@@ -300,6 +512,10 @@ def propagate(
         W = mode.W if process_noise == "model" else real.W if process_noise == "real" else None
         Qw = W @ W.T if W is not None and W.shape[1] else Z
         m_k, m_next, v = means[k], means[k + 1], controls[k]
+        P_prev = P
+        if use_particles:  # the moments the linearisation below is taken at are the samples'
+            z = Zp.mean(axis=0)
+            S = np.cov(Zp, rowvar=False, bias=True).reshape(D, D)
         eta = z[n : 2 * n]
         S_eta = S[n : 2 * n, n : 2 * n]
         nominal_pred = A @ m_k + B @ v
@@ -324,6 +540,11 @@ def propagate(
         A_eta = A - B @ K_eff
         # The filter's predicted mean is m_next + eta_pred, eta_pred = A_eta eta + B c_u - r + B e.
         eta_pred_mean = A_eta @ eta + B @ c_u - r
+        if use_particles:
+            y_p = v - Zp[:, n : 2 * n] @ Kt.T
+            if box is not None:
+                y_p = np.clip(y_p, box[0], box[1])
+            eta_pred_mean = (Zp[:, n : 2 * n] @ A.T + (y_p - v) @ B.T).mean(axis=0) - r
         # Filter: its noise is evaluated at its own (random) predicted mean, linearised at the plan's
         # nominal one ("plan": the plan's MLO covariances) or at the predicted one (otherwise).
         P_pred = A @ P @ A.T + mode.process_cov
@@ -361,6 +582,7 @@ def propagate(
         Qk = Gw @ Qw @ Gw.T + Ge @ E @ Ge.T
         z = F @ z + g
         S_pre = F @ S @ F.T + Qk
+        R_true = np.zeros((mode.p, mode.p))
         if mode.p:
             if sensor_noise == "plan" or not state_dep:
                 R_true = mode.noise_cov(m_next)
@@ -375,6 +597,34 @@ def propagate(
             Qk = Qk + LRL
             S_pre = S_pre + LRL
         S = 0.5 * (S_pre + S_pre.T)
+        sens_map = None
+        if sens:
+            sens_map = (F[2 * n :, 2 * n :], J if state_dep else np.zeros((n * n, n)),
+                        (x_lin - m_next) if state_dep else np.zeros(n))  # fmt: skip
+        step = LoopStep(
+            K=Kt, v=v, low=None if box is None else box[0], high=None if box is None else box[1],
+            Ar=Ar, Br=Br, A=A, B=B, d=d, r=r, LC=LC, Lk=Lk,
+            W_root=sqrt_psd(Qw) if Qw.any() else np.zeros((n, 0)),
+            R_root=sqrt_psd(R_true) if mode.p else np.zeros((0, 0)), sens=sens_map,
+        )  # fmt: skip
+        if use_particles and state_dep and mode.p:
+            step.noise = NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n])
+            step.m_next, step.C, step.Qp = m_next, mode.C, mode.process_cov
+            step.P_prev, step.P_next = P_prev, P
+        out.steps.append(step)
+        if use_particles:
+            Zn = step.advance(Zp, rng)
+            z = Zn.mean(axis=0)
+            Xc, Yc = Zp - Zp.mean(axis=0), Zn - z
+            S = Yc.T @ Yc / particles
+            Sx = Xc.T @ Xc / particles
+            w, V = np.linalg.eigh(0.5 * (Sx + Sx.T))
+            keep = w > 1e-12 * max(1.0, float(w.max(initial=0.0)))
+            pinv = (V[:, keep] / w[keep]) @ V[:, keep].T
+            F = (Yc.T @ Xc / particles) @ pinv  # the statistical linear regression of z_{k+1} on z_k
+            g = z - F @ Zp.mean(axis=0)
+            Qk = S - F @ Sx @ F.T
+            Zp = Zn
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise InvalidArgumentError(
                 f"the predicted closed loop diverged at step {k + 1} (non-finite moments)"

@@ -102,6 +102,7 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 SensorNoise = Literal["expected", "mean", "plan"]
+Closure = Literal["auto", "gaussian", "particles"]
 
 _INTERSECTION_SLACK = 1e-9
 """Subtracted from every bivariate probability the Hunter bound uses (numerical safety)."""
@@ -245,7 +246,10 @@ class ClosedLoopPrediction:
         at some promised step (model sampling; NaN without samples).
     belief_success_bound, state_success_bound : float
         Lower bounds, sound for the Gaussian model, on the probability that the executed belief /
-        the true states satisfy the formula (NaN without a formula).
+        the true states satisfy the formula (NaN without a formula). Under ``closure ==
+        "particles"`` the Gaussian model only matches the clipped loop's first two moments, and
+        its bound is not sound for it (a rectifier's tails are heavier); with samples the bound
+        is then the smaller of the Gaussian one and the sampled bound below.
     belief_success_estimate, state_success_estimate : float
         Point estimates of the same probabilities by sampling the model (NaN without samples).
     belief_success_sampled_bound, state_success_sampled_bound : float
@@ -256,6 +260,10 @@ class ClosedLoopPrediction:
         Model samples behind the estimates.
     witness : tuple of (str, int)
         ``(proposition, step)`` pairs of the witness behind the true-state bound.
+    closure : str
+        ``"gaussian"`` or ``"particles"`` (:func:`idstlpy.closed_loop.propagate`): how the
+        moments were closed; under ``"particles"`` the sampled rates and estimates come from the
+        clipped loop (and the state-dependent sensor per sample), not the Gaussian model.
     """
 
     num_of_steps: int
@@ -281,6 +289,7 @@ class ClosedLoopPrediction:
     state_success_sampled_bound: float = float("nan")
     samples: int = 0
     witness: tuple[tuple[str, int], ...] = ()
+    closure: str = "gaussian"
 
     @property
     def n(self) -> int:
@@ -356,6 +365,7 @@ class ClosedLoopPrediction:
             "num_of_steps": self.num_of_steps,
             "sensor_noise": self.sensor_noise,
             "samples": self.samples,
+            "closure": self.closure,
             "belief_success_bound": num(self.belief_success_bound),
             "state_success_bound": num(self.state_success_bound),
             "belief_success_estimate": num(self.belief_success_estimate),
@@ -672,8 +682,11 @@ def _sample_events(
     ok = {r: np.empty((size, L, nF), dtype=bool) for r in ("state", "belief")}
     const = {r: faces.mu[r] - np.einsum("kfd,kd->kf", faces.a[r], loop.mean) for r in ok}
     z = loop.mean[0] + rng.standard_normal((size, D)) @ roots[0].T
+    clipped = loop.closure == "particles" and loop.steps is not None
     for k in range(L):
-        if k:
+        if k and clipped:  # the clipped loop itself (the Gauss-Markov model is its regression)
+            z = loop.steps[k - 1].advance(z, rng)  # type: ignore[index]
+        elif k:
             z = z @ loop.F[k - 1].T + loop.g[k - 1] + rng.standard_normal((size, D)) @ roots[k].T
         for r in ok:
             ok[r][:, k] = z @ faces.a[r][k].T + const[r][k] <= 0
@@ -701,7 +714,7 @@ def _sample_rates(
     face_n = {r: np.zeros(nF) for r in readings}
     prop_n = {r: np.zeros(len(aps)) for r in readings}
     ok_n = {r: 0.0 for r in readings}
-    chunk = max(1, min(samples, 4_000_000 // max(1, L * max(nF, 1))))
+    chunk = max(1, min(samples, 30_000_000 // max(1, L * max(nF, 1))))
     done = 0
     while done < samples:
         size = min(chunk, samples - done)
@@ -789,6 +802,8 @@ def predict_closed_loop(
     filter_sensitivity: bool = True,
     samples: int = 4000,
     seed: int | np.random.SeedSequence | None = 0,
+    closure: Closure = "auto",
+    particles: int = 4000,
 ) -> ClosedLoopPrediction:
     """Predict the execution of a plan by :func:`~idstlpy.execution.simulate.simulate`.
 
@@ -834,6 +849,17 @@ def predict_closed_loop(
         Samples of the Gaussian model for the point estimates (0: none, the estimates are NaN).
     seed : int or SeedSequence, optional
         Seed of those samples (default 0: deterministic).
+    closure : {"auto", "gaussian", "particles"}
+        How the loop's non-linearities are modelled (:func:`idstlpy.closed_loop.propagate`):
+        ``"gaussian"``: the clip of the corrected input on a box by its statistical
+        linearisation and a state-dependent sensor linearised (``sensor_noise``), the loop kept
+        Gaussian; ``"particles"``: ``particles`` samples (seed 0, deterministic) pushed through
+        the clip itself, each drawing the sensor's noise at its own true state and running its own
+        filter; the moments are theirs and the point estimates are sampled from the same loop;
+        ``"auto"`` (default): particles under a state-dependent sensor or when the input is
+        clipped with probability above 1% at some step.
+    particles : int
+        Samples of the particle closure.
 
     Returns
     -------
@@ -877,6 +903,9 @@ def predict_closed_loop(
     if not isinstance(filter_sensitivity, bool):
         raise InvalidTypeError(f"filter_sensitivity must be a bool, got {type(filter_sensitivity).__name__}")
     samples = as_int(samples, "samples", minimum=0)
+    particles = as_int(particles, "particles", minimum=2)
+    if closure not in ("auto", "gaussian", "particles"):
+        raise InvalidArgumentError(f"closure must be 'auto', 'gaussian' or 'particles', got {closure!r}")
     real_modes = real_modes_for(real_system, system, actions)
     gains = gains_for(system, actions, lqr_gains, default_lqr)
     m0 = plan.get_mean(0)
@@ -894,7 +923,7 @@ def predict_closed_loop(
 
     loop = propagate(
         system, plan, N, real_modes, gains, process_noise, z0, S0, P0.copy(), sensor_noise, domain,
-        filter_sensitivity,
+        filter_sensitivity, closure, particles,
     )  # fmt: skip
     L = N + 1
     plan_means = plan.get_mean()[:L]
@@ -918,6 +947,7 @@ def predict_closed_loop(
         "tracking_gains": loop.K,
         "kalman_gains": tuple(loop.L),
         "clip_probability": loop.clip,
+        "closure": loop.closure,
     }
     if formula is None:
         return ClosedLoopPrediction(**base)
@@ -977,6 +1007,10 @@ def predict_closed_loop(
         estimate["state"],
         estimate["belief"],
     )
+    sampled_bound = {r: _clopper_pearson_lower(estimate[r], samples) for r in ("belief", "state")}
+    if loop.closure == "particles" and samples:
+        belief_bound = min(belief_bound, sampled_bound["belief"])
+        state_bound = min(state_bound, sampled_bound["state"])
     return ClosedLoopPrediction(
         **base,
         constraints=tuple(constraints),
@@ -986,8 +1020,8 @@ def predict_closed_loop(
         state_success_bound=float(state_bound),
         belief_success_estimate=estimate["belief"],
         state_success_estimate=estimate["state"],
-        belief_success_sampled_bound=_clopper_pearson_lower(estimate["belief"], samples),
-        state_success_sampled_bound=_clopper_pearson_lower(estimate["state"], samples),
+        belief_success_sampled_bound=sampled_bound["belief"],
+        state_success_sampled_bound=sampled_bound["state"],
         samples=samples,
         witness=tuple((names[i], int(k)) for i, k in witness),
     )

@@ -10,7 +10,11 @@ decision steps re-solves the problem from the current executed belief:
 - ``replan="on_risk"``: every ``check_every`` steps the closed-loop prediction
   (:func:`~idstlpy.execution.prediction.predict_closed_loop`) of the *remaining* plan from the
   current belief gives the probability that the formula will hold; below ``risk`` the problem is
-  re-solved.
+  re-solved. With ``drift`` (a confidence, e.g. 0.95) the prediction is also made at any step at
+  which the executed belief's mean leaves the ``drift`` ellipse of its distribution as last
+  predicted (at step 0, or at the last check or adoption): a run that goes astray is checked as
+  it goes astray, one that follows its prediction only on the schedule. Each check re-centres
+  the ellipse on the new prediction, so the cadence follows how far reality departs from it.
 
 A re-solved plan replaces the current one when its own predicted success is higher
 (``adopt="better"``, the default: a fresh MLO plan may have less room for the tracking error than
@@ -51,6 +55,7 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from scipy.stats import chi2
 
 from .._checks import as_float, as_int
 from ..belief import GaussianBelief, to_belief
@@ -80,8 +85,10 @@ class Replan:
     step : int
         Execution step ``k`` of the attempt: the re-solve starts from the executed belief ``X_k``.
     reason : str
-        ``"risk"`` (predicted success below ``risk``), ``"every"`` (the schedule) or
-        ``"violated"`` (the executed prefix already broke the formula: nothing to re-solve).
+        ``"risk"`` (predicted success below ``risk`` at a scheduled check), ``"drift"`` (the
+        same at a check made because the belief left its predicted ellipse), ``"every"`` (the
+        schedule) or ``"violated"`` (the executed prefix already broke the formula: nothing to
+        re-solve).
     predicted : float
         Predicted success of the remaining plan at this step (NaN when not predicted).
     status : str
@@ -262,6 +269,7 @@ def execute(
     risk: float = 0.9,
     every: int = 10,
     check_every: int = 1,
+    drift: float | None = None,
     risk_measure: Literal["bound", "estimate"] = "bound",
     risk_on: Literal["belief", "state", "both"] = "both",
     risk_samples: int = 1000,
@@ -301,6 +309,11 @@ def execute(
     check_every : int
         ``"on_risk"``: predict every this many executed steps (>= 1). A prediction costs about
         five executions of the remaining plan (0.1 s for an 82-step light-dark plan).
+    drift : float in (0, 1), optional
+        ``"on_risk"``: also predict at any step at which the executed belief's mean lies outside
+        the ``drift`` confidence ellipse of its last predicted distribution (module notes). The
+        plan is then executed one step at a time (the random stream, hence the execution up to
+        the first adopted re-plan, is the same).
     risk_measure : {"bound", "estimate"}
         The prediction's sound lower bound or its sampled estimate.
     risk_on : {"belief", "state", "both"}
@@ -359,6 +372,10 @@ def execute(
     risk = as_float(risk, "risk", 0.0, 1.0)
     every = as_int(every, "every", minimum=1)
     check_every = as_int(check_every, "check_every", minimum=1)
+    if drift is not None:
+        drift = as_float(drift, "drift", 0.0, 1.0, low_open=True)
+        if drift == 1.0:
+            raise InvalidArgumentError("drift must be < 1 (a confidence), got 1.0")
     if risk_measure not in ("bound", "estimate"):
         raise InvalidArgumentError(f"risk_measure must be 'bound' or 'estimate', got {risk_measure!r}")
     if risk_on not in ("belief", "state", "both"):
@@ -396,14 +413,24 @@ def execute(
         "lqr_gains": gains,
     }
 
+    # The drift test's reference: (execution step, predicted belief means (L, n), their
+    # covariances (L, n, n)) of the last prediction of the plan followed.
+    reference: list[tuple[int, np.ndarray, np.ndarray]] = []
+    last: list[tuple[np.ndarray, np.ndarray]] = []  # the latest prediction's
+    threshold = float(chi2.ppf(drift, system.n)) if drift is not None else math.inf
+
     def predicted_success(
-        current: ProbabilisticTSTrajectory, j: int, psi: STLFormula, belief: GaussianBelief
+        current: ProbabilisticTSTrajectory,
+        j: int,
+        psi: STLFormula,
+        belief: GaussianBelief,
+        at: int | None = None,
     ) -> float:
-        """Predicted probability that the rest of ``current`` from its step ``j`` satisfies ``psi``."""
-        if psi is TRUE:
-            return 1.0
-        if psi is FALSE:
-            return 0.0
+        """Predicted probability that the rest of ``current`` from its step ``j`` satisfies ``psi``
+        (with ``at``, the execution step, the prediction becomes the drift test's reference)."""
+        last.clear()
+        if psi is TRUE or psi is FALSE:
+            return 1.0 if psi is TRUE else 0.0
         from .prediction import predict_closed_loop
 
         pred = predict_closed_loop(
@@ -419,7 +446,11 @@ def execute(
             real_initial_cov=belief.cov,
             samples=risk_samples if risk_measure == "estimate" else 0,
             seed=0,
+            closure="gaussian",  # a check is made often: the cheap closure
         )
+        last[:] = [(pred.belief_mean, pred.belief_mean_cov)]
+        if at is not None and drift is not None:
+            reference[:] = [(at, pred.belief_mean, pred.belief_mean_cov)]
         if risk_measure == "bound":
             b, s = pred.belief_success_bound, pred.state_success_bound
         else:
@@ -445,17 +476,35 @@ def execute(
     k = 0
     p_max = max((mode.p for mode in system.system_modes), default=0)
 
-    def decision_due(k: int) -> bool:
-        if replan is None or k == 0 or violated or attempts >= max_replans:
+    def drifted(k: int) -> bool:
+        """Whether the executed belief's mean left its predicted ``drift`` ellipse at step ``k``."""
+        if not reference:
             return False
-        return k % (every if replan == "every" else check_every) == 0
+        at, mu, cov = reference[0]
+        i = k - at
+        if i >= mu.shape[0]:
+            return False
+        d = belief.mean - mu[i]
+        C = cov[i] + 1e-12 * (1.0 + float(np.trace(cov[i]))) * np.eye(d.shape[0])
+        return float(d @ np.linalg.solve(C, d)) > threshold
+
+    def decision_due(k: int) -> str | None:
+        if replan is None or k == 0 or violated or attempts >= max_replans:
+            return None
+        if k % (every if replan == "every" else check_every) == 0:
+            return "every" if replan == "every" else "risk"
+        return "drift" if drift is not None and drifted(k) else None
+
+    if replan == "on_risk" and drift is not None and formula is not TRUE and formula is not FALSE:
+        predicted_success(plan, 0, formula, belief, at=0)
 
     while True:
         j = k - start
         remaining = current.num_of_steps - j
         if remaining <= 0:
             break
-        if decision_due(k):
+        why = decision_due(k)
+        if why is not None:
             prefix = ProbabilisticTSTrajectory(
                 np.concatenate(means), np.concatenate(covs), np.concatenate(actions), np.concatenate(controls)
             )
@@ -467,7 +516,7 @@ def execute(
                 p_old = float("nan")
                 go = replan == "every"
                 if replan == "on_risk":
-                    p_old = predicted_success(current, j, psi, belief)
+                    p_old = predicted_success(current, j, psi, belief, at=k)
                     go = p_old < risk
                 if go:
                     record, new_plan = _resolve(
@@ -477,7 +526,7 @@ def execute(
                         base,
                         replan_seed(ss, attempts),
                         k,
-                        "risk" if replan == "on_risk" else "every",
+                        why,
                         p_old,
                     )
                     attempts += 1
@@ -488,6 +537,8 @@ def execute(
                         p_new = predicted_success(new_plan, 0, psi, belief)
                         record = _with(record, predicted=p_old, new_predicted=p_new, adopted=p_new > p_old)
                     if record.adopted and new_plan is not None:
+                        if drift is not None and last:  # the adopted plan's prediction is the reference
+                            reference[:] = [(k, *last[0])]
                         current, start = new_plan, k
                         plans.append((k, new_plan))
                         j, remaining = 0, new_plan.num_of_steps
@@ -505,6 +556,8 @@ def execute(
         # Execute up to the next decision step (or the end of the plan) with simulate itself.
         if replan is None:
             chunk = remaining
+        elif replan == "on_risk" and drift is not None:
+            chunk = 1
         else:
             period = every if replan == "every" else check_every
             chunk = min(remaining, period - k % period)

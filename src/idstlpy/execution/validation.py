@@ -590,7 +590,7 @@ PREDICT_SAMPLES = 20000
 """Default model samples of ``validate(predict=True)``: their sampling error (at most 0.0035 on a
 rate) is a tenth of the Wilson half-width of 1000 runs, so a flag says something about the model."""
 
-PREDICT_OPTIONS = ("sensor_noise", "filter_sensitivity", "samples", "seed")
+PREDICT_OPTIONS = ("sensor_noise", "filter_sensitivity", "samples", "seed", "closure", "particles")
 """Keys ``predict_options`` accepts (the rest of the prediction's options are validate's own)."""
 
 
