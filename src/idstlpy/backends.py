@@ -68,6 +68,14 @@ class LinearModel:
     node_limit : int, optional
         Branch-and-bound nodes after which a MILP back-end stops (``time_limit`` status): a
         deterministic budget, unlike the wall clock.
+    feas_tol : float, optional
+        Feasibility tolerance of the rows (and of integrality) for a MILP; ``None``: the
+        back-end's default (1e-6). A tighter one makes a claim of infeasibility hold for every
+        point within it, so that a level a tolerance above an optimum is refuted (the margin
+        MILP's proofs, :mod:`idstlpy.synthesis.milp`).
+    quick : bool, default False
+        A feasibility attempt that may give up sooner on proving infeasibility: the back-end
+        may spend less presolve effort (SCIP: probing stops after 10 useless probes).
     """
 
     c: np.ndarray
@@ -80,6 +88,8 @@ class LinearModel:
     mip_rel_gap: float | None = None
     cuts: bool = True
     node_limit: int | None = None
+    feas_tol: float | None = None
+    quick: bool = False
 
     @property
     def num_vars(self) -> int:
@@ -227,6 +237,9 @@ def _highs_direct(model: LinearModel, limit: float) -> BackendSolution | None:
         h.setOptionValue("mip_rel_gap", _gap(model))
         if model.node_limit is not None:
             h.setOptionValue("mip_max_nodes", int(model.node_limit))
+        if model.feas_tol is not None:
+            h.setOptionValue("mip_feasibility_tolerance", float(model.feas_tol))
+            h.setOptionValue("primal_feasibility_tolerance", min(1e-7, float(model.feas_tol)))
     with quiet_stdout():
         h.passModel(lp)
         h.run()
