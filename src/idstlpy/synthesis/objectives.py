@@ -8,8 +8,9 @@
 On the LP and MILP paths the optimum is exact (see :mod:`.teacher` and :mod:`.milp`). On the
 sampler path the plan is refined by sequential convex programming: freeze the exact covariances
 of the current plan, solve the plan LP for the objective with the means kept within a trust
-region, re-roll the exact belief dynamics, keep the result only if the monitor still accepts it
-and the objective improved; the trust region halves after a round that did not help. The
+region, re-roll the exact belief dynamics, keep the result only if the monitor still accepts it,
+the objective improved and the plan keeps the execution room (:mod:`.room`) it had (up to all
+of it); the trust region halves after a round that did not help. The
 rounds are a work budget (``SolverOptions.polish_rounds``), so the result is reproducible.
 """
 
@@ -27,7 +28,8 @@ from .abstraction import Abstraction
 from .plan import DiscretePlan, extract_witness
 from .plan_lp import Scaling
 from .results import SolveStats
-from .teacher import execution_margin, solve_plan_lp
+from .room import Room, execution_room, room_lp
+from .teacher import solve_plan_lp
 
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
 
@@ -123,53 +125,89 @@ def refine(
     if name not in ("effort", "margin"):
         return traj
     system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
+    domain = problem.control_domain
     best = objective_value(name, traj, formula, weights)
-    base_margin = robustness(traj, formula)
+    base = _room(problem, abstraction, traj)
+    # The room the execution needs (:mod:`.room`) is kept up to what the plan had: an objective
+    # must not buy itself with it.
+    keep = min(1.0, max(base[1].score, 0.0)) if base is not None else 0.0
     trust = None
     for _ in range(rounds):
-        acts = traj.get_action()
-        modes = np.concatenate([[-1], acts]).astype(int)
-        means, covs = traj.get_mean(), traj.get_cov()
-        truth = np.stack(
-            [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
-            axis=1,
-        )
-        witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
-        if witness is None:
+        current = _room(problem, abstraction, traj)
+        if current is None:
             break
-        required, L = witness
-        plan = DiscretePlan(required[:, :L], modes[:L], L)
-        keep = min(execution_margin(system, init, abstraction, plan), max(base_margin, 0.0))
+        plan, room = current
+        means = traj.get_mean()
         if trust is None:
             # Start wide (a quarter of the plan's extent) and halve after every failed round.
             extent = float(np.max(means.max(axis=0) - means.min(axis=0)))
-            trust = max(0.25 * extent, 2.0 * keep, 1e-3 * float(np.max(scaling.dx)))
-        lp = solve_plan_lp(
-            system,
-            problem.control_domain,
-            init.mean,
-            init.cov,
-            abstraction,
-            plan,
-            keep,
-            covs=covs[:L],
-            anchor=means[:L],
-            trust=trust,
-            scaling=scaling,
-            objective=name,
-            effort_weights=weights,
-            linearise=True,
-        )
+            trust = max(0.25 * extent, 2.0 * room.largest_need, 1e-3 * float(np.max(scaling.dx)))
+        L = plan.length
+        controls: np.ndarray | None = None
+        if name == "effort":
+            w = np.ones(system.m) if weights is None else np.asarray(weights, dtype=float)
+            out = room_lp(
+                system,
+                domain,
+                init,
+                abstraction,
+                plan,
+                traj,
+                room,
+                trust,
+                scaling,
+                effort_weights=w,
+                t_max=keep,
+            )
+            controls = None if out is None else out[0]
+        else:
+            lp = solve_plan_lp(
+                system,
+                domain,
+                init.mean,
+                init.cov,
+                abstraction,
+                plan,
+                0.0,
+                covs=traj.get_cov()[:L],
+                anchor=means[:L],
+                trust=trust,
+                scaling=scaling,
+                objective=name,
+                linearise=True,
+            )
+            controls = lp.controls if lp.feasible else None
         stats.lp_calls += 1
-        if lp.feasible and lp.controls is not None:
-            moved = rollout(system, init, acts[: L - 1], lp.controls)
+        if controls is not None:
+            acts = traj.get_action()
+            moved = rollout(system, init, acts[: L - 1], controls)
             margin = robustness(moved, formula)
             value = objective_value(name, moved, formula, weights)
-            # Effort must not buy itself with the margin the execution needs.
-            if margin >= min(keep, base_margin) * 0.999 and margin >= 0 and better(name, value, best):
-                logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, best, value, trust)
-                traj, best = moved, value
-                stats.improvements.append((float(elapsed()), value))
-                continue
+            if margin >= 0 and better(name, value, best):
+                moved_room = _room(problem, abstraction, moved)
+                if moved_room is not None and moved_room[1].score >= keep - 1e-3:
+                    logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, best, value, trust)
+                    traj, best = moved, value
+                    stats.improvements.append((float(elapsed()), value))
+                    continue
         trust *= 0.5
     return traj
+
+
+def _room(
+    problem: Any, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
+) -> tuple[DiscretePlan, Room] | None:
+    """The requirements ``traj`` meets (its earliest witness) and its execution room, or None."""
+    modes = np.concatenate([[-1], traj.get_action()]).astype(int)
+    means, covs = traj.get_mean(), traj.get_cov()
+    truth = np.stack(
+        [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
+        axis=1,
+    )
+    witness = extract_witness(problem.stl_formula, truth, abstraction.index, prefer_late=False)
+    if witness is None:
+        return None
+    required, L = witness
+    plan = DiscretePlan(required[:, :L], modes[:L], L)
+    room = execution_room(problem.switched_system, problem.control_domain, abstraction, plan, traj)
+    return None if room is None else (plan, room)

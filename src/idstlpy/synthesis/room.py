@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix, hstack, vstack
+from scipy.sparse import csr_matrix, diags, hstack, vstack
 from scipy.special import ndtri
 
 from ..backends import Backend, HighsBackend, LinearModel
@@ -72,6 +72,10 @@ Z_MIN, Z_MAX = 1.6448536269514722, 4.0
 INPUT_Z = TRACKABLE_Z
 """Standard deviations of the tracking correction kept free on every face of the control domain
 (what :func:`idstlpy.closed_loop.trackable` asks)."""
+
+INPUT_LEVELS = (1.0, 0.5, 0.0)
+"""Fractions of the tracking correction's room the inputs keep, tried in turn (an LP that cannot
+keep the inputs off their bounds still gives the required faces their room)."""
 
 _CAP = 10.0
 """Room ratios above this count as this (a face far from its bound)."""
@@ -108,29 +112,47 @@ class Room:
     z_belief: float = 0.0
     z_state: float = 0.0
 
+    def _ratios(self) -> np.ndarray:
+        parts = [_ratio(have, need) for need, have in zip(self.need, self.have, strict=True) if need.size]
+        return np.concatenate(parts) if parts else np.full(1, _CAP)
+
     @property
     def score(self) -> float:
-        """The smallest fraction of the needed room kept, over every face (capped at ``_CAP``).
+        """The smallest fraction of the needed room a required face keeps (capped at ``_CAP``).
 
-        ``>= 1``: every required face and every input keeps its room; ``< 0``: some requirement
-        is broken.
+        ``>= 1``: every required face keeps its room; ``< 0``: some requirement is broken.
         """
-        ratios = [_CAP]
-        for need, have in zip(self.need, self.have, strict=True):
-            if need.size:
-                ratios.append(float(np.min(_ratio(have, need))))
-        if self.input_need.size:
-            ratios.append(float(np.min(_ratio(self.input_have, self.input_need))))
-        return min(ratios)
+        return float(np.min(self._ratios()))
 
     @property
-    def state_score(self) -> float:
-        """:attr:`score` over the required faces only (the inputs left out)."""
-        ratios = [_CAP]
-        for need, have in zip(self.need, self.have, strict=True):
-            if need.size:
-                ratios.append(float(np.min(_ratio(have, need))))
-        return min(ratios)
+    def coverage(self) -> float:
+        """The mean over the required faces of the fraction of their room they keep (at most 1)."""
+        return float(np.mean(np.clip(self._ratios(), -1.0, 1.0)))
+
+    @property
+    def input_score(self) -> float:
+        """The smallest fraction of the tracking correction's room an input keeps."""
+        if not self.input_need.size:
+            return _CAP
+        return float(np.min(_ratio(self.input_have, self.input_need)))
+
+    def better_than(self, other: Room) -> bool:
+        """Whether this room improves on ``other``: lexicographically the smallest fraction (up to
+        1), the mean fraction, the inputs' smallest fraction (up to 1)."""
+        key = (min(self.score, 1.0), self.coverage, min(self.input_score, 1.0))
+        ref = (min(other.score, 1.0), other.coverage, min(other.input_score, 1.0))
+        tol = (1e-6, 1e-4, 1e-6)
+        for a, b, t in zip(key, ref, tol, strict=True):
+            if a > b + t:
+                return True
+            if a < b - t:
+                return False
+        return False
+
+    @property
+    def complete(self) -> bool:
+        """Every required face and every input keeps all the room it needs."""
+        return self.score >= 1.0 and self.input_score >= 1.0
 
     @property
     def largest_need(self) -> float:
@@ -324,16 +346,18 @@ def room_lp(
     """One SCP step toward the room: controls keeping the largest common fraction of it.
 
     The plan LP's rows for ``plan`` around ``traj`` (its covariances frozen, their dependence on
-    the means linearised, every mean within ``trust`` of ``traj``'s), with every required face
-    ``f`` at step ``k`` backed off by ``t * need_kf`` and every control face by
-    ``t * input_need_kf``; maximises ``t`` in ``[0, t_max]`` (then, with ``effort_weights``,
-    minimises the weighted input effort at that ``t``).
+    the means linearised, every mean within ``trust`` of ``traj``'s), every control face ``f`` at
+    step ``k`` backed off by ``level * input_need_kf`` (the first feasible level of
+    :data:`INPUT_LEVELS`), every required face by ``t * need_kf``: maximises the common fraction
+    ``t`` in ``[0, t_max]``, then either each face's own fraction ``t_kf`` in ``[t, t_max]``
+    (their sum: a face that cannot get its room does not hold the others back) or, with
+    ``effort_weights``, minimises the weighted input effort at ``t``.
 
     Returns
     -------
     (controls, t) or None
-        Controls, shape (L - 1, m), and the fraction reached; None when the LP has no optimum
-        (the trust region keeps no plan meeting the requirements).
+        Controls, shape (L - 1, m), and the common fraction reached; None when no LP has an
+        optimum (the trust region keeps no plan meeting the requirements).
     """
     K = plan.num_transitions
     if K <= 0:
@@ -364,57 +388,74 @@ def room_lp(
     du = scaling.du
     unorm = np.linalg.norm(control_domain.H * du[None, :], axis=1)
     keep = unorm > 0
-    u_coef = (room.input_need[:K][:, keep] / unorm[keep][None, :]).ravel()
-    if u_coef.shape[0] != rows.A_U.shape[0]:
-        u_coef = np.zeros(rows.A_U.shape[0])
+    u_shift = (room.input_need[:K][:, keep] / unorm[keep][None, :]).ravel()
+    if u_shift.shape[0] != rows.A_U.shape[0]:
+        u_shift = np.zeros(rows.A_U.shape[0])
     backend = backend if backend is not None else HighsBackend()
     ncol = rows.nx + rows.nu
     R = rows.face_H.shape[0]
     nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
+    lb_x = np.full(ncol, -np.inf)
+    ub_x = np.full(ncol, np.inf)
+    if np.isfinite(trust):
+        ref = (means[1 : K + 1] / scaling.dx).ravel()
+        width = trust / np.tile(scaling.dx, K)
+        lb_x[: rows.nx] = ref - width
+        ub_x[: rows.nx] = ref + width
 
-    def solve(effort: np.ndarray | None, t_lo: float, t_hi: float) -> tuple[np.ndarray, float] | None:
+    def solve(
+        level: float, effort: np.ndarray | None, t_lo: float, t_hi: float, per_face: bool = False
+    ) -> tuple[np.ndarray, float] | None:
+        nt = R if per_face else 1
         na = K * rows.m if effort is not None else 0
+        extra = nt + na
+        t_block = csr_matrix(face_coef[:, None]) if not per_face else diags(face_coef, format="csr")
         blocks = [
-            hstack([rows.A_eq, csr_matrix((nE, 1 + na))]),
-            hstack([rows.A_U, csr_matrix(u_coef[:, None]), csr_matrix((nU, na))]),
-            hstack([rows.face_H, csr_matrix(face_coef[:, None]), csr_matrix((R, na))]),
+            hstack([rows.A_eq, csr_matrix((nE, extra))]),
+            hstack([rows.A_U, csr_matrix((nU, extra))]),
+            hstack([rows.face_H, t_block, csr_matrix((R, na))]),
         ]
         lo = [rows.b_eq, np.full(nU + R, -np.inf)]
-        hi = [rows.b_eq, rows.b_U, -rows.face_off]
+        hi = [rows.b_eq, rows.b_U - level * u_shift, -rows.face_off]
         if effort is not None:
             dus = np.tile(du, K)
             idx = np.arange(na)
-            pos = csr_matrix((dus, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
-            neg = csr_matrix((-dus, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
-            aux = csr_matrix((-np.ones(na), (idx, ncol + 1 + idx)), shape=(na, ncol + 1 + na))
+            shape = (na, ncol + extra)
+            pos = csr_matrix((dus, (idx, rows.nx + idx)), shape=shape)
+            neg = csr_matrix((-dus, (idx, rows.nx + idx)), shape=shape)
+            aux = csr_matrix((-np.ones(na), (idx, ncol + nt + idx)), shape=shape)
             blocks += [pos + aux, neg + aux]
             lo.append(np.full(2 * na, -np.inf))
             hi.append(np.zeros(2 * na))
-        c = np.zeros(ncol + 1 + na)
+        c = np.zeros(ncol + extra)
         if effort is None:
-            c[ncol] = -1.0
+            c[ncol : ncol + nt] = -1.0
         else:
-            c[ncol + 1 :] = np.tile(effort, K)
-        lb = np.concatenate([np.full(ncol, -np.inf), [t_lo], np.zeros(na)])
-        ub = np.concatenate([np.full(ncol, np.inf), [t_hi], np.full(na, np.inf)])
-        if np.isfinite(trust):
-            ref = (means[1 : K + 1] / scaling.dx).ravel()
-            width = trust / np.tile(scaling.dx, K)
-            lb[: rows.nx] = ref - width
-            ub[: rows.nx] = ref + width
+            c[ncol + nt :] = np.tile(effort, K)
+        lb = np.concatenate([lb_x, np.full(nt, t_lo), np.zeros(na)])
+        ub = np.concatenate([ub_x, np.full(nt, t_hi), np.full(na, np.inf)])
         A = vstack(blocks).tocsr()
         sol = backend.solve(LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub), time_limit)
         if sol.status != "optimal" or sol.x is None:
             return None
-        return sol.x[:ncol], float(sol.x[ncol])
+        return sol.x[:ncol], float(np.min(sol.x[ncol : ncol + nt]))
 
-    first = solve(None, 0.0, t_max)
+    first = None
+    level = 0.0
+    for level in INPUT_LEVELS:
+        first = solve(level, None, 0.0, t_max)
+        if first is not None:
+            break
     if first is None:
         return None
     z, t = first
-    if effort_weights is not None:
-        second = solve(np.asarray(effort_weights, dtype=float), max(0.0, t * (1 - 1e-6)), max(t, 0.0))
-        if second is not None:
-            z = second[0]
+    t_keep = max(0.0, t * (1 - 1e-6))
+    second = (
+        solve(level, np.asarray(effort_weights, dtype=float), t_keep, max(t, 0.0))
+        if effort_weights is not None
+        else solve(level, None, t_keep, max(t_max, t_keep), per_face=R > 0)
+    )
+    if second is not None:
+        z = second[0]
     _, controls = rows.unscale(z, init.mean)
     return controls, t

@@ -47,6 +47,12 @@ __all__ = ["BeliefSampler", "SamplerOutcome", "SamplerTeacher"]
 _FOCUS = 0.75
 """Probability that an iteration extends only the most advanced lineages (see ``_events``)."""
 
+STEER_SHRINK = 0.8
+"""Gentle steering keeps a fully actuated mode's inputs within this fraction of the control
+domain (scaled about its Chebyshev centre), leaving the executor's tracking correction and the
+polish (:mod:`.room`) the rest. Half the extensions (and the shortcut) steer gently; the others
+use the whole domain, which tight deadlines (a patrol's round trip) need."""
+
 logger = logging.getLogger(__name__)
 
 
@@ -139,8 +145,11 @@ class BeliefSampler:
         self.rng = np.random.default_rng(0)  # replaced by each run's own stream
         self.formula = problem.stl_formula
         U = problem.control_domain
-        self.UH, self.Uc = U.H, U.c
         self.u_center = U.chebyshev_center()[0]
+        # Steering uses the control domain shrunk about its centre: inputs on their bounds leave
+        # the executor's tracking correction no room and the polish no slack to move the plan.
+        self.UH, self.Uc = U.H, U.c
+        self.Uc_gentle = STEER_SHRINK * U.c + (1.0 - STEER_SHRINK) * (U.H @ self.u_center)
         self._gains = [
             self._steering_gains(mode, options.max_num_of_steps) for mode in self.system.system_modes
         ]
@@ -151,6 +160,7 @@ class BeliefSampler:
             np.linalg.matrix_rank(mode.B) >= self.system.n for mode in self.system.system_modes
         ]
         self._underactuated = not all(self._full_rank)
+        self._any_full_rank = any(self._full_rank)
         self._pareto = any(np.any(mode.process_cov != 0) for mode in self.system.system_modes)
         self._regions = [abstraction.region(i) for i in range(abstraction.num_atoms)]
         self._boxes = []
@@ -289,7 +299,9 @@ class BeliefSampler:
         return self.rng.uniform(*self.workspace)
 
     # -- steering ---------------------------------------------------------------------------------
-    def _steer(self, q: int, mean: np.ndarray, target: np.ndarray, remaining: int = 1) -> np.ndarray:
+    def _steer(
+        self, q: int, mean: np.ndarray, target: np.ndarray, remaining: int = 1, gentle: bool = False
+    ) -> np.ndarray:
         """Input toward ``target`` within ``remaining`` steps, pulled into the control domain.
 
         A fully actuated mode pushes as hard as it can (the one-step least-norm input, clipped:
@@ -297,8 +309,10 @@ class BeliefSampler:
         inputs all lie in the domain (the smallest feasible ``h`` from the controllability index
         up to ``remaining``), else spreads the effort over ``remaining`` steps, so that it can
         still brake (clipped dead-beat sends a double integrator out of its workspace).
+        ``gentle``: a fully actuated mode stays within :data:`STEER_SHRINK` of the domain.
         """
         gains = self._gains[q]
+        Uc = self.Uc_gentle if gentle and self._full_rank[q] else self.Uc
         m = self.system.m
         lo = min(self._index[q], len(gains))
         hi = min(max(remaining, lo), len(gains)) if not self._full_rank[q] else lo
@@ -306,7 +320,7 @@ class BeliefSampler:
         for h in range(lo, hi + 1):
             Ah, G = gains[h - 1]
             seq = (G @ (target - Ah @ mean)).reshape(h, m)
-            if np.all(seq @ self.UH.T + self.Uc <= 1e-12):
+            if np.all(seq @ self.UH.T + Uc <= 1e-12):
                 return np.asarray(seq[0])
             if h == hi:
                 u = seq[0]
@@ -318,13 +332,13 @@ class BeliefSampler:
                         return part
         if u is None:  # pragma: no cover - the loop always runs at least once
             u = np.zeros(m)
-        slack = self.UH @ u + self.Uc
+        slack = self.UH @ u + Uc
         if np.all(slack <= 0):
             return u
         c0 = self.u_center
         d = u - c0
         rate = self.UH @ d
-        room = -(self.UH @ c0 + self.Uc)
+        room = -(self.UH @ c0 + Uc)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(rate > 1e-12, room / rate, np.inf)
         return c0 + min(1.0, float(np.min(t))) * d
@@ -406,7 +420,7 @@ class BeliefSampler:
                 mean, target = means[i], means[j]
                 cut_u = []
                 for t in range(j - i - 1):
-                    u = self._steer(q, mean, target, j - i - 1 - t)
+                    u = self._steer(q, mean, target, j - i - 1 - t, gentle=True)
                     cut_u.append(u)
                     mean = modes[q].A @ mean + modes[q].B @ u
                     if np.linalg.norm(mean - target) <= 1e-9 * (1.0 + np.linalg.norm(target)):
@@ -522,6 +536,7 @@ class BeliefSampler:
                 settle = False
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             prefer = self._extension_mode(tree, node, goal, rng)
+            gentle = self._any_full_rank and bool(rng.random() < 0.5)
             cur = node
             for j in range(steps):
                 k = int(tree.k[cur]) + 1
@@ -535,7 +550,7 @@ class BeliefSampler:
                     q = prefer
                 else:
                     q = allowed[0] if len(allowed) == 1 else int(rng.choice(allowed))
-                u = self._steer(q, tree.mean[cur], s, steps - j)
+                u = self._steer(q, tree.mean[cur], s, steps - j, gentle)
                 mean, cov = belief_step(modes[q], tree.mean[cur], tree.cov[cur], u)
                 truth = abs_.truth(mean, cov, q)
                 pid = int(tree.plan[cur])
@@ -886,8 +901,7 @@ class SamplerTeacher:
                     break
                 current = (found, room)
             plan, room = current
-            score = room.score
-            if score >= 1.0:
+            if room.complete:
                 break
             if not np.isfinite(trust):
                 trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(self.scaling.dx)))
@@ -901,11 +915,16 @@ class SamplerTeacher:
                     moved_room = None
                     if moved_plan is not None:
                         moved_room = execution_room(system, domain, self.abs, moved_plan, moved)
-                    if moved_plan is not None and moved_room is not None and moved_room.score > score + 1e-6:
+                    if moved_plan is not None and moved_room is not None and moved_room.better_than(room):
                         logger.debug(
-                            "polish: execution room %.3g -> %.3g (trust %.3g, LP fraction %.3g)",
-                            score,
+                            "polish: execution room %.3g -> %.3g, mean %.3g -> %.3g, inputs %.3g -> %.3g "
+                            "(trust %.3g, LP fraction %.3g)",
+                            room.score,
                             moved_room.score,
+                            room.coverage,
+                            moved_room.coverage,
+                            room.input_score,
+                            moved_room.input_score,
                             trust,
                             out[1],
                         )
