@@ -404,6 +404,14 @@ def noisy_hold_narrow(size: str = "full"):
     belief gains), but that plan holds in 0% (belief) / 22% (true state) of executions (200 runs,
     seed 0): per-step 95% confidence does not make a 40-step hold under process noise succeed. It
     measures the search, not the execution goal (the first version of :func:`noisy_hold`).
+
+    No plan meets the execution goal. The closed-loop prediction of holds at ``x = 2.9 .. 3.15``
+    (``tests/test_room.py``, BENCHMARKS.md): the executed belief's mean wanders around the plan
+    with a standard deviation of 0.045 per axis at every hold position (it is driven by the process
+    noise the filter follows), while the best hold (the centre) keeps only 0.047 inside each face:
+    about one standard deviation, a 15% chance per face and step, over 40 steps and 4 faces; the
+    predicted belief success is 0.000 at every position. The true state spreads 0.132 (centre)
+    against a half-width of 0.25 (1.9 sd per face and step): predicted state success at most 0.23.
     """
     return _noisy_hold(size, NARROW_HOLD_W, NARROW_TARGET, [3.0, 0.0])
 

@@ -17,20 +17,34 @@ For a required chance constraint ``P[h'x + c <= 0] >= 1 - eps`` (the plan meets
   ``Phi(z_s)`` when ``h'm_k + c + z_s sqrt(h' S_x[k] h) <= 0``, i.e. with
   ``b_state = z_s sd_x - z_eps sd_P`` of room beyond the plan's own.
 
-The room of the face is ``b = max(b_belief, b_state, 0)`` (state units of ``h'x``); per step and
-face of the control domain the plan also keeps ``z_u`` standard deviations of the tracking
-correction ``K_k eta_k`` free (:func:`idstlpy.closed_loop.tracking_backoff`): an input riding a
-bound leaves the correction no room, the executor clips it and the deviations grow (the
-closed-loop prediction then also under-states them). ``z_b = z_s = ROOM_Z`` per face and step is
-a measured compromise: a union (Bonferroni) bound over every required face and step would ask
-``z ~ 3`` and empty the tight regions, while the deviations are strongly correlated in time (a
-face is broken in episodes, not at independent steps); see BENCHMARKS.md.
+The room of the face is ``b = max(b_belief, b_state, floor)`` (units of ``h'x``), with
+``floor`` = :data:`ROOM_FLOOR` times the Chebyshev radius of the smallest bounded required region
+(what the linear-Gaussian model leaves out does not vanish where the predicted spread does).
+
+Choosing ``z``. The formula fails when any required face breaks at any required step, so ``z``
+comes from a union bound over the face-steps, ``z = Phi^-1(1 - alpha / n)`` with ``alpha`` half
+of issue 11's failure rate (:data:`BELIEF_FAILURE`, :data:`STATE_FAILURE`; the other half for
+what the model leaves out). A plain Bonferroni count ``n`` of every face-step (a 40-step hold:
+160) asks ``z ~ 3.4`` and empties the tight regions, while the deviations are strongly
+correlated in time. ``n`` is therefore a Hunter-type count: only face-steps with less than five
+standard deviations of room count, and a face-step chained to the same face at the previous
+step adds only the probability of a *new* crossing, about ``min(1, 1.7 sqrt(1 - rho))`` (``rho``
+the correlation of the two steps' deviations along the face, from the loop's transitions: near
+1 in a slow hold, near 0 where fresh measurement noise dominates, e.g. at the light). ``z`` is
+clipped to ``[Z_MIN, Z_MAX]``.
+
+Inputs. Per step and face of the control domain the plan also keeps ``z_u`` standard
+deviations of the tracking correction ``K_k eta_k`` free (as
+:func:`idstlpy.closed_loop.tracking_backoff`): an input riding a bound leaves the correction no
+room, the executor clips it and the deviations grow (and the linear-Gaussian prediction then
+under-states them: sensor switching's fast approaches broke the target 7% of the time where the
+model said 0%). The input room is kept at the first feasible level of :data:`INPUT_LEVELS`.
 
 :func:`execution_room` measures, per required face, the room a plan has and the room it needs;
 :func:`room_lp` is one step of sequential convex programming toward it (the plan LP's rows with
-the covariances linearised around the current plan, inside a trust region), maximising the
-fraction ``t <= 1`` of the needed room that every face and every input keeps. The sampler's
-polish and the objectives' refiner use them.
+the covariances linearised around the current plan, inside a trust region): the largest common
+fraction ``t <= 1`` of the needed room, then each face's own fraction. The sampler's polish and
+the objectives' refiner use them.
 """
 
 from __future__ import annotations

@@ -1,0 +1,124 @@
+"""The execution room (issue 11's "plans that hold under execution"): :mod:`idstlpy.synthesis.room`.
+
+Small, fast checks: the room is read from the predicted closed loop, one SCP step gives a plan
+that grazes its requirements more of the room it needs, the tight hold (d') cannot have its
+room whatever it does, and a small polished double integrator plan holds under execution.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import idstlpy as stl
+from idstlpy.synthesis.abstraction import Abstraction
+from idstlpy.synthesis.plan import DiscretePlan, extract_witness
+from idstlpy.synthesis.plan_lp import Scaling
+from idstlpy.synthesis.room import Z_MAX, Z_MIN, execution_room, room_lp
+
+_ROOT = str(Path(__file__).resolve().parents[1])
+if _ROOT not in sys.path:
+    sys.path.insert(0, _ROOT)
+
+from benchmarks import perception_problems as pp  # noqa: E402
+from benchmarks import perception_suite as suite  # noqa: E402
+
+
+def _room_of(problem, actions, controls):
+    system = problem.switched_system
+    abs_ = Abstraction(problem.stl_formula, system.n)
+    traj = stl.rollout(system, problem.initial_state, actions, controls)
+    modes = np.concatenate([[-1], traj.get_action()]).astype(int)
+    truth = np.stack(
+        [abs_.truth(m, c, int(q)) for m, c, q in zip(traj.get_mean(), traj.get_cov(), modes, strict=True)],
+        axis=1,
+    )
+    required, L = extract_witness(problem.stl_formula, truth, abs_.index, prefer_late=False)
+    plan = DiscretePlan(required[:, :L], modes[:L], L)
+    room = execution_room(system, problem.control_domain, abs_, plan, traj)
+    return abs_, plan, traj, room
+
+
+def test_room_is_read_from_the_predicted_closed_loop():
+    problem, (actions, controls) = pp.build("listing", "small")
+    _, _, traj, room = _room_of(problem, actions, controls)
+    assert room is not None
+    assert Z_MIN <= room.z_belief <= Z_MAX and Z_MIN <= room.z_state <= Z_MAX
+    # every required face needs some room; the witness meets every requirement
+    assert all(np.all(b > 0) for b in room.need)
+    assert room.score >= 0
+    assert room.input_need.shape == (traj.num_of_steps, problem.control_domain.H.shape[0])
+
+
+def test_one_scp_step_gives_a_grazing_plan_more_room():
+    problem, (actions, controls) = pp.build("listing", "small")
+    # Come back only just inside the target: the hold grazes its faces.
+    for x in np.linspace(0.2, 0.0, 41):
+        s = pp.Script(problem)
+        s.goto([4.0, 2.5]).wait(2).goto([x, 0.0]).wait(10)
+        actions, controls = s.plan()
+        traj = stl.rollout(problem.switched_system, problem.initial_state, actions, controls)
+        if stl.satisfies(traj, problem.stl_formula):
+            break
+    abs_, plan, traj, room = _room_of(problem, actions, controls)
+    assert room.score < 0.5
+    scaling = Scaling.compute(
+        problem.switched_system,
+        problem.control_domain,
+        problem.initial_state.mean,
+        problem.initial_state.cov,
+        abs_,
+    )
+    out = room_lp(
+        problem.switched_system,
+        problem.control_domain,
+        problem.initial_state,
+        abs_,
+        plan,
+        traj,
+        room,
+        2.0 * room.largest_need,
+        scaling,
+    )
+    assert out is not None
+    moved = stl.rollout(
+        problem.switched_system, problem.initial_state, traj.get_action()[: plan.length - 1], out[0]
+    )
+    assert stl.satisfies(moved, problem.stl_formula)
+    _, _, _, moved_room = _room_of(problem, moved.get_action(), moved.get_control())
+    assert moved_room.score > room.score + 0.2
+
+
+def test_tight_hold_cannot_keep_its_room():
+    """(d'): the best hold (the target's centre) keeps 0.047 inside each face, while the executed
+    belief's mean wanders 0.045 (one standard deviation) around the plan: no plan meets the
+    execution goal there (BENCHMARKS.md)."""
+    problem, (actions, controls) = pp.build("noisy_hold_narrow", "full")
+    _, _, traj, room = _room_of(problem, actions, controls)
+    assert room.score < 0.5
+    pred = stl.predict_closed_loop(problem, traj, real_initial_cov=traj.get_cov(0), samples=500)
+    end = traj.num_of_steps
+    assert np.sqrt(pred.belief_mean_cov[end][0, 0]) > 0.04
+    assert pred.belief_success_estimate < 0.05
+
+
+@pytest.mark.parametrize("seed", [0])
+def test_small_double_integrator_plan_holds_under_execution(seed):
+    problem, _ = pp.build("double_integrator", "small")
+    result = problem.solve_result(**suite.SAMPLER, seed=seed, time_limit=60)
+    assert result.status == "found"
+    suite._gains(problem)
+    report = stl.validate(
+        problem,
+        result.trajectory,
+        pp.real_system(problem),
+        pp.real_initial_state("double_integrator", problem),
+        runs=60,
+        seed=seed,
+        executor="serial",
+    )
+    assert report.belief_success_rate >= 0.9
+    assert report.state_success_rate >= 0.9
