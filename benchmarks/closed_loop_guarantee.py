@@ -71,7 +71,10 @@ def _execute(problem: Any, plan: Any, runs: int, seed: int) -> dict[str, Any]:
     """Per promised (face, step): violation counts of the true state over ``runs`` executions."""
     system, domain = problem.switched_system, problem.control_domain
     faces = _faces(problem)
-    pred = predicted_state(system, plan, domain)
+    # the prediction the planner judged the plan on (teacher.closed_loop_check): the clip's
+    # linearisation for a trackable plan, the particle closure for one that rides the faces
+    tracks = domain is None or trackable(system, plan, domain)
+    pred = predicted_state(system, plan, domain, closure="gaussian" if tracks else "particles")
     L = plan.num_of_steps + 1
     H = np.array([h for h, _, _ in faces])
     c = np.array([cc for _, cc, _ in faces])

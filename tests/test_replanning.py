@@ -134,6 +134,30 @@ def test_forced_risk_triggers_a_replan_from_the_progressed_formula(case):
     assert calm.replans == ()
 
 
+def test_drift_checks_a_run_that_leaves_its_predicted_ellipse(case):
+    problem, plan, real, x0 = case
+    # A real system twice as slow as the model: the executed belief falls behind its prediction.
+    slow = stl.mk_switched_sys([stl.mk_lcs(A=np.eye(2), B=0.25 * np.eye(2))])
+    kw = {"replan": "on_risk", "risk": 1.0, "check_every": 100, "max_replans": 1, "solver_options": OPTIONS}
+    scheduled = stl.execute(problem, plan, slow, x0, seed=3, **kw)
+    assert scheduled.replans == ()  # the schedule's first check is after the plan's end
+    drifting = stl.execute(problem, plan, slow, x0, seed=3, drift=0.95, **kw)
+    assert drifting.num_replans == 1
+    first = drifting.replans[0]
+    assert first.reason == "drift" and 1 <= first.step < plan.num_of_steps
+    # Up to the first adopted re-plan the run is the scheduled one (the stream is the same).
+    k = first.step
+    assert np.array_equal(drifting.real.get_state()[: k + 1], scheduled.real.get_state()[: k + 1])
+    # A run checked on drift that never re-plans is simulate's, step for step.
+    calm = stl.execute(problem, plan, real, x0, seed=3, replan="on_risk", risk=0.0, drift=0.5)
+    _, xi_r = stl.simulate(
+        problem.switched_system, plan, plan.num_of_steps, x0, real, seed=3,
+        control_domain=problem.control_domain,
+    )  # fmt: skip
+    assert calm.replans == ()
+    assert np.array_equal(calm.real.get_state(), xi_r.get_state())
+
+
 def test_adopted_plan_is_followed(case):
     problem, plan, real, x0 = case
     report = stl.execute(
@@ -154,6 +178,8 @@ def test_adopted_plan_is_followed(case):
         ({"replan": "on_risk", "risk": 1.5}, InvalidArgumentError, "risk"),
         ({"replan": "every", "every": 0}, InvalidArgumentError, "every"),
         ({"check_every": 0}, InvalidArgumentError, "check_every"),
+        ({"drift": 1.0}, InvalidArgumentError, "drift"),
+        ({"drift": 0.0}, InvalidArgumentError, "drift"),
         ({"risk_measure": "median"}, InvalidArgumentError, "risk_measure"),
         ({"risk_on": "plan"}, InvalidArgumentError, "risk_on"),
         ({"max_replans": -1}, InvalidArgumentError, "max_replans"),

@@ -641,6 +641,7 @@ def _planning_loop(
     control_domain: Polytope | None,
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None,
     default_lqr: Mapping[str, Any] | None,
+    closure: str = "gaussian",
 ) -> ClosedLoopMoments:
     """The closed loop as the planner reads it (see :func:`predicted_state`)."""
     n = system.n
@@ -662,6 +663,7 @@ def _planning_loop(
         "expected",
         control_domain,
         False,
+        closure,
     )
 
 
@@ -784,6 +786,7 @@ def predicted_state(
     *,
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
     default_lqr: Mapping[str, Any] | None = None,
+    closure: str = "gaussian",
 ) -> ProbabilisticTSTrajectory:
     """The true state's predicted distribution when the executor tracks ``plan``: what
     ``guarantee="closed_loop"`` constrains.
@@ -807,6 +810,10 @@ def predicted_state(
     control_domain : Polytope, optional
     lqr_gains, default_lqr : optional
         As in :func:`idstlpy.simulate`.
+    closure : {"gaussian", "particles", "auto"}
+        How the clip (and a state-dependent sensor) is modelled (:func:`propagate`): the
+        statistical linearisation (default; accurate for a :func:`trackable` plan), or the
+        moments of samples pushed through the clip (a plan that rides the input bounds).
 
     Returns
     -------
@@ -816,7 +823,7 @@ def predicted_state(
     """
     n = system.n
     N = plan.num_of_steps
-    loop = _planning_loop(system, plan, control_domain, lqr_gains, default_lqr)
+    loop = _planning_loop(system, plan, control_domain, lqr_gains, default_lqr, closure)
     means = plan.get_mean()[: N + 1] + loop.mean[:, :n]
     covs = loop.cov[:, :n, :n]
     covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))

@@ -42,6 +42,20 @@ What is exact and what is approximated
   observations, are linear in one Gaussian vector. The loop is then only approximately Gaussian;
   ``benchmarks/closed_loop.py`` and ``tests/test_prediction.py`` measure the error against Monte
   Carlo.
+- **The particle closure** (``closure="particles"``, chosen by the default ``"auto"`` under a
+  state-dependent sensor or when the input is clipped with probability above 1%). Both
+  non-linearities above make the loop non-Gaussian in ways no Gaussian can follow: a plan riding
+  an input bound makes the clipped loop a rectifier (lags are not corrected and accumulate: the
+  true state's spread was 3x the linearisation's on the sensor-switching plan), and a
+  state-dependent sensor skews the true state toward the dark. Samples of ``z`` are then pushed
+  through the loop with the clip itself, each drawing the sensor's noise at its own true state
+  (the noise factor's quadratic interpolant over the predicted true state) and, with
+  ``filter_sensitivity``, running its own filter (``R`` at its own predicted mean, its own
+  covariance, whose deviation from the nominal one is the ``dP`` coordinates). The moments are
+  the samples' and ``F, g, Q`` their statistical linear regression; the point estimates below
+  are sampled from the same non-linear loop. What remains approximate: the noise factor's
+  interpolant (exact for a quadratic one) and the Gaussian marginals behind the per-step
+  probabilities and the analytic bound (which is then capped by the sampled one).
 
 From the (augmented) Gaussian, per chance constraint ``P[h'x + c <= 0] >= 1 - eps`` of every
 atomic proposition at every step:

@@ -418,12 +418,16 @@ def closed_loop_check(
     tracks : bool
         Whether the plan is trackable (:func:`idstlpy.closed_loop.trackable`): the prediction
         linearises the clipping of the correction, and is accurate where the inputs leave the
-        correction room. The planner tries one repair of a passing plan that is not trackable
-        and keeps it if the repair does not give a trackable one.
+        correction room. A plan that is not is judged on the particle closure instead (samples
+        pushed through the clip: a plan riding an input bound makes the clipped loop a rectifier
+        whose spread the linearisation under-states). The planner tries one repair of a passing
+        plan that is not trackable and keeps it if the repair does not give a trackable one.
     """
-    predicted = predicted_state(system, traj, control_domain)
+    tracks = trackable(system, traj, control_domain)
+    closure = "gaussian" if tracks or control_domain is None else "particles"
+    predicted = predicted_state(system, traj, control_domain, closure=closure)
     margin = robustness(predicted, formula)
-    return predicted, margin, margin >= 0, trackable(system, traj, control_domain)
+    return predicted, margin, margin >= 0, tracks
 
 
 def closed_loop_lp(
