@@ -91,6 +91,10 @@ INPUT_LEVELS = (1.0, 0.5, 0.0)
 """Fractions of the tracking correction's room the inputs keep, tried in turn (an LP that cannot
 keep the inputs off their bounds still gives the required faces their room)."""
 
+INPUT_ENOUGH = 0.5
+"""Fraction of the tracking correction's room at which a plan whose required faces keep all
+theirs is not polished further."""
+
 _CAP = 10.0
 """Room ratios above this count as this (a face far from its bound)."""
 
@@ -165,8 +169,9 @@ class Room:
 
     @property
     def complete(self) -> bool:
-        """Every required face and every input keeps all the room it needs."""
-        return self.score >= 1.0 and self.input_score >= 1.0
+        """Every required face keeps all the room it needs, every input at least
+        :data:`INPUT_ENOUGH` of it (chasing the rest costs rounds and rarely pays)."""
+        return self.score >= 1.0 and self.input_score >= INPUT_ENOUGH
 
     @property
     def largest_need(self) -> float:
@@ -464,11 +469,11 @@ def room_lp(
         return None
     z, t = first
     t_keep = max(0.0, t * (1 - 1e-6))
-    second = (
-        solve(level, np.asarray(effort_weights, dtype=float), t_keep, max(t, 0.0))
-        if effort_weights is not None
-        else solve(level, None, t_keep, max(t_max, t_keep), per_face=R > 0)
-    )
+    second = None
+    if effort_weights is not None:
+        second = solve(level, np.asarray(effort_weights, dtype=float), t_keep, max(t, 0.0))
+    elif R > 0 and t < t_max - 1e-9:  # at t_max every face has all its room already
+        second = solve(level, None, t_keep, max(t_max, t_keep), per_face=True)
     if second is not None:
         z = second[0]
     _, controls = rows.unscale(z, init.mean)

@@ -878,9 +878,10 @@ class SamplerTeacher:
         room the executed belief and the true state need; per input face, the room the tracking
         correction needs), and solves one step of sequential convex programming toward that
         room (:func:`.room.room_lp`, means within ``trust``); the re-rolled plan is kept only if
-        the monitor still accepts it and the smallest fraction of needed room it keeps grew;
-        ``trust`` halves after a round that did not help. The rounds are a work budget
-        (``2 * max(polish_rounds, 4)``).
+        the monitor still accepts it and its room improved (:meth:`.room.Room.better_than`);
+        ``trust`` halves after a round that did not help. It stops when the room is complete
+        (:attr:`.room.Room.complete`), or after a failed round once every required face has its
+        room. The rounds are a work budget (``2 * max(polish_rounds, 4)``).
         """
         problem = self.problem
         init, system, formula = problem.initial_state, problem.switched_system, problem.stl_formula
@@ -930,6 +931,8 @@ class SamplerTeacher:
                         )
                         traj, current = moved, (moved_plan, moved_room)
                         continue
+            if room.score >= 1.0:
+                break  # the required faces have their room; only the inputs' is missing
             trust *= 0.5
         if current is not None:
             logger.info(
