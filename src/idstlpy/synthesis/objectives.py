@@ -25,10 +25,10 @@ from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .plan import DiscretePlan, extract_witness
+from .plan import DiscretePlan
 from .plan_lp import Scaling
 from .results import SolveStats
-from .room import Room, execution_room, room_lp
+from .room import Room, execution_room, room_lp, witness_plan
 from .teacher import solve_plan_lp
 
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
@@ -198,16 +198,8 @@ def _room(
     problem: Any, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
 ) -> tuple[DiscretePlan, Room] | None:
     """The requirements ``traj`` meets (its earliest witness) and its execution room, or None."""
-    modes = np.concatenate([[-1], traj.get_action()]).astype(int)
-    means, covs = traj.get_mean(), traj.get_cov()
-    truth = np.stack(
-        [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
-        axis=1,
-    )
-    witness = extract_witness(problem.stl_formula, truth, abstraction.index, prefer_late=False)
-    if witness is None:
+    plan = witness_plan(problem.stl_formula, abstraction, traj)
+    if plan is None:
         return None
-    required, L = witness
-    plan = DiscretePlan(required[:, :L], modes[:L], L)
     room = execution_room(problem.switched_system, problem.control_domain, abstraction, plan, traj)
     return None if room is None else (plan, room)

@@ -58,15 +58,27 @@ from scipy.sparse import csr_matrix, diags, hstack, vstack
 from scipy.special import ndtri
 
 from ..backends import Backend, HighsBackend, LinearModel
+from ..belief import rollout
 from ..chance import std_terms
 from ..closed_loop import TRACKABLE_Z, gains_for, propagate
 from ..errors import InvalidArgumentError
+from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .plan import DiscretePlan
+from .plan import DiscretePlan, extract_witness
 from .plan_lp import Scaling, build_plan_rows, covariance_jacobian, plan_requirements
+from .results import SolveStats
 
-__all__ = ["BELIEF_FAILURE", "ROOM_FLOOR", "STATE_FAILURE", "Room", "execution_room", "room_lp"]
+__all__ = [
+    "give_room",
+    "witness_plan",
+    "BELIEF_FAILURE",
+    "ROOM_FLOOR",
+    "STATE_FAILURE",
+    "Room",
+    "execution_room",
+    "room_lp",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -478,3 +490,112 @@ def room_lp(
         z = second[0]
     _, controls = rows.unscale(z, init.mean)
     return controls, t
+
+
+def witness_plan(
+    formula: Any, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
+) -> DiscretePlan | None:
+    """The requirements ``traj`` meets: its earliest witness of ``formula``, or None."""
+    modes = np.concatenate([[-1], traj.get_action()]).astype(int)
+    means, covs = traj.get_mean(), traj.get_cov()
+    truth = np.stack(
+        [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
+        axis=1,
+    )
+    witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
+    if witness is None:
+        return None
+    required, L = witness
+    return DiscretePlan(required[:, :L], modes[:L], L)
+
+
+def give_room(
+    problem: Any,
+    abstraction: Abstraction,
+    scaling: Scaling,
+    traj: ProbabilisticTSTrajectory,
+    rounds: int,
+    stats: SolveStats,
+) -> ProbabilisticTSTrajectory:
+    """Give a plan the room its execution needs, keeping its modes (sequential convex programming).
+
+    Each round takes the requirements the trajectory meets (:func:`witness_plan`), predicts the
+    closed loop around it (:func:`execution_room`) and solves one step toward that room
+    (:func:`room_lp`, means within ``trust``); the re-rolled plan is kept only if the monitor
+    still accepts it and its room improved (:meth:`Room.better_than`); ``trust`` halves after a
+    round that did not help. It stops when the room is complete (:attr:`Room.complete`), or after
+    a failed round once every required face has its room.
+
+    Parameters
+    ----------
+    problem : Problem
+    abstraction : Abstraction
+    scaling : Scaling
+    traj : ProbabilisticTSTrajectory
+        A plan (its MLO roll-out) the monitor accepts.
+    rounds : int
+        Work budget: LP rounds.
+    stats : SolveStats
+        ``lp_calls`` is counted here.
+
+    Returns
+    -------
+    ProbabilisticTSTrajectory
+        A plan the monitor accepts with at least ``traj``'s room (``traj`` itself when the monitor
+        rejects it: nothing to give room to).
+    """
+    init, system, formula = problem.initial_state, problem.switched_system, problem.stl_formula
+    domain = problem.control_domain
+    if robustness(traj, formula) < 0:
+        return traj
+    trust = np.inf
+    current: tuple[DiscretePlan, Room] | None = None
+    for _ in range(rounds):
+        if current is None:
+            found = witness_plan(formula, abstraction, traj)
+            if found is None:
+                break
+            first = execution_room(system, domain, abstraction, found, traj)
+            if first is None:
+                break
+            current = (found, first)
+        plan, room = current
+        if room.complete:
+            break
+        if not np.isfinite(trust):
+            trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(scaling.dx)))
+        stats.lp_calls += 1
+        out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling)
+        if out is not None:
+            moved = rollout(system, init, traj.get_action()[: plan.length - 1], out[0])
+            if robustness(moved, formula) >= 0:
+                moved_plan = witness_plan(formula, abstraction, moved)
+                moved_room = None
+                if moved_plan is not None:
+                    moved_room = execution_room(system, domain, abstraction, moved_plan, moved)
+                if moved_plan is not None and moved_room is not None and moved_room.better_than(room):
+                    logger.debug(
+                        "room: %.3g -> %.3g, mean %.3g -> %.3g, inputs %.3g -> %.3g "
+                        "(trust %.3g, LP fraction %.3g)",
+                        room.score,
+                        moved_room.score,
+                        room.coverage,
+                        moved_room.coverage,
+                        room.input_score,
+                        moved_room.input_score,
+                        trust,
+                        out[1],
+                    )
+                    traj, current = moved, (moved_plan, moved_room)
+                    continue
+        if room.score >= 1.0:
+            break  # the required faces have their room; only the inputs' is missing
+        trust *= 0.5
+    if current is not None:
+        logger.info(
+            "room: the plan keeps %.3g of the room its execution needs (z %.2f belief, %.2f state)",
+            current[1].score,
+            current[1].z_belief,
+            current[1].z_state,
+        )
+    return traj

@@ -33,14 +33,13 @@ from typing import Any
 import numpy as np
 
 from ..belief import belief_step, rollout, rollout_arrays
-from ..semantics import robustness
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Refuted, Unknown, Verdict
-from .plan import DiscretePlan, evaluate_bool, extract_witness
+from .plan import DiscretePlan, evaluate_bool
 from .plan_lp import Scaling
 from .proposer import BMCProposer
 from .results import SolveStats
-from .room import Room, execution_room, room_lp
+from .room import give_room
 
 __all__ = ["BeliefSampler", "SamplerOutcome", "SamplerTeacher"]
 
@@ -884,75 +883,7 @@ class SamplerTeacher:
         room. The rounds are a work budget (``2 * max(polish_rounds, 4)``).
         """
         problem = self.problem
-        init, system, formula = problem.initial_state, problem.switched_system, problem.stl_formula
-        domain = problem.control_domain
-        traj = rollout(system, init, actions, controls)
-        if robustness(traj, formula) < 0:
-            return actions, controls  # the loop's monitor will reject it; nothing to polish
-        trust = np.inf
+        traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
         rounds = 2 * max(self.options.polish_rounds, 4) if self.options.polish_rounds else 0
-        current: tuple[DiscretePlan, Room] | None = None
-        for _ in range(rounds):
-            if current is None:
-                found = self._witness_plan(traj)
-                if found is None:
-                    break
-                room = execution_room(system, domain, self.abs, found, traj)
-                if room is None:
-                    break
-                current = (found, room)
-            plan, room = current
-            if room.complete:
-                break
-            if not np.isfinite(trust):
-                trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(self.scaling.dx)))
-            stats.lp_calls += 1
-            out = room_lp(system, domain, init, self.abs, plan, traj, room, trust, self.scaling)
-            if out is not None:
-                acts = traj.get_action()[: plan.length - 1]
-                moved = rollout(system, init, acts, out[0])
-                if robustness(moved, formula) >= 0:
-                    moved_plan = self._witness_plan(moved)
-                    moved_room = None
-                    if moved_plan is not None:
-                        moved_room = execution_room(system, domain, self.abs, moved_plan, moved)
-                    if moved_plan is not None and moved_room is not None and moved_room.better_than(room):
-                        logger.debug(
-                            "polish: execution room %.3g -> %.3g, mean %.3g -> %.3g, inputs %.3g -> %.3g "
-                            "(trust %.3g, LP fraction %.3g)",
-                            room.score,
-                            moved_room.score,
-                            room.coverage,
-                            moved_room.coverage,
-                            room.input_score,
-                            moved_room.input_score,
-                            trust,
-                            out[1],
-                        )
-                        traj, current = moved, (moved_plan, moved_room)
-                        continue
-            if room.score >= 1.0:
-                break  # the required faces have their room; only the inputs' is missing
-            trust *= 0.5
-        if current is not None:
-            logger.info(
-                "polish: the plan keeps %.3g of the room its execution needs (z %.2f belief, %.2f state)",
-                current[1].score,
-                current[1].z_belief,
-                current[1].z_state,
-            )
+        traj = give_room(problem, self.abs, self.scaling, traj, rounds, stats)
         return traj.get_action(), traj.get_control()
-
-    def _witness_plan(self, traj: Any) -> DiscretePlan | None:
-        """The requirements ``traj`` meets (the earliest witness of the formula), or None."""
-        modes = np.concatenate([[-1], traj.get_action()]).astype(int)
-        means, covs = traj.get_mean(), traj.get_cov()
-        truth = np.stack(
-            [self.abs.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
-            axis=1,
-        )
-        witness = extract_witness(self.problem.stl_formula, truth, self.abs.index, prefer_late=False)
-        if witness is None:
-            return None
-        required, L = witness
-        return DiscretePlan(required[:, :L], modes[:L], L)
