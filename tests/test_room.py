@@ -122,3 +122,36 @@ def test_small_double_integrator_plan_holds_under_execution(seed):
     )
     assert report.belief_success_rate >= 0.9
     assert report.state_success_rate >= 0.9
+
+
+def test_give_room_on_a_constant_noise_plan():
+    """The LP path's plans (constant noise: exact covariances, no trust region) get their room too."""
+    from idstlpy.synthesis.results import SolveStats
+    from idstlpy.synthesis.room import give_room
+
+    x = stl.mk_variable(size=2, dtype=float)
+    u = stl.mk_variable(size=2, dtype=float, name="u")
+    target = pp.box(x, [-0.25, -0.25], [0.25, 0.25], 0.95, "target")
+    system = stl.mk_switched_sys(
+        [stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.02 * np.eye(2), C=np.eye(2), V=0.1 * np.eye(2))]
+    )
+    problem = stl.Problem(
+        system,
+        pp._unit_box(u, 2),
+        stl.to_belief(mean=[1.0, 1.0], cov=0.01 * np.eye(2)),
+        stl.eventually(0, 30, stl.always(0, 10, target)),
+    )
+    for xh in np.linspace(0.2, 0.0, 41):  # arrive and hold just inside the target
+        s = pp.Script(problem)
+        s.goto([xh, xh]).wait(10)
+        actions, controls = s.plan()
+        if stl.satisfies(stl.rollout(system, problem.initial_state, actions, controls), problem.stl_formula):
+            break
+    abs_, _, traj, room = _room_of(problem, actions, controls)
+    scaling = Scaling.compute(
+        system, problem.control_domain, problem.initial_state.mean, problem.initial_state.cov, abs_
+    )
+    moved = give_room(problem, abs_, scaling, traj, 4, SolveStats())
+    assert stl.satisfies(moved, problem.stl_formula)
+    _, _, _, moved_room = _room_of(problem, moved.get_action(), moved.get_control())
+    assert moved_room.score > max(room.score, 0.0) + 0.2

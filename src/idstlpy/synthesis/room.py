@@ -524,7 +524,8 @@ def give_room(
     (:func:`room_lp`, means within ``trust``); the re-rolled plan is kept only if the monitor
     still accepts it and its room improved (:meth:`Room.better_than`); ``trust`` halves after a
     round that did not help. It stops when the room is complete (:attr:`Room.complete`), or after
-    a failed round once every required face has its room.
+    a failed round once every required face has its room. Without state-dependent noise the
+    covariances do not depend on the means and the rounds have no trust region.
 
     Parameters
     ----------
@@ -548,6 +549,9 @@ def give_room(
     domain = problem.control_domain
     if robustness(traj, formula) < 0:
         return traj
+    # Without state-dependent noise the covariances do not depend on the means: the LP is exact
+    # for the frozen requirements and needs no trust region (the LP path's plans).
+    exact = not any(m.has_state_dependent_noise for m in system.system_modes)
     trust = np.inf
     current: tuple[DiscretePlan, Room] | None = None
     for _ in range(rounds):
@@ -562,7 +566,7 @@ def give_room(
         plan, room = current
         if room.complete:
             break
-        if not np.isfinite(trust):
+        if not np.isfinite(trust) and not exact:
             trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(scaling.dx)))
         stats.lp_calls += 1
         out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling)
@@ -588,8 +592,8 @@ def give_room(
                     )
                     traj, current = moved, (moved_plan, moved_room)
                     continue
-        if room.score >= 1.0:
-            break  # the required faces have their room; only the inputs' is missing
+        if room.score >= 1.0 or exact:
+            break  # the faces have their room (only the inputs' is missing), or no smaller step helps
         trust *= 0.5
     if current is not None:
         logger.info(
