@@ -73,9 +73,11 @@ class LinearModel:
         back-end's default (1e-6). A tighter one makes a claim of infeasibility hold for every
         point within it, so that a level a tolerance above an optimum is refuted (the margin
         MILP's proofs, :mod:`idstlpy.synthesis.milp`).
-    quick : bool, default False
-        A feasibility attempt that may give up sooner on proving infeasibility: the back-end
-        may spend less presolve effort (SCIP: probing stops after 10 useless probes).
+    probing : {"full", "short", "off"}, default "full"
+        How much of its presolve a MILP back-end may spend probing the binaries (SCIP: its
+        default; stop after 10 useless probes; none). Probing proves infeasible models in
+        presolve, but on a feasible one it mostly delays the first solution (measured on the
+        eager MILPs, BENCHMARKS.md); HiGHS ignores it.
     """
 
     c: np.ndarray
@@ -89,7 +91,7 @@ class LinearModel:
     cuts: bool = True
     node_limit: int | None = None
     feas_tol: float | None = None
-    quick: bool = False
+    probing: Literal["full", "short", "off"] = "full"
 
     @property
     def num_vars(self) -> int:

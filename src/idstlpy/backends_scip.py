@@ -117,11 +117,12 @@ class ScipBackend:
             s.setParam("limits/nodes", int(model.node_limit))
         if model.feas_tol is not None:
             s.setParam("numerics/feastol", float(model.feas_tol))
-        if model.quick:
-            # Probing proves the margin MILP's infeasible levels, but on a feasible one it
-            # mostly finds nothing: stop after 10 useless probes (NarrowPassage's probe at
-            # the cap 0.13 -> 0.10 s, the infeasible ones unchanged).
+        if model.probing == "short":
+            # Stop after 10 useless probes (NarrowPassage's margin probe at the cap 0.13 ->
+            # 0.10 s, the infeasible ones unchanged).
             s.setParam("propagating/probing/maxtotaluseless", 10)
+        elif model.probing == "off":
+            s.setParam("propagating/probing/maxprerounds", 0)
         for key_, val in self.params.items():
             s.setParam(key_, val)
         with quiet_stdout():

@@ -341,7 +341,7 @@ def _probe(
     budget: Budget,
     node_limit: int | None = _PROBE_NODES,
     feas_tol: float | None = None,
-    quick: bool = False,
+    probing: Literal["full", "short", "off"] = "full",
 ) -> BackendSolution:
     """A feasibility MILP for a plan whose margin is at least ``level``.
 
@@ -362,7 +362,7 @@ def _probe(
         cuts=False,
         node_limit=node_limit,
         feas_tol=feas_tol,
-        quick=quick,
+        probing=probing,
     )
     sol = backend.solve(probe, max(budget.remaining(), 1e-3))
     logger.info("MILP margin: probe at %.12g: %s", level, sol.message)
@@ -396,7 +396,7 @@ def _solve_margin(
     level, x, exact, v = model.lb[tcol], None, None, None
     if t_sound and t_cap > 0:
         top = t_cap * (1.0 - 1e-7)
-        sol = _probe(model, backend, tcol, top, budget, quick=True)
+        sol = _probe(model, backend, tcol, top, budget, probing="short")
         if sol.status in ("optimal", "time_limit") and sol.x is not None:
             polished = _polish(model, sol.x, tcol, budget)
             if polished is not None and polished[tcol] >= t_cap - _PROOF_TOL * max(1.0, t_cap):
@@ -729,9 +729,21 @@ def solve_milp(
     if nt:
         logger.info("MILP: t_cap %.9g (sound %s)", t_cap, t_sound)
     # The margin MILP's relaxation is as tight as the cap makes it: cutting planes cost SCIP 2-4x
-    # the time without moving its bound (measured on stlpy's scenarios, BENCHMARKS.md).
+    # the time without moving its bound (measured on stlpy's scenarios, BENCHMARKS.md). A plain
+    # feasibility model needs neither cuts nor probing to find its plan: SCIP's root cuts and
+    # presolve probing were 40-85% of its time on stlpy's scenarios at T = 50-200 (NarrowPassage
+    # T = 100 3.5 -> 0.45 s, SteppingStones T = 100 1.9 -> 0.27 s; DoorPuzzle T = 30 and
+    # NarrowPassage T = 50 lose 0.2 s, DoorPuzzle T = 25's proof of infeasibility 0.17 s).
     model = LinearModel(
-        cost, A_all, np.concatenate(lo), np.concatenate(hi), lower, upper, integrality, cuts=not nt
+        cost,
+        A_all,
+        np.concatenate(lo),
+        np.concatenate(hi),
+        lower,
+        upper,
+        integrality,
+        cuts=objective in ("effort", "time"),
+        probing="off" if objective is None else "full",
     )
     if nt:
         status, x, exact, bound, message = _solve_margin(
