@@ -197,7 +197,9 @@ class ConstraintPrediction:
     belief_probability : ndarray, shape (L,)
         Per step, the predicted probability that the executed belief satisfies the constraint.
     state_probability : ndarray, shape (L,)
-        Per step, the predicted probability that the true state satisfies ``h'x + c <= 0``.
+        Per step, the predicted probability that the true state satisfies ``h'x + c <= 0``
+        (both from the Gaussian model's marginals, or, under the particle closure with samples,
+        sampled from the non-Gaussian loop).
     promised : ndarray of bool, shape (L,)
         Steps at which the plan satisfies the proposition (validate's promise).
     belief_violation, state_violation : float
@@ -704,6 +706,11 @@ def _sample_events(
             z = z @ loop.F[k - 1].T + loop.g[k - 1] + rng.standard_normal((size, D)) @ roots[k].T
         for r in ok:
             ok[r][:, k] = z @ faces.a[r][k].T + const[r][k] <= 0
+        if clipped and loop.sensitivity:  # each sample's own filter covariance, not its linearisation
+            n = faces.H.shape[1]
+            Pk = loop.P[k] + z[:, 2 * n :].reshape(size, n, n)
+            lhs = z[:, n : 2 * n] @ faces.H.T + const["state"][k] + std_terms(faces.H, faces.z, Pk)
+            ok["belief"][:, k] = lhs <= 0
     return ok
 
 
@@ -716,9 +723,10 @@ def _sample_rates(
     aps: list[STLAtomicProposition],
     mode_ok: np.ndarray,
     plan_truth: np.ndarray,
-) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float]]:
+) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, float], dict[str, np.ndarray]]:
     """Model-sampled rates, in chunks of bounded memory: per reading, each face broken at some
-    promised step (F,), each proposition broken at some promised step (A,), the formula's success."""
+    promised step (F,), each proposition broken at some promised step (A,), the formula's success,
+    and each face's per-step probability of holding (L, F)."""
     rng = np.random.default_rng(seed)
     L = loop.mean.shape[0]
     nF = faces.H.shape[0]
@@ -728,12 +736,14 @@ def _sample_rates(
     face_n = {r: np.zeros(nF) for r in readings}
     prop_n = {r: np.zeros(len(aps)) for r in readings}
     ok_n = {r: 0.0 for r in readings}
+    step_n = {r: np.zeros((L, nF)) for r in readings}
     chunk = max(1, min(samples, 30_000_000 // max(1, L * max(nF, 1))))
     done = 0
     while done < samples:
         size = min(chunk, samples - done)
         ok = _sample_events(loop, faces, size, rng, roots)
         for r in readings:
+            step_n[r] += np.sum(ok[r], axis=0)
             broken = ~ok[r] & promised  # (S, L, F)
             face_n[r] += np.sum(np.any(broken, axis=1), axis=0)
             for i in range(len(aps)):
@@ -744,6 +754,7 @@ def _sample_rates(
         {r: face_n[r] / samples for r in readings},
         {r: prop_n[r] / samples for r in readings},
         {r: ok_n[r] / samples for r in readings},
+        {r: step_n[r] / samples for r in readings},
     )
 
 
@@ -984,9 +995,11 @@ def predict_closed_loop(
     prop_violation = {nm: {"belief": float("nan"), "state": float("nan")} for nm in names}
     estimate = {"state": float("nan"), "belief": float("nan")}
     if samples:
-        viol, prop_rates, estimate = _sample_rates(
+        viol, prop_rates, estimate, per_step = _sample_rates(
             loop, faces, samples, seed, formula, aps, mode_ok, plan_truth
         )
+        if loop.closure == "particles":  # the non-Gaussian loop's own per-step probabilities
+            p_state, p_belief = per_step["state"], per_step["belief"]
         prop_violation = {
             nm: {r: float(prop_rates[r][i]) for r in ("belief", "state")} for i, nm in enumerate(names)
         }
