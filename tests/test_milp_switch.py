@@ -46,3 +46,30 @@ def test_highs_direct_path_matches_linprog_fallback():
     assert direct.status == fallback.status == "optimal"
     assert direct.objective == fallback.objective or abs(direct.objective - fallback.objective) < 1e-9
     assert np.allclose(direct.row_duals, fallback.row_duals, atol=1e-9)
+
+
+def test_exclusion_cliques_keep_the_same_integer_points():
+    import itertools
+
+    from idstlpy.synthesis.milp import _clique_cover, _exclusion_cliques
+
+    # Five propositions, all mutually exclusive but 3-4: the cover holds every pair in true cliques.
+    edges = frozenset((i, j) for i, j in itertools.combinations(range(5), 2) if (i, j) != (3, 4))
+    cover = _clique_cover(edges)
+    held = {(u, v) for c in cover for u, v in itertools.combinations(sorted(c), 2)}
+    assert held == set(edges) and len(cover) < len(edges)
+    # As clauses of a 5 x 2 letter grid (variables 1..10): step 1's pairs become cliques, the
+    # other clauses (a mixed-step pair, a positive clause) stay; a sparse step keeps its pairs.
+    p = np.arange(1, 11).reshape(5, 2)
+    clauses = [[-int(p[i, 1]), -int(p[j, 1])] for i, j in sorted(edges)]
+    clauses += [[-int(p[0, 0]), -int(p[1, 1])], [int(p[2, 0]), int(p[3, 0])], [-int(p[0, 0]), -int(p[1, 0])]]
+    rest, cliques = _exclusion_cliques(clauses, p)
+    assert rest == clauses[-3:-1]
+    assert [[int(p[0, 0]), int(p[1, 0])]] == [c for c in cliques if int(p[0, 0]) in c]
+    step1 = [c for c in cliques if int(p[0, 0]) not in c]
+    assert len(step1) == len(cover)
+    # Every 0/1 assignment of step 1 meets the pairs exactly when it meets the cliques.
+    for bits in itertools.product((0, 1), repeat=5):
+        x = {int(p[i, 1]): bits[i] for i in range(5)}
+        pairs_ok = all(x[-a] + x[-b] <= 1 for a, b in clauses[: len(edges)])
+        assert pairs_ok == all(sum(x[v] for v in c) <= 1 for c in step1)

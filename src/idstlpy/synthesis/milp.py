@@ -148,6 +148,75 @@ def switch_to_eager(
     return not recent or float(np.median(recent)) > conflict_size
 
 
+_CLIQUE_GAIN = 3  # a step's exclusions become cliques when that takes at most a third of the rows
+
+
+def _clique_cover(edges: frozenset[tuple[int, int]]) -> list[list[int]]:
+    """Cliques of the graph ``edges`` that together hold every edge (greedy, deterministic).
+
+    Each clique grows from the first uncovered edge by the vertex adjacent to all its members
+    that covers the most uncovered edges (the smallest index on a tie).
+    """
+    adj: dict[int, set[int]] = {}
+    for a, b in edges:
+        adj.setdefault(a, set()).add(b)
+        adj.setdefault(b, set()).add(a)
+    left = set(edges)
+    out = []
+    for a, b in sorted(edges):
+        if (a, b) not in left:
+            continue
+        clique = [a, b]
+        common = adj[a] & adj[b]
+        while common:
+            best = max(
+                sorted(common),
+                key=lambda v: sum((min(u, v), max(u, v)) in left for u in clique),
+            )
+            clique.append(best)
+            common &= adj[best]
+        clique.sort()
+        for i, u in enumerate(clique):
+            for v in clique[i + 1 :]:
+                left.discard((u, v))
+        out.append(clique)
+    return out
+
+
+def _exclusion_cliques(
+    clauses: Sequence[Sequence[int]], p: np.ndarray
+) -> tuple[list[Sequence[int]], list[list[int]]]:
+    """Split ``clauses`` into the others and cliques of letters that exclude each other.
+
+    A clause ``-p[i, k] | -p[j, k]`` (two propositions never hold together at step ``k``) is an
+    edge of step ``k``'s exclusion graph; a clique cover of that graph gives rows
+    ``sum_{i in C} p[i, k] <= 1`` with the same integer solutions as the pairs. Returns
+    ``(other clauses, cliques as lists of 1-based variables)``.
+    """
+    where = {int(v): (i, k) for (i, k), v in np.ndenumerate(p)}
+    edges: dict[int, set[tuple[int, int]]] = {}
+    rest: list[Sequence[int]] = []
+    for clause in clauses:
+        if len(clause) == 2 and clause[0] < 0 and clause[1] < 0:
+            a, b = where.get(-clause[0]), where.get(-clause[1])
+            if a is not None and b is not None and a[1] == b[1] and a[0] != b[0]:
+                edges.setdefault(a[1], set()).add((min(a[0], b[0]), max(a[0], b[0])))
+                continue
+        rest.append(clause)
+    cache: dict[frozenset[tuple[int, int]], list[list[int]]] = {}
+    cliques = []
+    for k in sorted(edges):
+        key = frozenset(edges[k])
+        if key not in cache:
+            cover = _clique_cover(key)
+            # Only a dense exclusion graph (stones, alternative targets) gains; a sparse one
+            # (an obstacle's opposite sides) keeps its pairs: there the cover barely shortens the
+            # model and it only perturbs the solver (NarrowPassage's probe 0.10 -> 0.12 s).
+            cache[key] = cover if _CLIQUE_GAIN * len(cover) <= len(key) else [list(e) for e in sorted(key)]
+        cliques += [[int(p[i, k]) for i in group] for group in cache[key]]
+    return rest, cliques
+
+
 def _support_points(U: Any) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """Vertices of the control domain (``None`` when unavailable) and its bounding box."""
     low, high = U.bounding_box()
@@ -548,8 +617,11 @@ def solve_milp(
 
     blocks, lo, hi = [], [], []
 
-    # Clauses: l_1 | ... | l_r  ->  sum(pos) - sum(neg) >= 1 - |neg|.
-    clauses = enc.clauses + enc.learnt
+    # Clauses: l_1 | ... | l_r  ->  sum(pos) - sum(neg) >= 1 - |neg|. The pairwise exclusions
+    # of the pruning (two disjoint propositions never hold at one step) become one row per clique
+    # of mutually exclusive propositions, sum(p) <= 1: the same integer points, a tighter
+    # relaxation, and SCIP's presolve about twice as fast (SteppingStones: 2,860 pair rows -> 702).
+    clauses, cliques = _exclusion_cliques(enc.clauses + enc.learnt, enc.p)
     r_idx, c_idx, vals, rhs = [], [], [], []
     for r, clause in enumerate(clauses):
         neg = 0
@@ -563,6 +635,12 @@ def solve_milp(
         blocks.append(coo_matrix((vals, (r_idx, c_idx)), shape=(len(clauses), nvar)).tocsr())
         lo.append(np.array(rhs))
         hi.append(np.full(len(clauses), np.inf))
+    if cliques:
+        r_idx = [r for r, group in enumerate(cliques) for _ in group]
+        c_idx = [v - 1 for group in cliques for v in group]
+        blocks.append(coo_matrix((np.ones(len(c_idx)), (r_idx, c_idx)), shape=(len(cliques), nvar)).tocsr())
+        lo.append(np.full(len(cliques), -np.inf))
+        hi.append(np.ones(len(cliques)))
 
     # Dynamics and control domain (scaled, as in the plan LP).
     for part in (rows.A_eq, rows.A_U):
