@@ -193,14 +193,20 @@ def _exclusion_cliques(
     ``sum_{i in C} p[i, k] <= 1`` with the same integer solutions as the pairs. Returns
     ``(other clauses, cliques as lists of 1-based variables)``.
     """
-    where = {int(v): (i, k) for (i, k), v in np.ndenumerate(p)}
+    size = int(p.max()) + 1 if p.size else 1
+    atom = np.full(size, -1, dtype=np.int64)
+    step = np.full(size, -1, dtype=np.int64)
+    atom[p.ravel()] = np.repeat(np.arange(p.shape[0]), p.shape[1])
+    step[p.ravel()] = np.tile(np.arange(p.shape[1]), p.shape[0])
+    atoms, steps = atom.tolist(), step.tolist()
     edges: dict[int, set[tuple[int, int]]] = {}
     rest: list[Sequence[int]] = []
     for clause in clauses:
-        if len(clause) == 2 and clause[0] < 0 and clause[1] < 0:
-            a, b = where.get(-clause[0]), where.get(-clause[1])
-            if a is not None and b is not None and a[1] == b[1] and a[0] != b[0]:
-                edges.setdefault(a[1], set()).add((min(a[0], b[0]), max(a[0], b[0])))
+        if len(clause) == 2 and clause[0] < 0 and clause[1] < 0 and -clause[0] < size and -clause[1] < size:
+            a, b = -clause[0], -clause[1]
+            i, j, k = atoms[a], atoms[b], steps[a]
+            if i >= 0 and j >= 0 and k == steps[b] and i != j:
+                edges.setdefault(k, set()).add((min(i, j), max(i, j)))
                 continue
         rest.append(clause)
     cache: dict[frozenset[tuple[int, int]], list[list[int]]] = {}
