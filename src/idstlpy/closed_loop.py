@@ -591,7 +591,10 @@ def propagate(
             else:
                 pts, w = cub  # type: ignore[misc]
                 xs = m_next + z[:n] + pts @ sqrt_psd(S_pre[:n, :n]).T
-                R_true = sum(wi * mode.noise_cov(xi) for wi, xi in zip(w, xs, strict=True))
+                # the noise factor directly: R(x) = n(x) n(x)' without noise_cov's per-call checks
+                # (a non-finite factor makes the moments non-finite, caught below)
+                nxs = np.stack([mode.noise(xi) for xi in xs])
+                R_true = np.einsum("g,gpq,grq->pr", w, nxs, nxs)
             LRL = np.zeros((D, D))
             LRL[n : 2 * n, n : 2 * n] = Lk @ R_true @ Lk.T
             Qk = Qk + LRL
@@ -643,19 +646,31 @@ def _planning_loop(
     default_lqr: Mapping[str, Any] | None,
     closure: str = "gaussian",
 ) -> ClosedLoopMoments:
-    """The closed loop as the planner reads it (see :func:`predicted_state`)."""
+    """The closed loop as the planner reads it (see :func:`predicted_state`).
+
+    The planner asks for the same loop several times per candidate (the check, the tracking
+    spread, the repair's covariances): the last few loops are kept, keyed by the system and the
+    domain (identity), the closure, the tracking gains and the plan's arrays (content).
+    """
     n = system.n
     N = plan.num_of_steps
     actions = np.asarray(plan.get_action(), dtype=int)[:N]
+    gains = gains_for(system, actions, lqr_gains, default_lqr)
+    arrays = [plan.get_mean(), plan.get_cov(), plan.get_action(), plan.get_control()]
+    arrays += [g for q in sorted(gains) for g in gains[q]]
+    key = (id(system), id(control_domain), closure, N, n, *(hash(a.tobytes()) for a in arrays))
+    for k, (sys_ref, dom_ref, cached) in _LOOPS:
+        if k == key and sys_ref is system and dom_ref is control_domain:
+            return cached
     P0 = plan.get_cov(0)
     S0 = np.zeros((2 * n, 2 * n))
     S0[:n, :n] = P0
-    return propagate(
+    loop = propagate(
         system,
         plan,
         N,
         list(system.system_modes),
-        gains_for(system, actions, lqr_gains, default_lqr),
+        gains,
         "model",
         np.zeros(2 * n),
         S0,
@@ -665,6 +680,13 @@ def _planning_loop(
         False,
         closure,
     )
+    _LOOPS.insert(0, (key, (system, control_domain, loop)))
+    del _LOOPS[_LOOPS_KEPT:]
+    return loop
+
+
+_LOOPS_KEPT = 4
+_LOOPS: list[tuple[tuple[Any, ...], tuple[Any, Any, ClosedLoopMoments]]] = []
 
 
 def tracking_spread(
