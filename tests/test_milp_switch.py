@@ -59,15 +59,14 @@ def test_exclusion_cliques_keep_the_same_integer_points():
     held = {(u, v) for c in cover for u, v in itertools.combinations(sorted(c), 2)}
     assert held == set(edges) and len(cover) < len(edges)
     # As clauses of a 5 x 2 letter grid (variables 1..10): step 1's pairs become cliques, the
-    # other clauses (a mixed-step pair, a positive clause) stay; a sparse step keeps its pairs.
+    # other clauses (a mixed-step pair, a positive clause) stay, and so does the pair of a
+    # sparse step (0), in place.
     p = np.arange(1, 11).reshape(5, 2)
     clauses = [[-int(p[i, 1]), -int(p[j, 1])] for i, j in sorted(edges)]
     clauses += [[-int(p[0, 0]), -int(p[1, 1])], [int(p[2, 0]), int(p[3, 0])], [-int(p[0, 0]), -int(p[1, 0])]]
-    rest, cliques = _exclusion_cliques(clauses, p)
-    assert rest == clauses[-3:-1]
-    assert [[int(p[0, 0]), int(p[1, 0])]] == [c for c in cliques if int(p[0, 0]) in c]
-    step1 = [c for c in cliques if int(p[0, 0]) not in c]
-    assert len(step1) == len(cover)
+    rest, step1 = _exclusion_cliques(clauses, p)
+    assert rest == clauses[-3:]
+    assert len(step1) == len(cover) and all(v in p[:, 1] for c in step1 for v in c)
     # Every 0/1 assignment of step 1 meets the pairs exactly when it meets the cliques.
     for bits in itertools.product((0, 1), repeat=5):
         x = {int(p[i, 1]): bits[i] for i in range(5)}

@@ -200,26 +200,34 @@ def _exclusion_cliques(
     step[p.ravel()] = np.tile(np.arange(p.shape[1]), p.shape[0])
     atoms, steps = atom.tolist(), step.tolist()
     edges: dict[int, set[tuple[int, int]]] = {}
-    rest: list[Sequence[int]] = []
+    pair_of: list[tuple[int, tuple[int, int]] | None] = []
     for clause in clauses:
+        pair = None
         if len(clause) == 2 and clause[0] < 0 and clause[1] < 0 and -clause[0] < size and -clause[1] < size:
             a, b = -clause[0], -clause[1]
             i, j, k = atoms[a], atoms[b], steps[a]
             if i >= 0 and j >= 0 and k == steps[b] and i != j:
-                edges.setdefault(k, set()).add((min(i, j), max(i, j)))
-                continue
-        rest.append(clause)
-    cache: dict[frozenset[tuple[int, int]], list[list[int]]] = {}
+                pair = (k, (min(i, j), max(i, j)))
+                edges.setdefault(k, set()).add(pair[1])
+        pair_of.append(pair)
+    cache: dict[frozenset[tuple[int, int]], list[list[int]] | None] = {}
     cliques = []
     for k in sorted(edges):
         key = frozenset(edges[k])
         if key not in cache:
             cover = _clique_cover(key)
             # Only a dense exclusion graph (stones, alternative targets) gains; a sparse one
-            # (an obstacle's opposite sides) keeps its pairs: there the cover barely shortens the
-            # model and it only perturbs the solver (NarrowPassage's probe 0.10 -> 0.12 s).
-            cache[key] = cover if _CLIQUE_GAIN * len(cover) <= len(key) else [list(e) for e in sorted(key)]
-        cliques += [[int(p[i, k]) for i in group] for group in cache[key]]
+            # (an obstacle's opposite sides) keeps its pair clauses where they were: there the
+            # cover barely shortens the model and a different model only perturbs the solver.
+            cache[key] = cover if _CLIQUE_GAIN * len(cover) <= len(key) else None
+        merged = cache[key]
+        if merged is None:
+            edges[k] = set()  # not merged: its clauses stay
+        else:
+            cliques += [[int(p[i, k]) for i in group] for group in merged]
+    rest = [
+        c for c, pair in zip(clauses, pair_of, strict=True) if pair is None or pair[1] not in edges[pair[0]]
+    ]
     return rest, cliques
 
 
