@@ -50,7 +50,8 @@ STEER_SHRINK = 0.8
 """Gentle steering keeps a fully actuated mode's inputs within this fraction of the control
 domain (scaled about its Chebyshev centre), leaving the executor's tracking correction and the
 polish (:mod:`.room`) the rest. Half the extensions (and the shortcut) steer gently; the others
-use the whole domain, which tight deadlines (a patrol's round trip) need."""
+use the whole domain, which tight deadlines need; a patrol (a region required again and again,
+whose round trips must be made at full speed) never steers gently."""
 
 logger = logging.getLogger(__name__)
 
@@ -535,7 +536,8 @@ class BeliefSampler:
                 settle = False
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
             prefer = self._extension_mode(tree, node, goal, rng)
-            gentle = self._any_full_rank and bool(rng.random() < 0.5)
+            # (a patrol's round trips need full speed: its deadlines leave no time for gentleness)
+            gentle = self._any_full_rank and not recurring and bool(rng.random() < 0.5)
             cur = node
             for j in range(steps):
                 k = int(tree.k[cur]) + 1
