@@ -6,7 +6,8 @@ is ``max`` over one choice per conjunct of the ``min`` of the chosen boxes' slac
 is the best of a handful of LPs (maximise ``t`` with every chosen face at least ``t`` inside),
 built here with :func:`scipy.optimize.linprog` and nothing of idstlpy's. Two shapes are covered:
 the margin MILP's cap attained (a goal's centre reachable: the feasibility probe decides) and not
-attained (two goals that the dynamics cannot both centre: the full optimisation decides). A third
+attained (two goals that the dynamics cannot both centre: the ladder of probes decides, each rung a
+feasibility MILP at the best plan's exact margin, the last one refuted). A third
 test checks the benchmark translation's hard state box against the same brute force with the box
 as hard rows.
 """
@@ -233,3 +234,17 @@ def test_hard_state_box_is_a_constraint_not_part_of_the_margin(x_hi, optimum):
     assert stl.robustness(soft_result.trajectory, soft.stl_formula) == pytest.approx(
         min(optimum, (x_hi - GOAL_A[0]) / 2), abs=1e-6
     )
+
+
+@pytest.mark.parametrize("backend", ["highs", "scip"])
+def test_margin_optimisation_after_the_ladder_is_still_a_proof(monkeypatch, backend):
+    # No rung after the first plan: the optimisation above its level decides (and refutes it).
+    pytest.importorskip("pyscipopt") if backend == "scip" else None
+    from idstlpy.synthesis import milp
+
+    monkeypatch.setattr(milp, "_LADDER_RUNGS", 0)
+    problem = _problem(_cap_not_attained)
+    result = problem.solve_result(seed=0, objective="margin", milp_backend=backend)
+    expected = CASES["cap not attained"][1]()
+    assert result.optimal and result.objective_value == pytest.approx(expected, abs=1e-6)
+    assert expected - 1e-9 <= result.objective_bound <= expected + 1e-6
