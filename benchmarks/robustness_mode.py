@@ -124,6 +124,8 @@ def main(argv: list[str] | None = None) -> None:
     a = ap.parse_args(argv)
     git = ["git", "rev-parse", "--short", "HEAD"]
     commit = subprocess.run(git, capture_output=True, text=True).stdout.strip()  # what is measured
+    # A clean snapshot (`git archive`) is no repository: its commit comes from the environment.
+    commit = commit or os.environ.get("IDSTLPY_COMMIT", "unknown")
     names = a.scenarios.split(",")
     peers = a.peers.split(",")
     horizons = [int(t) for t in a.T.split(",")]
