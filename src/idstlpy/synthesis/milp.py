@@ -31,10 +31,17 @@ row, and three things make the model fast and its answer a proof:
   margin (:func:`_margin_cap`: sound, so the cap never cuts the optimum), which keeps every
   big-M small and the relaxation's bound at most the cap;
 - a feasibility probe with ``t`` at the cap runs first: where the cap is attained (a goal's
-  centre reachable) the plan it finds is optimal by the cap alone;
+  centre reachable) the plan it finds is optimal by the cap alone; where it is not, a ladder of
+  feasibility probes, each at the best plan's exact margin plus half the proof tolerance, ends
+  with a level SCIP's presolve refutes (:func:`_solve_margin`);
 - the big-M rows have no integrality room, so the model is a relaxation and its bound a bound on
   every plan; the plan's exact margin comes from the LP over its rounded letters
   (:func:`_polish`), and the optimum is *proven* only when the two meet within ``_PROOF_TOL``.
+
+Propositions that exclude each other at a step (the pruning's disjoint pairs) get one clique row
+``sum(p) <= 1`` where the exclusion graph is dense (:func:`_exclusion_cliques`), and a plain
+feasibility model is solved without cutting planes and without presolve probing (both cost SCIP
+more than they save in finding a plan).
 """
 
 from __future__ import annotations
