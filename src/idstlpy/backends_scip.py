@@ -5,8 +5,10 @@ so importing idstlpy never imports ``pyscipopt``. :meth:`ScipBackend.is_availabl
 the module can be found without importing it.
 
 The model is handed to SCIP as a free-format MPS file in a temporary directory (2-3x faster
-than building it row by row through PySCIPOpt's expressions). SCIP
-runs single-threaded with its default settings, silently, with ``limits/time`` as the cap.
+than building it row by row through PySCIPOpt's expressions), and re-used while the same matrix
+comes back with other column bounds (the margin MILP's probes). SCIP runs single-threaded with
+its default settings but for what the model asks (cuts, node limit, feasibility tolerance,
+probing), silently, with ``limits/time`` as the cap.
 Statuses map as for HiGHS: SCIP's ``infeasible`` is its proof; ``inforunbd`` is reported as
 ``infeasible`` only for a model without objective (where unboundedness cannot occur), and as
 ``error`` otherwise.
