@@ -128,6 +128,7 @@ def refine(
     domain = problem.control_domain
     best = objective_value(name, traj, formula, weights)
     base = _room(problem, abstraction, traj)
+    base_margin = robustness(traj, formula)
     # The room the execution needs (:mod:`.room`) is kept up to what the plan had: an objective
     # must not buy itself with it.
     keep = min(1.0, max(base[1].score, 0.0)) if base is not None else 0.0
@@ -183,7 +184,8 @@ def refine(
             moved = rollout(system, init, acts[: L - 1], controls)
             margin = robustness(moved, formula)
             value = objective_value(name, moved, formula, weights)
-            if margin >= 0 and better(name, value, best):
+            # Neither the room nor the monitor's margin may pay for the objective.
+            if margin >= 0.999 * max(base_margin, 0.0) and better(name, value, best):
                 moved_room = _room(problem, abstraction, moved)
                 if moved_room is not None and moved_room[1].score >= keep - 1e-3:
                     logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, best, value, trust)
