@@ -126,3 +126,21 @@ def test_state_dependent_particles_match_monte_carlo():
         mc_sd = X[:, -1, axis].std()
         p_sd = float(np.sqrt(part.state_cov[-1, axis, axis]))
         assert abs(p_sd - mc_sd) <= 3 * mc_sd / np.sqrt(2 * runs) + 3 * p_sd / np.sqrt(2 * 4000)
+
+
+def test_the_planners_cached_loop_follows_the_gains():
+    from idstlpy.closed_loop import _LOOPS, predicted_state
+
+    system, plan = _saturated(N=12)
+    box = _box(1.0)
+    a = predicted_state(system, plan, box)
+    cached = _LOOPS[0][1][2]
+    again = predicted_state(system, plan, box)
+    assert _LOOPS[0][1][2] is cached  # the same loop, not propagated again
+    np.testing.assert_array_equal(a.get_cov(), again.get_cov())
+    system.mode(0).compute_finite_horizon_lqr(
+        horizon=3, Q_final=np.eye(2), Q=10 * np.eye(2), R=0.01 * np.eye(2)
+    )  # other gains: another loop, not the cached one
+    b = predicted_state(system, plan, box)
+    assert _LOOPS[0][1][2] is not cached
+    assert not np.allclose(a.get_cov(), b.get_cov())
