@@ -22,6 +22,22 @@ def test_switch_follows_conflict_sizes():
     assert switch_to_eager([], 0, 0, 3.0)  # lazy_candidates = 0: eager at once
 
 
+def test_switch_early_look_reads_the_first_conflicts():
+    # Large from the start (PrSTL's noisy reach-avoid, NarrowPassage): eager after 3 candidates.
+    assert not switch_to_eager([[0] * 9, [0] * 8], 2, 10, 3.0)  # not before 3 candidates
+    assert switch_to_eager([[0] * 9, [0] * 8, [0] * 7], 3, 10, 3.0)
+    assert switch_to_eager([[0] * 7, [0] * 5, [0] * 3], 3, 10, 3.0)  # median 5 > 3 + 1
+    # The one-obstacle double integrator's 5, 4, 3 (median 4) then 2s: it stays lazy.
+    di = [[0] * 5, [0] * 4, [0] * 3] + [[0] * 2] * 9
+    assert not any(switch_to_eager(di[:k], k, 10, 3.0) for k in range(3, 13))
+    # ReachAvoid's 2s, then conflicts growing at the obstacle: only once the last three do.
+    ra = [[0] * n for n in (2, 2, 2, 2, 2, 2, 3, 4, 4, 4, 3, 6, 7)]
+    assert [k for k in range(3, 14) if switch_to_eager(ra[:k], k, 10, 3.0)] == [13]
+    # The fixed count has no early look; the early look never goes past lazy_candidates.
+    assert not switch_to_eager([[0] * 9] * 3, 3, 10, 0.0)
+    assert switch_to_eager([[0] * 9] * 2, 2, 2, 3.0)
+
+
 def test_one_obstacle_reach_avoid_stays_lazy_and_is_verified():
     problem = reach_avoid(40)
     result = problem.solve_result(seed=0, time_limit=60)

@@ -98,7 +98,9 @@ class SolverOptions:
         After ``lazy_candidates``, the eager MILP takes over once the median size of the last
         ``lazy_candidates`` proven conflicts exceeds this (the lazy loop is no longer
         converging; see :func:`~idstlpy.synthesis.milp.switch_to_eager`), and in any case after
-        ``10 * lazy_candidates`` candidates. ``0`` switches after exactly ``lazy_candidates``.
+        ``10 * lazy_candidates`` candidates; earlier, from 3 candidates on, once the median of
+        the last 3 exceeds it by more than one requirement (conflicts large from the start).
+        ``0`` switches after exactly ``lazy_candidates``.
     max_plan_length : int
         Longest plan (in steps) the proposer may unroll; a formula that needs a longer one ends
         ``budget_exhausted`` with that reason.
