@@ -49,6 +49,10 @@ def machine() -> dict[str, str]:
         rev = (rev + (" + uncommitted changes in src/" if dirty else "")) or "unknown"
     except OSError:
         rev = "unknown"
+    snapshot = os.environ.get("IDSTLPY_COMMIT", "").strip()
+    if snapshot and (not rev or rev == "unknown"):
+        # Run from a `git archive` snapshot, which is no repository: the caller names its commit.
+        rev = f"{snapshot} (run from a snapshot of that commit, `git archive`)"
     return {
         "nproc": str(os.cpu_count()),
         "cpu": cpu,
