@@ -158,8 +158,8 @@ def _clipped_moments(
     pb = np.where(np.isfinite(b), np.exp(-0.5 * np.where(np.isfinite(b), b, 0.0) ** 2), 0.0) / np.sqrt(
         2 * np.pi
     )
-    apa = np.where(np.isfinite(a), a * pa, 0.0)
-    bpb = np.where(np.isfinite(b), b * pb, 0.0)
+    apa = np.where(np.isfinite(a), np.where(np.isfinite(a), a, 0.0) * pa, 0.0)  # no inf * 0
+    bpb = np.where(np.isfinite(b), np.where(np.isfinite(b), b, 0.0) * pb, 0.0)
     lo_t = np.where(np.isfinite(low), low, 0.0)
     hi_t = np.where(np.isfinite(high), high, 0.0)
     p_in = Fb - Fa
