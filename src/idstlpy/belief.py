@@ -148,8 +148,12 @@ def kalman_gain(C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (n, p)
     """
-    S = C @ P @ C.T + R
     PCt = P @ C.T
+    S = C @ PCt + R
+    if S.shape[0] <= 2:
+        K_small = _small_gain(PCt, S)
+        if K_small is not None:
+            return K_small
     try:
         with np.errstate(all="ignore"):
             K = np.linalg.solve(S.T, PCt.T).T
@@ -160,6 +164,27 @@ def kalman_gain(C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
         # already knows. The pseudo-inverse gives the exact limit.
         K = PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True)
     return np.asarray(K)
+
+
+def _small_gain(PCt: np.ndarray, S: np.ndarray) -> np.ndarray | None:
+    """``PCt S^-1`` in closed form for one or two outputs, or None when ``S`` is (nearly)
+    singular or not finite (the caller then solves it as for larger ``S``)."""
+    if S.shape[0] == 1:
+        s = float(S[0, 0])
+        if not (s > 0.0 and np.isfinite(s)):
+            return None
+        K = PCt / s
+    else:
+        a, b, c, d = float(S[0, 0]), float(S[0, 1]), float(S[1, 0]), float(S[1, 1])
+        det = a * d - b * c
+        # well conditioned (the determinant not lost to cancellation), finite
+        if not (abs(det) > 1e-10 * (abs(a * d) + abs(b * c)) and np.isfinite(det) and det != 0.0):
+            return None
+        inv = np.array([[d, -b], [-c, a]]) / det
+        K = PCt @ inv
+    if not np.isfinite(K).all():
+        return None
+    return K
 
 
 def kalman_update(
@@ -197,11 +222,28 @@ def kalman_update(
     if R is None:
         R = mode.noise_cov(mean_pred if x_noise is None else x_noise)
     K = kalman_gain(C, P, R)
-    IKC = np.eye(P.shape[0]) - K @ C
-    cov = IKC @ P @ IKC.T + K @ R @ K.T
-    cov = 0.5 * (cov + cov.T)
+    cov = _joseph(K, C, P, R)
     mean = mean_pred if y is None else mean_pred + K @ (y - C @ mean_pred)
     return mean, cov
+
+
+_EYES: dict[int, np.ndarray] = {}
+"""Read-only identity matrices by size (the Joseph update's ``I``)."""
+
+
+def _joseph(K: np.ndarray, C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``(I - K C) P (I - K C)' + K R K'``, symmetrised."""
+    n = P.shape[0]
+    eye = _EYES.get(n)
+    if eye is None:
+        eye = _EYES[n] = np.eye(n)
+        eye.flags.writeable = False
+    IKC = eye - K @ C
+    KR = K @ R
+    cov = IKC @ P @ IKC.T + KR @ K.T
+    cov += cov.T
+    cov *= 0.5
+    return cov
 
 
 def belief_step(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -288,6 +330,23 @@ def rollout_arrays(
     means = np.empty((N + 1, mean0.shape[0]))
     covs = np.empty((N + 1, *cov0.shape))
     means[0], covs[0] = mean0, cov0
+    # belief_step inlined (the planner's innermost loop): the mode's matrices looked up once per
+    # mode, the noise function still evaluated (and checked by noise_cov) at every step
+    parts: dict[int, tuple[Any, ...]] = {}
     for k in range(N):
-        means[k + 1], covs[k + 1] = belief_step(modes[int(actions[k])], means[k], covs[k], controls[k])
+        q = int(actions[k])
+        part = parts.get(q)
+        if part is None:
+            mode = modes[q]
+            part = (mode, mode.A, mode.A.T, mode.B, mode.process_cov, mode.C, mode.p)
+            parts[q] = part
+        mode, A, At, B, Q, C, p = part
+        mean = A @ means[k] + B @ controls[k]
+        P = A @ covs[k] @ At + Q
+        means[k + 1] = mean
+        if p == 0:
+            covs[k + 1] = P
+            continue
+        R = mode.noise_cov(mean)
+        covs[k + 1] = _joseph(kalman_gain(C, P, R), C, P, R)
     return means, covs

@@ -308,6 +308,7 @@ class POLBSWithNonLinNoise(POLBS):
         self.V = V
         self._cols: int | None = None
         self._floor = _as_floor(V_floor, self.p)
+        self._has_floor = bool(self._floor.any())
 
     @property
     def noise_floor(self) -> np.ndarray:
@@ -317,12 +318,12 @@ class POLBSWithNonLinNoise(POLBS):
         nx = self.noise(x)
         with np.errstate(over="ignore", invalid="ignore"):
             R = nx @ nx.T
-        if not np.all(np.isfinite(R)):
+        if not np.isfinite(R).all():
             raise NoiseFunctionError(
                 f"noise function V{self._where()} gives a non-finite covariance "
                 f"R(x) = n(x) n(x)' = {_show(R)} at x={_show(x)} (n(x) = {_show(nx)} is too large)"
             )
-        if self._floor.any() and np.linalg.eigvalsh(R - self._floor).min() < -1e-9 * (1 + np.abs(R).max()):
+        if self._has_floor and np.linalg.eigvalsh(R - self._floor).min() < -1e-9 * (1 + np.abs(R).max()):
             raise NoiseFunctionError(
                 f"noise function V{self._where()} returned R(x) = n(x) n(x)' = {_show(R)} below its "
                 f"declared V_floor at x={_show(x)}"
@@ -334,17 +335,23 @@ class POLBSWithNonLinNoise(POLBS):
         return True
 
     def noise(self, x: Any) -> np.ndarray:
-        who = f"noise function V{self._where()}"
+        # every return is checked (shape, finiteness); the messages are only built on failure
         try:
             out = self.V(x)
         except Exception as exc:  # the user's function failed: say which one and where
+            who = f"noise function V{self._where()}"
             raise NoiseFunctionError(f"{who} raised {type(exc).__name__}: {exc} at x={_show(x)}") from exc
         try:
             arr = np.asarray(out, dtype=float)
         except (TypeError, ValueError) as exc:
+            who = f"noise function V{self._where()}"
             raise NoiseFunctionError(
                 f"{who} must return a matrix, got {type(out).__name__} at x={_show(x)}"
             ) from exc
+        shape = arr.shape
+        if len(shape) == 2 and shape[0] == self.p and shape[1] == self._cols and np.isfinite(arr).all():
+            return arr  # the common case: the shape seen before, finite
+        who = f"noise function V{self._where()}"
         if (
             arr.ndim != 2
             or arr.shape[0] != self.p

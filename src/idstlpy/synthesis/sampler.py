@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..belief import belief_step, rollout, rollout_arrays
+from ..chance import std_terms
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan, evaluate_bool
@@ -444,12 +445,20 @@ class BeliefSampler:
         return actions, controls
 
     def _labels(self, means: np.ndarray, covs: np.ndarray, actions: np.ndarray, start: int) -> np.ndarray:
-        """Labels of steps ``start..`` of a roll-out, shape (n_atoms, L - start)."""
-        cols = [
-            self.abs.truth(means[k], covs[k], int(actions[k - 1]) if k else -1)
-            for k in range(start, len(means))
-        ]
-        return np.array(cols).T if cols else np.zeros((self.abs.num_atoms, 0), dtype=bool)
+        """Labels of steps ``start..`` of a roll-out, shape (n_atoms, L - start).
+
+        :meth:`Abstraction.truth` of every step, batched over the steps (one ``std_terms`` call).
+        """
+        abs_ = self.abs
+        L = len(means)
+        if start >= L:
+            return np.zeros((abs_.num_atoms, 0), dtype=bool)
+        out = np.array([abs_._mode_truth(int(actions[k - 1]) if k else -1) for k in range(start, L)])
+        if abs_.H.shape[0]:
+            terms = std_terms(abs_.H, abs_.z, covs[start:])
+            rows, faces = np.nonzero(-(means[start:] @ abs_.H.T + abs_.c + terms) < 0)
+            out[rows, abs_.owner[faces]] = False
+        return out.T
 
     # -- main loop --------------------------------------------------------------------------------
     def run(
