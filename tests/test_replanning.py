@@ -237,6 +237,12 @@ def test_validate_runs_the_replanning_executor(case):
         replan_options={"every": 3, "solver_options": OPTIONS, "adopt": "always"},
     )
     assert len(live.replans) == 6 and sum(live.replans) >= 6
+    # Checked on drift with a threshold never met: the runs are the fixed ones.
+    watched = stl.validate(
+        problem, plan, real, x0, runs=6, seed=4, executor="serial", replan="on_risk",
+        replan_options={"drift": 0.95, "risk": 0.0},
+    )  # fmt: skip
+    assert watched.belief_margins == fixed.belief_margins and sum(watched.replans) == 0
     assert live.as_dict()["replans"] == list(live.replans)
     one = stl.execute(
         problem,
