@@ -537,8 +537,11 @@ def execute(
                         p_new = predicted_success(new_plan, 0, psi, belief)
                         record = _with(record, predicted=p_old, new_predicted=p_new, adopted=p_new > p_old)
                     if record.adopted and new_plan is not None:
-                        if drift is not None and last:  # the adopted plan's prediction is the reference
-                            reference[:] = [(k, *last[0])]
+                        if drift is not None:  # the adopted plan's prediction is the reference
+                            if adopt == "better" and last:  # the last prediction was the new plan's
+                                reference[:] = [(k, *last[0])]
+                            else:
+                                predicted_success(new_plan, 0, psi, belief, at=k)
                         current, start = new_plan, k
                         plans.append((k, new_plan))
                         j, remaining = 0, new_plan.num_of_steps
