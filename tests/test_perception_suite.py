@@ -223,3 +223,20 @@ def test_double_integrator_steering_can_always_stop():
         # braking at full deceleration stops within the horizon
         assert np.max(np.abs(mean[2:])) <= horizon * 0.05 + 1e-9
     assert mean[0] > 4.0 and abs(mean[2]) < 0.05  # arrived, nearly at rest
+
+
+def test_tight_hold_under_process_noise_is_found():
+    """(d'): a 40-step hold whose belief must sit within 0.05 of the target's centre. Holders
+    settle at the centre and go on for the rest of their plan (a hold is not limited to one
+    extension), and under process noise a holder is selected by its progress."""
+    problem, _ = pp.build("noisy_hold_narrow", "full")
+    result = problem.solve_result(**suite.SAMPLER, seed=0, time_limit=120)
+    assert result.status == "found", result.reason
+    traj = stl.rollout(
+        problem.switched_system,
+        problem.initial_state,
+        result.trajectory.get_action(),
+        result.trajectory.get_control(),
+    )
+    assert stl.satisfies(traj, problem.stl_formula)
+    assert not result.stats.caps_hit

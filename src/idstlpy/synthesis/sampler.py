@@ -531,7 +531,7 @@ class BeliefSampler:
                 pool = off if off.size else act
             node = ref if recurring and aim_goal else self._select(tree, pool, s, goal)
             if (
-                self._underactuated
+                (self._underactuated or self._pareto)
                 and aim_goal
                 and goal is not None
                 and self._centers[goal] is not None
@@ -544,6 +544,10 @@ class BeliefSampler:
             else:
                 settle = False
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
+            if settle:
+                # A hold is not limited to one extension's length: a holder settling at the
+                # centre goes on for the rest of its plan (it stops where the plan breaks).
+                steps = max(steps, plans[int(tree.plan[node])].length - int(tree.k[node]))
             prefer = self._extension_mode(tree, node, goal, rng)
             # (a patrol's round trips need full speed: its deadlines leave no time for gentleness)
             gentle = self._any_full_rank and not recurring and bool(rng.random() < 0.5)
@@ -608,8 +612,13 @@ class BeliefSampler:
             names = abs_.names()
             held = tree.truth[: tree.size]
             logger.debug(
-                "sampler tree: nodes per proposition %s; deepest step %d; plans %d",
+                "sampler tree: nodes per proposition %s; longest run per proposition %s; "
+                "deepest step %d; plans %d",
                 {names[i]: int(held[:, i].sum()) for i in range(abs_.num_atoms)},
+                {
+                    names[i]: int(np.max(tree.run[: tree.size][held[:, i]], initial=0))
+                    for i in range(abs_.num_atoms)
+                },
                 int(tree.k[: tree.size].max()),
                 len(plans),
             )
@@ -719,10 +728,13 @@ class BeliefSampler:
         unc = tree.unc[near]
         progress = np.where(tree.truth[near, goal], tree.run[near], 0) if goal is not None else 0 * unc
         key = np.maximum(unc, floor)
-        if self._pareto and self._underactuated and goal is not None and self.rng.random() < 0.5:
+        if self._pareto and goal is not None and self.rng.random() < 0.5:
             # Under process noise a hold loses certainty as it goes on: a holding node that still
             # has three quarters of the region's room counts as certain enough (progress decides).
-            key = np.where(tree.truth[near, goal] & (unc <= 9.0 * floor), floor, key)
+            # A fully actuated holder reaches the centre in a step or two, where its covariance
+            # settles (re-sensing): every holder counts.
+            roomy = unc <= 9.0 * floor if self._underactuated else np.ones(near.shape[0], dtype=bool)
+            key = np.where(tree.truth[near, goal] & roomy, floor, key)
         order = np.lexsort((unc, -progress, key))
         return int(near[order[0]])
 
