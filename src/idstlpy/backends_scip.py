@@ -125,6 +125,8 @@ class ScipBackend:
             s.setParam("propagating/probing/maxtotaluseless", 10)
         elif model.probing == "off":
             s.setParam("propagating/probing/maxprerounds", 0)
+        if not model.feaspump:
+            s.setParam("heuristics/feaspump/freq", -1)
         for key_, val in self.params.items():
             s.setParam(key_, val)
         with quiet_stdout():

@@ -873,6 +873,11 @@ def solve_milp(
         integrality,
         cuts=objective in ("effort", "time"),
         probing="off" if objective is None else "full",
+        # SCIP's feasibility pump mostly fails on the feasibility model (conflict diving finds
+        # the plan): without it 28 cells of stlpy's scenarios, PrSTL and the double integrator
+        # take 0.80-1.20x their CPU time (NarrowPassage T = 200 0.86x; BENCHMARKS.md, Analysis).
+        # The margin probes keep it (issue 13's measurements).
+        feaspump=objective is not None,
     )
     if nt:
         status, x, exact, bound, message = _solve_margin(
