@@ -324,19 +324,45 @@ class LoopStep:
         R = nf @ np.swapaxes(nf, 1, 2)
         PCt = P_pred @ C.T  # (S, n, p)
         Sinn = C @ PCt + R  # (S, p, p)
-        try:
-            with np.errstate(all="ignore"):
-                Lg = np.swapaxes(np.linalg.solve(Sinn, np.swapaxes(PCt, 1, 2)), 1, 2)  # Sinn symmetric
-            if not np.all(np.isfinite(Lg)):
-                raise np.linalg.LinAlgError("non-finite gain")
-        except np.linalg.LinAlgError:  # a singular innovation covariance (noise-free sensor): as kalman_gain
-            Lg = PCt @ np.linalg.pinv(0.5 * (Sinn + np.swapaxes(Sinn, 1, 2)), rcond=1e-12, hermitian=True)
+        Lg = _batched_gain(PCt, Sinn)
         innov = (delta_n - eta_pred) @ C.T + nu
         out[:, n : 2 * n] = eta_pred + (Lg @ innov[:, :, None])[:, :, 0]
         IKC = np.eye(n) - Lg @ C
         P_new = IKC @ P_pred @ np.swapaxes(IKC, 1, 2) + Lg @ R @ np.swapaxes(Lg, 1, 2)
         out[:, 2 * n :] = (0.5 * (P_new + np.swapaxes(P_new, 1, 2)) - self.P_next).reshape(S, n * n)
         return out
+
+
+def _batched_gain(PCt: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """Kalman gains ``PCt S^-1`` of many samples, (S, n, p), computed as
+    :func:`idstlpy.belief.kalman_gain` computes one (closed form for one or two outputs when well
+    conditioned, else a solve, else the pseudo-inverse), so that a sample's filter is the
+    executor's also where the innovation covariance is (nearly) singular."""
+    num, _, p = PCt.shape
+    K = np.full(PCt.shape, np.nan)
+    ok = np.zeros(num, dtype=bool)
+    with np.errstate(all="ignore"):
+        if p == 1:
+            s = S[:, 0, 0]
+            ok = (s > 0.0) & np.isfinite(s)
+            K = PCt / np.where(ok, s, 1.0)[:, None, None]
+        elif p == 2:
+            a, b, c, d = S[:, 0, 0], S[:, 0, 1], S[:, 1, 0], S[:, 1, 1]
+            det = a * d - b * c
+            ok = (np.abs(det) > 1e-10 * (np.abs(a * d) + np.abs(b * c))) & np.isfinite(det) & (det != 0.0)
+            inv = np.stack([np.stack([d, -b], axis=1), np.stack([-c, a], axis=1)], axis=1)
+            K = PCt @ (inv / np.where(ok, det, 1.0)[:, None, None])
+        ok &= np.all(np.isfinite(K), axis=(1, 2))
+    for i in np.flatnonzero(~ok):
+        try:
+            with np.errstate(all="ignore"):
+                Ki = np.linalg.solve(S[i].T, PCt[i].T).T
+            if not np.all(np.isfinite(Ki)):
+                raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
+        except np.linalg.LinAlgError:
+            Ki = PCt[i] @ np.linalg.pinv(0.5 * (S[i] + S[i].T), rcond=1e-12, hermitian=True)
+        K[i] = Ki
+    return K
 
 
 @dataclass
