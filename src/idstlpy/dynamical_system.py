@@ -316,8 +316,11 @@ class POLBSWithNonLinNoise(POLBS):
 
     def noise_cov(self, x: Any) -> np.ndarray:
         nx = self.noise(x)
-        with np.errstate(over="ignore", invalid="ignore"):
-            R = nx @ nx.T
+        if nx.size and float(np.abs(nx).max()) > 1e150:  # (finite: noise checked it)
+            with np.errstate(over="ignore", invalid="ignore"):
+                R = nx @ nx.T
+        else:
+            R = nx @ nx.T  # cannot overflow
         if not np.isfinite(R).all():
             raise NoiseFunctionError(
                 f"noise function V{self._where()} gives a non-finite covariance "
