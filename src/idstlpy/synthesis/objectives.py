@@ -25,10 +25,10 @@ from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .plan import DiscretePlan
+from .plan import DiscretePlan, trajectory_plan
 from .plan_lp import Scaling
 from .results import SolveStats
-from .room import Room, execution_room, room_lp, witness_plan
+from .room import Room, execution_room, room_lp
 from .teacher import solve_plan_lp
 
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
@@ -256,7 +256,7 @@ def _room(
     problem: Any, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
 ) -> tuple[DiscretePlan, Room] | None:
     """The requirements ``traj`` meets (its earliest witness) and its execution room, or None."""
-    plan = witness_plan(problem.stl_formula, abstraction, traj)
+    plan = trajectory_plan(problem.stl_formula, abstraction, traj)
     if plan is None:
         return None
     room = execution_room(problem.switched_system, problem.control_domain, abstraction, plan, traj)

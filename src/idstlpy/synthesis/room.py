@@ -65,13 +65,12 @@ from ..errors import InvalidArgumentError
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .plan import DiscretePlan, extract_witness
+from .plan import DiscretePlan, trajectory_plan
 from .plan_lp import Scaling, build_plan_rows, covariance_jacobian, plan_requirements
 from .results import SolveStats
 
 __all__ = [
     "give_room",
-    "witness_plan",
     "BELIEF_FAILURE",
     "ROOM_FLOOR",
     "STATE_FAILURE",
@@ -492,23 +491,6 @@ def room_lp(
     return controls, t
 
 
-def witness_plan(
-    formula: Any, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
-) -> DiscretePlan | None:
-    """The requirements ``traj`` meets: its earliest witness of ``formula``, or None."""
-    modes = np.concatenate([[-1], traj.get_action()]).astype(int)
-    means, covs = traj.get_mean(), traj.get_cov()
-    truth = np.stack(
-        [abstraction.truth(mu, cov, int(q)) for mu, cov, q in zip(means, covs, modes, strict=True)],
-        axis=1,
-    )
-    witness = extract_witness(formula, truth, abstraction.index, prefer_late=False)
-    if witness is None:
-        return None
-    required, L = witness
-    return DiscretePlan(required[:, :L], modes[:L], L)
-
-
 def give_room(
     problem: Any,
     abstraction: Abstraction,
@@ -519,7 +501,7 @@ def give_room(
 ) -> ProbabilisticTSTrajectory:
     """Give a plan the room its execution needs, keeping its modes (sequential convex programming).
 
-    Each round takes the requirements the trajectory meets (:func:`witness_plan`), predicts the
+    Each round takes the requirements the trajectory meets (:func:`~.plan.trajectory_plan`), predicts the
     closed loop around it (:func:`execution_room`) and solves one step toward that room
     (:func:`room_lp`, means within ``trust``); the re-rolled plan is kept only if the monitor
     still accepts it and its room improved (:meth:`Room.better_than`); ``trust`` halves after a
@@ -556,7 +538,7 @@ def give_room(
     current: tuple[DiscretePlan, Room] | None = None
     for _ in range(rounds):
         if current is None:
-            found = witness_plan(formula, abstraction, traj)
+            found = trajectory_plan(formula, abstraction, traj)
             if found is None:
                 break
             first = execution_room(system, domain, abstraction, found, traj)
@@ -573,7 +555,7 @@ def give_room(
         if out is not None:
             moved = rollout(system, init, traj.get_action()[: plan.length - 1], out[0])
             if robustness(moved, formula) >= 0:
-                moved_plan = witness_plan(formula, abstraction, moved)
+                moved_plan = trajectory_plan(formula, abstraction, moved)
                 moved_room = None
                 if moved_plan is not None:
                     moved_room = execution_room(system, domain, abstraction, moved_plan, moved)
