@@ -270,15 +270,7 @@ class LoopStep:
         n = self.A.shape[0]
         if self.noise is not None:
             return self._advance_state_dependent(Z, rng)
-        delta, eta = Z[:, :n], Z[:, n : 2 * n]
-        y = self.v - eta @ self.K.T
-        if self.low is not None and self.high is not None:
-            y = np.clip(y, self.low, self.high)
-        c = y - self.v
-        delta_n = delta @ self.Ar.T + c @ self.Br.T + self.d
-        if self.W_root.size:
-            delta_n = delta_n + rng.standard_normal((Z.shape[0], self.W_root.shape[1])) @ self.W_root.T
-        eta_pred = eta @ self.A.T + c @ self.B.T - self.r
+        delta_n, eta_pred = self._track(Z, rng)
         eta_n = eta_pred + (delta_n - eta_pred) @ self.LC.T
         if self.R_root.size:
             nu = rng.standard_normal((Z.shape[0], self.R_root.shape[1])) @ self.R_root.T
@@ -293,11 +285,10 @@ class LoopStep:
                 out[:, 2 * n :] = Z[:, 2 * n :] @ kron.T + (eta_pred - off) @ J.T
         return out
 
-    def _advance_state_dependent(self, Z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        noise, m_next, C = self.noise, self.m_next, self.C
-        if noise is None or m_next is None or C is None:  # pragma: no cover - set together
-            raise InvalidArgumentError("a state-dependent loop step needs its noise model")
-        n, S = self.A.shape[0], Z.shape[0]
+    def _track(self, Z: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """The samples' next true-state deviation and predicted estimation error (before the
+        measurement): the tracking correction clipped to the control domain, process noise drawn."""
+        n = self.A.shape[0]
         delta, eta = Z[:, :n], Z[:, n : 2 * n]
         y = self.v - eta @ self.K.T
         if self.low is not None and self.high is not None:
@@ -305,8 +296,15 @@ class LoopStep:
         c = y - self.v
         delta_n = delta @ self.Ar.T + c @ self.Br.T + self.d
         if self.W_root.size:
-            delta_n = delta_n + rng.standard_normal((S, self.W_root.shape[1])) @ self.W_root.T
-        eta_pred = eta @ self.A.T + c @ self.B.T - self.r
+            delta_n = delta_n + rng.standard_normal((Z.shape[0], self.W_root.shape[1])) @ self.W_root.T
+        return delta_n, eta @ self.A.T + c @ self.B.T - self.r
+
+    def _advance_state_dependent(self, Z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        noise, m_next, C = self.noise, self.m_next, self.C
+        if noise is None or m_next is None or C is None:  # pragma: no cover - set together
+            raise InvalidArgumentError("a state-dependent loop step needs its noise model")
+        n, S = self.A.shape[0], Z.shape[0]
+        delta_n, eta_pred = self._track(Z, rng)
         nx = noise(m_next + delta_n)  # (S, p, q): the sensor at the true state
         nu = (nx @ rng.standard_normal((S, nx.shape[2], 1)))[:, :, 0]
         out = np.empty_like(Z)
