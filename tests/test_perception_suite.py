@@ -240,3 +240,7 @@ def test_tight_hold_under_process_noise_is_found():
     )
     assert stl.satisfies(traj, problem.stl_formula)
     assert not result.stats.caps_hit
+    # No plan of (d') keeps the room its execution needs (perception_problems.noisy_hold_narrow):
+    # the result says so instead of passing the plan off as one that holds.
+    assert result.stats.execution_room is not None and result.stats.execution_room < 1.0
+    assert stl.SolveResult.from_dict(result.to_dict()).stats.execution_room == result.stats.execution_room

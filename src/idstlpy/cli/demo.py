@@ -160,6 +160,8 @@ def run_light_dark(
         ("candidates", str(stats.candidates)),
         ("counterexamples", str(stats.counterexamples)),
     ]
+    if stats.execution_room is not None:
+        rows.append(("execution room kept", f"{stats.execution_room:.2f} (>= 1: all the loop needs)"))
     path_json = out_dir / "result.json"
     plan = result.trajectory
     if plan is None:

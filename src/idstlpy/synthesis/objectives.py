@@ -28,7 +28,7 @@ from .abstraction import Abstraction
 from .plan import DiscretePlan, trajectory_plan
 from .plan_lp import Scaling
 from .results import SolveStats
-from .room import Room, execution_room, room_lp
+from .room import Room, execution_room, note_room, room_lp
 from .teacher import solve_plan_lp
 
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
@@ -213,6 +213,8 @@ def refine(
         if name == "effort" and failed >= PATIENCE:
             break
         trust *= 0.5
+    if current is not None and name == "effort":
+        note_room(stats, current[1])
     return traj
 
 

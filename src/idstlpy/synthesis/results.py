@@ -64,6 +64,14 @@ class SolveStats:
     improvements : list of (float, float)
         ``(seconds since the start, objective value)`` each time a better verified plan was
         found (empty without an objective).
+    execution_room : float or None
+        The fraction of its execution room the returned plan keeps (:mod:`.room`: per required
+        face and step, the room the predicted closed loop under the default LQR tracking and
+        Kalman filter needs for the executed belief to hold in 90% and the true state in 95% of
+        runs); 1 or more: all of it. Below 1 the plan is expected to hold less often than that
+        (a warning is logged). ``None`` where it was not computed: noise-free problems, plans
+        the sampler's polish and the objective's refiner did not see (the LP and MILP paths),
+        and ``guarantee="closed_loop"``, whose promise is the predicted true state itself.
     """
 
     candidates: int = 0
@@ -85,6 +93,7 @@ class SolveStats:
     time_sampling: float = 0.0
     caps_hit: list[str] = field(default_factory=list)
     improvements: list[tuple[float, float]] = field(default_factory=list)
+    execution_room: float | None = None
 
     @contextmanager
     def clock(self, name: str) -> Iterator[None]:

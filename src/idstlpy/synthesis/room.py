@@ -71,6 +71,7 @@ from .results import SolveStats
 
 __all__ = [
     "give_room",
+    "note_room",
     "BELIEF_FAILURE",
     "ROOM_FLOOR",
     "STATE_FAILURE",
@@ -578,10 +579,19 @@ def give_room(
             break  # the faces have their room (only the inputs' is missing), or no smaller step helps
         trust *= 0.5
     if current is not None:
-        logger.info(
-            "room: the plan keeps %.3g of the room its execution needs (z %.2f belief, %.2f state)",
-            current[1].score,
-            current[1].z_belief,
-            current[1].z_state,
-        )
+        note_room(stats, current[1])
     return traj
+
+
+def note_room(stats: SolveStats, room: Room) -> None:
+    """Record the room the returned plan keeps (``stats.execution_room``); warn when short of it."""
+    stats.execution_room = float(room.score)
+    level = logging.INFO if room.score >= 1.0 else logging.WARNING
+    logger.log(
+        level,
+        "room: the plan keeps %.3g of the room its execution needs (z %.2f belief, %.2f state)%s",
+        room.score,
+        room.z_belief,
+        room.z_state,
+        "" if room.score >= 1.0 else ": expect it to hold in fewer than 90% (belief) / 95% (state) of runs",
+    )
