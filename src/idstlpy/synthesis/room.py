@@ -51,6 +51,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -142,9 +143,12 @@ class Room:
     z_belief: float = 0.0
     z_state: float = 0.0
 
+    @cached_property
     def _ratios(self) -> np.ndarray:
-        parts = [_ratio(have, need) for need, have in zip(self.need, self.have, strict=True) if need.size]
-        return np.concatenate(parts) if parts else np.full(1, _CAP)
+        # computed once: score, coverage and complete read it several times per polish round
+        if not any(need.size for need in self.need):
+            return np.full(1, _CAP)
+        return _ratio(np.concatenate(self.have), np.concatenate(self.need))
 
     @property
     def score(self) -> float:
@@ -152,12 +156,12 @@ class Room:
 
         ``>= 1``: every required face keeps its room; ``< 0``: some requirement is broken.
         """
-        return float(np.min(self._ratios()))
+        return float(np.min(self._ratios))
 
     @property
     def coverage(self) -> float:
         """The mean over the required faces of the fraction of their room they keep (at most 1)."""
-        return float(np.mean(np.clip(self._ratios(), -1.0, 1.0)))
+        return float(np.mean(np.clip(self._ratios, -1.0, 1.0)))
 
     @property
     def input_score(self) -> float:
