@@ -155,3 +155,24 @@ def test_give_room_on_a_constant_noise_plan():
     assert stl.satisfies(moved, problem.stl_formula)
     _, _, _, moved_room = _room_of(problem, moved.get_action(), moved.get_control())
     assert moved_room.score > max(room.score, 0.0) + 0.2
+
+
+def test_plan_lp_path_gives_its_plans_their_room():
+    """A constant-noise problem is decided by the exact plan LP; its plan gets the room too."""
+    x = stl.mk_variable(size=2, dtype=float)
+    u = stl.mk_variable(size=2, dtype=float, name="u")
+    target = pp.box(x, [-0.25, -0.25], [0.25, 0.25], 0.95, "target")
+    system = stl.mk_switched_sys(
+        [stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.02 * np.eye(2), C=np.eye(2), V=0.1 * np.eye(2))]
+    )
+    problem = stl.Problem(
+        system,
+        pp._unit_box(u, 2),
+        stl.to_belief(mean=[1.0, 1.0], cov=0.01 * np.eye(2)),
+        stl.eventually(0, 30, stl.always(0, 10, target)),
+    )
+    result = problem.solve_result(seed=0)
+    assert result.status == "found" and "plan LP" in result.reason
+    assert result.stats.execution_room is not None and result.stats.execution_room >= 1.0
+    report = stl.validate(problem, result.trajectory, pp.real_system(problem), [1.0, 1.0], runs=200, seed=0)
+    assert report.belief_success_rate >= 0.9 and report.state_success_rate >= 0.95

@@ -43,6 +43,7 @@ from .plan_lp import (
     plan_requirements,
 )
 from .results import SolveStats
+from .room import give_room
 
 __all__ = [
     "LPOutcome",
@@ -375,16 +376,24 @@ def _phase(
     return sol.x[:ncol], float(sol.x[ncol])
 
 
+ROOM_ROUNDS = 8
+"""LP rounds the plan LP's plans get toward their execution room (a work budget)."""
+
+
+def _noisy(system: Any, init: Any) -> bool:
+    """Whether a plan will meet noise: an uncertain start, process noise or a sensor."""
+    return bool(np.any(init.cov != 0)) or any(
+        np.any(mode.process_cov != 0) or mode.p > 0 for mode in system.system_modes
+    )
+
+
 def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: DiscretePlan) -> float:
     """Room to leave inside required regions when the plan will meet noise (0 when it will not).
 
     Half the Chebyshev radius of the smallest bounded required region (one unit of the largest
     state scale when every required region is unbounded).
     """
-    noisy = bool(np.any(init.cov != 0)) or any(
-        np.any(mode.process_cov != 0) or mode.p > 0 for mode in system.system_modes
-    )
-    if not noisy:
+    if not _noisy(system, init):
         return 0.0
     radii = []
     for i in np.nonzero(plan.required.any(axis=1))[0]:
@@ -526,6 +535,16 @@ class LPTeacher:
         self._smooth = self.objective if self.objective is not None or not closed_loop else "effort"
         self.effort_weights = effort_weights
         self.last: LPOutcome | None = None
+        # Without an objective (whose optimum the room would move) and under the MLO guarantee,
+        # a plan gets the room its execution needs (:mod:`.room`), as the sampler's plans do.
+        self._room = objective is None and not closed_loop
+
+    def _with_room(self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats) -> np.ndarray:
+        """The LP plan's controls after :func:`.room.give_room` (at most :data:`ROOM_ROUNDS` LPs)."""
+        problem = self.problem
+        traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
+        moved = give_room(problem, self.abs, self.scaling, traj, ROOM_ROUNDS, stats)
+        return np.asarray(moved.get_control(), dtype=float)[: len(actions)]
 
     def applies(self, problem: Any) -> bool:
         """The LP is a sound relaxation of every problem."""
@@ -583,7 +602,10 @@ class LPTeacher:
             return Unknown(out.why, out.means)
         actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
         if out.exact and out.controls is not None and not self.closed_loop:
-            return Found(actions, out.controls, "the plan LP", exact=True)
+            controls = out.controls
+            if self._room and _noisy(system, init):
+                controls = self._with_room(actions, controls, stats)
+            return Found(actions, controls, "the plan LP", exact=True)
         found = self._fixed_point(plan, actions, out, margin, budget, stats)
         if found is not None:
             return found
