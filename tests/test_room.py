@@ -124,11 +124,8 @@ def test_small_double_integrator_plan_holds_under_execution(seed):
     assert report.state_success_rate >= 0.9
 
 
-def test_give_room_on_a_constant_noise_plan():
-    """The LP path's plans (constant noise: exact covariances, no trust region) get their room too."""
-    from idstlpy.synthesis.results import SolveStats
-    from idstlpy.synthesis.room import give_room
-
+def _constant_noise_problem():
+    """Reach a small target and hold it, constant sensor and process noise (the plan LP decides it)."""
     x = stl.mk_variable(size=2, dtype=float)
     u = stl.mk_variable(size=2, dtype=float, name="u")
     target = pp.box(x, [-0.25, -0.25], [0.25, 0.25], 0.95, "target")
@@ -141,6 +138,16 @@ def test_give_room_on_a_constant_noise_plan():
         stl.to_belief(mean=[1.0, 1.0], cov=0.01 * np.eye(2)),
         stl.eventually(0, 30, stl.always(0, 10, target)),
     )
+    return problem
+
+
+def test_give_room_on_a_constant_noise_plan():
+    """The LP path's plans (constant noise: exact covariances, no trust region) get their room too."""
+    from idstlpy.synthesis.results import SolveStats
+    from idstlpy.synthesis.room import give_room
+
+    problem = _constant_noise_problem()
+    system = problem.switched_system
     for xh in np.linspace(0.2, 0.0, 41):  # arrive and hold just inside the target
         s = pp.Script(problem)
         s.goto([xh, xh]).wait(10)
@@ -159,18 +166,7 @@ def test_give_room_on_a_constant_noise_plan():
 
 def test_plan_lp_path_gives_its_plans_their_room():
     """A constant-noise problem is decided by the exact plan LP; its plan gets the room too."""
-    x = stl.mk_variable(size=2, dtype=float)
-    u = stl.mk_variable(size=2, dtype=float, name="u")
-    target = pp.box(x, [-0.25, -0.25], [0.25, 0.25], 0.95, "target")
-    system = stl.mk_switched_sys(
-        [stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.02 * np.eye(2), C=np.eye(2), V=0.1 * np.eye(2))]
-    )
-    problem = stl.Problem(
-        system,
-        pp._unit_box(u, 2),
-        stl.to_belief(mean=[1.0, 1.0], cov=0.01 * np.eye(2)),
-        stl.eventually(0, 30, stl.always(0, 10, target)),
-    )
+    problem = _constant_noise_problem()
     result = problem.solve_result(seed=0)
     assert result.status == "found" and "plan LP" in result.reason
     assert result.stats.execution_room is not None and result.stats.execution_room >= 1.0
