@@ -28,6 +28,7 @@ __all__ = [
     "to_belief",
     "predict",
     "kalman_gain",
+    "gain_from",
     "kalman_update",
     "belief_step",
     "rollout",
@@ -149,7 +150,15 @@ def kalman_gain(C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
     ndarray, shape (n, p)
     """
     PCt = P @ C.T
-    S = C @ PCt + R
+    return gain_from(PCt, C @ PCt + R)
+
+
+def gain_from(PCt: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``PCt S^-1``: the Kalman gain from ``P C'`` (n, p) and the innovation covariance ``S`` (p, p).
+
+    Closed form for one or two outputs when ``S`` is well conditioned, else a linear solve, else
+    (a singular ``S``) the pseudo-inverse; shape (n, p).
+    """
     if S.shape[0] <= 2:
         K_small = _small_gain(PCt, S)
         if K_small is not None:

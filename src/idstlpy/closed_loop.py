@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
-from .belief import kalman_gain, kalman_update
+from .belief import gain_from, kalman_gain, kalman_update
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from .sets import Polytope
@@ -352,14 +352,7 @@ def _batched_gain(PCt: np.ndarray, S: np.ndarray) -> np.ndarray:
             K = PCt @ (inv / np.where(ok, det, 1.0)[:, None, None])
         ok &= np.all(np.isfinite(K), axis=(1, 2))
     for i in np.flatnonzero(~ok):
-        try:
-            with np.errstate(all="ignore"):
-                Ki = np.linalg.solve(S[i].T, PCt[i].T).T
-            if not np.all(np.isfinite(Ki)):
-                raise np.linalg.LinAlgError("ill-conditioned innovation covariance")
-        except np.linalg.LinAlgError:
-            Ki = PCt[i] @ np.linalg.pinv(0.5 * (S[i] + S[i].T), rcond=1e-12, hermitian=True)
-        K[i] = Ki
+        K[i] = gain_from(PCt[i], S[i])
     return K
 
 
@@ -478,9 +471,8 @@ def propagate(
     means = plan.get_mean()
     controls = plan.get_control()
     used = {int(q) for q in actions[:N]}
-    sens = filter_sensitivity and any(
-        system.mode(q).p and system.mode(q).has_state_dependent_noise for q in used
-    )
+    state_dependent = any(system.mode(q).p and system.mode(q).has_state_dependent_noise for q in used)
+    sens = filter_sensitivity and state_dependent
     D = 2 * n + (n * n if sens else 0)
     I = np.eye(n)
     Z = np.zeros((n, n))
@@ -498,7 +490,6 @@ def propagate(
     )
     out.mean[0, : 2 * n], out.cov[0, : 2 * n, : 2 * n], out.P[0] = z0, S0, P0
     cub = _cubature(n) if sensor_noise == "expected" else None
-    state_dependent = any(system.mode(q).p and system.mode(q).has_state_dependent_noise for q in used)
     if closure not in ("auto", "gaussian", "particles"):
         raise InvalidArgumentError(f"closure must be 'auto', 'gaussian' or 'particles', got {closure!r}")
     if closure == "auto":

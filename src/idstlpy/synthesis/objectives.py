@@ -59,8 +59,7 @@ def objective_value(
     float
     """
     if name == "effort":
-        w = np.ones(traj.get_control().shape[1]) if weights is None else np.asarray(weights, dtype=float)
-        return float(np.sum(np.abs(traj.get_control()) @ w))
+        return _effort(traj.get_control(), _weights(traj.get_control().shape[1], weights))
     if name == "time":
         return float(traj.num_of_steps)
     if name == "margin":
@@ -136,6 +135,7 @@ def refine(
     # the closed loop, the refiner's largest cost after its LPs).
     current = base
     failed = 0
+    w = _weights(system.m, weights)
     for _ in range(rounds):
         if current is None:
             break
@@ -148,7 +148,6 @@ def refine(
         L = plan.length
         controls: np.ndarray | None = None
         if name == "effort":
-            w = np.ones(system.m) if weights is None else np.asarray(weights, dtype=float)
             out = room_lp(
                 system,
                 domain,
@@ -227,9 +226,14 @@ quarter of where the last improvement was found: what is left is small, measured
 listing in ``benchmarks/effort_listing.py``)."""
 
 
+def _weights(m: int, weights: np.ndarray | None) -> np.ndarray:
+    """Per-input effort weights, shape (m,) (all ones by default)."""
+    return np.ones(m) if weights is None else np.asarray(weights, dtype=float)
+
+
 def _effort(controls: np.ndarray, weights: np.ndarray) -> float:
-    """``sum_k sum_j w_j |u_kj|`` of controls of shape (K, m)."""
-    return float(np.sum(np.abs(np.asarray(controls)) * weights[None, :]))
+    """``sum_k sum_j w_j |u_kj|`` of controls of shape (K, m): the ``"effort"`` objective."""
+    return float(np.sum(np.abs(np.asarray(controls)) @ weights))
 
 
 def _restore(
