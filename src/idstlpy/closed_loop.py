@@ -736,11 +736,24 @@ def tracking_spread(
     -------
     ndarray, shape (N, F)
     """
-    n, N = system.n, plan.num_of_steps
+    N = plan.num_of_steps
     H = control_domain.H
     if N == 0:
         return np.zeros((0, H.shape[0]))
-    loop = _planning_loop(system, plan, None, lqr_gains, default_lqr)
+    return correction_spread(_planning_loop(system, plan, None, lqr_gains, default_lqr), H)
+
+
+def correction_spread(loop: ClosedLoopMoments, H: np.ndarray) -> np.ndarray:
+    """``sd(H_f K_k eta_k)`` per step and face of a predicted loop, shape (N, F).
+
+    Parameters
+    ----------
+    loop : ClosedLoopMoments
+        ``N`` steps of a state of dimension ``n``.
+    H : ndarray, shape (F, m)
+        Faces of the control domain.
+    """
+    N, n = loop.K.shape[0], loop.K.shape[2]
     HK = np.einsum("fi,kij->kfj", H, loop.K)  # (N, F, n)
     S_eta = loop.cov[:N, n : 2 * n, n : 2 * n]
     return np.sqrt(np.maximum(np.einsum("kfi,kij,kfj->kf", HK, S_eta, HK), 0.0))

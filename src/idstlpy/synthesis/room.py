@@ -61,7 +61,7 @@ from scipy.special import ndtri
 from ..backends import Backend, HighsBackend, LinearModel
 from ..belief import rollout
 from ..chance import std_terms
-from ..closed_loop import TRACKABLE_Z, gains_for, propagate
+from ..closed_loop import TRACKABLE_Z, correction_spread, gains_for, propagate, tracking_backoff
 from ..errors import InvalidArgumentError
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
@@ -252,6 +252,11 @@ def _trials(
     return float(np.sum(np.where(near, w, 0.0)))
 
 
+def _face_sd(H: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``sqrt(h_f' S h_f)`` per face ``h_f`` (rows of ``H``, shape (F, n)); ``S`` (n, n)."""
+    return np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", H, S, H), 0.0))
+
+
 def execution_room(
     system: Any,
     control_domain: Any,
@@ -297,17 +302,15 @@ def execution_room(
         H = cone.H
         terms = std_terms(H, cone.z, covs[k])
         terms = np.where(np.isfinite(terms), terms, 0.0)
-        sd_x = np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", H, S[k, :n, :n], H), 0.0))
-        sd_eta = np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", H, S[k, n : 2 * n, n : 2 * n], H), 0.0))
+        sd_x = _face_sd(H, S[k, :n, :n])
+        sd_eta = _face_sd(H, S[k, n : 2 * n, n : 2 * n])
         chained = np.full(H.shape[0], (k - 1, i) in required and k >= 1)
         rho_x = np.zeros(H.shape[0])
         rho_eta = np.zeros(H.shape[0])
         if chained[0]:
             C = loop.F[k - 1][: 2 * n, : 2 * n] @ S[k - 1, : 2 * n, : 2 * n]  # Cov(z_k, z_{k-1})
-            prev_x = np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", H, S[k - 1, :n, :n], H), 0.0))
-            prev_eta = np.sqrt(
-                np.maximum(np.einsum("fa,ab,fb->f", H, S[k - 1, n : 2 * n, n : 2 * n], H), 0.0)
-            )
+            prev_x = _face_sd(H, S[k - 1, :n, :n])
+            prev_eta = _face_sd(H, S[k - 1, n : 2 * n, n : 2 * n])
             with np.errstate(divide="ignore", invalid="ignore"):
                 rho_x = np.einsum("fa,ab,fb->f", H, C[:n, :n], H) / (sd_x * prev_x)
                 rho_eta = np.einsum("fa,ab,fb->f", H, C[n : 2 * n, n : 2 * n], H) / (sd_eta * prev_eta)
@@ -329,10 +332,8 @@ def execution_room(
     have = [p[0] for p in parts]
     Hu, cu = control_domain.H, control_domain.c
     if Hu.shape[0] and N:
-        HK = np.einsum("fi,kij->kfj", Hu, loop.K)
-        sd_u = np.sqrt(np.maximum(np.einsum("kfi,kij,kfj->kf", HK, S[:N, n : 2 * n, n : 2 * n], HK), 0.0))
-        width = np.array([control_domain.support(h) + control_domain.support(-h) for h in Hu])
-        input_need = np.minimum(z_input * sd_u, 0.4 * width[None, :])
+        spread = correction_spread(loop, Hu)
+        input_need = tracking_backoff(system, traj, control_domain, z_input, spread)
         input_have = -(traj.get_control()[:N] @ Hu.T + cu[None, :])
     else:
         input_need = np.zeros((N, Hu.shape[0]))
