@@ -116,6 +116,28 @@ class Abstraction:
             out[self.owner[bad]] = False
         return out
 
+    def labels(self, means: np.ndarray, covs: np.ndarray, actions: np.ndarray, start: int = 0) -> np.ndarray:
+        """:meth:`truth` of steps ``start..`` of a roll-out, batched over the steps (one
+        ``std_terms`` call), shape (num_atoms, L - start).
+
+        Parameters
+        ----------
+        means : ndarray, shape (L, n)
+        covs : ndarray, shape (L, n, n)
+        actions : ndarray of int, shape (L - 1,)
+            ``actions[k - 1]`` is the mode that reached step ``k`` (step 0: none).
+        start : int
+        """
+        L = len(means)
+        if start >= L:
+            return np.zeros((self.num_atoms, 0), dtype=bool)
+        out = np.array([self._mode_truth(int(actions[k - 1]) if k else -1) for k in range(start, L)])
+        if self.H.shape[0]:
+            terms = std_terms(self.H, self.z, covs[start:])
+            rows, faces = np.nonzero(-(means[start:] @ self.H.T + self.c + terms) < 0)
+            out[rows, self.owner[faces]] = False
+        return out.T
+
     def _mode_truth(self, arrival_mode: int) -> np.ndarray:
         """Which propositions a belief reached with ``arrival_mode`` may satisfy (cached per mode)."""
         cache = self.__dict__.setdefault("_mode_truths", {})

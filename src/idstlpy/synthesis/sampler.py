@@ -33,7 +33,6 @@ from typing import Any
 import numpy as np
 
 from ..belief import belief_step, rollout, rollout_arrays
-from ..chance import std_terms
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan, evaluate_bool
@@ -408,7 +407,7 @@ class BeliefSampler:
         checks = 0
         i = 0
         means, covs = rollout_arrays(modes, init.mean, init.cov, actions, controls)
-        truth = self._labels(means, covs, actions, 0)
+        truth = self.abs.labels(means, covs, actions, 0)
         while checks < max_checks:
             N = actions.shape[0]
             if i >= N - 2:
@@ -435,7 +434,7 @@ class BeliefSampler:
                 tail_m, tail_c = rollout_arrays(modes, means[i], covs[i], new_actions[i:], new_controls[i:])
                 m2 = np.vstack([means[:i], tail_m])
                 c2 = np.concatenate([covs[:i], tail_c])
-                t2 = np.hstack([truth[:, : i + 1], self._labels(m2, c2, new_actions, i + 1)])
+                t2 = np.hstack([truth[:, : i + 1], self.abs.labels(m2, c2, new_actions, i + 1)])
                 if evaluate_bool(self.formula, t2, self.abs.index)[id(self.formula)][0]:
                     actions, controls, means, covs, truth = new_actions, new_controls, m2, c2, t2
                     improved = True
@@ -443,22 +442,6 @@ class BeliefSampler:
             if not improved:
                 i += max(1, (actions.shape[0] - i) // 8)
         return actions, controls
-
-    def _labels(self, means: np.ndarray, covs: np.ndarray, actions: np.ndarray, start: int) -> np.ndarray:
-        """Labels of steps ``start..`` of a roll-out, shape (n_atoms, L - start).
-
-        :meth:`Abstraction.truth` of every step, batched over the steps (one ``std_terms`` call).
-        """
-        abs_ = self.abs
-        L = len(means)
-        if start >= L:
-            return np.zeros((abs_.num_atoms, 0), dtype=bool)
-        out = np.array([abs_._mode_truth(int(actions[k - 1]) if k else -1) for k in range(start, L)])
-        if abs_.H.shape[0]:
-            terms = std_terms(abs_.H, abs_.z, covs[start:])
-            rows, faces = np.nonzero(-(means[start:] @ abs_.H.T + abs_.c + terms) < 0)
-            out[rows, abs_.owner[faces]] = False
-        return out.T
 
     # -- main loop --------------------------------------------------------------------------------
     def run(
