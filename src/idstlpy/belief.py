@@ -154,10 +154,21 @@ def kalman_gain(C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 def gain_from(PCt: np.ndarray, S: np.ndarray) -> np.ndarray:
-    """``PCt S^-1``: the Kalman gain from ``P C'`` (n, p) and the innovation covariance ``S`` (p, p).
+    """``PCt S^-1``: the Kalman gain from ``P C'`` and the innovation covariance.
 
     Closed form for one or two outputs when ``S`` is well conditioned, else a linear solve, else
-    (a singular ``S``) the pseudo-inverse; shape (n, p).
+    (a singular ``S``) the pseudo-inverse.
+
+    Parameters
+    ----------
+    PCt : ndarray, shape (n, p)
+        Predicted covariance times the sensor matrix's transpose, ``P C'``.
+    S : ndarray, shape (p, p)
+        Innovation covariance ``C P C' + R``.
+
+    Returns
+    -------
+    ndarray, shape (n, p)
     """
     if S.shape[0] <= 2:
         K_small = _small_gain(PCt, S)
