@@ -209,19 +209,31 @@ class NoiseInterpolant:
         values = np.stack([mode.noise(center + T @ xi) for xi in grid])
         return NoiseInterpolant(center, inv, values)
 
+    def expectation(self) -> np.ndarray:
+        """``E[n(x) n(x)']`` under ``N(c, T T')`` by the nodes' Gauss-Hermite rule: shape (p, p)."""
+        r = self.inv.shape[0]
+        w1 = np.array([1 / 6, 2 / 3, 1 / 6])
+        w = np.ones(1)
+        for _ in range(r):
+            w = (w[:, None] * w1[None, :]).reshape(-1)
+        return np.einsum("g,gpq,grq->pr", w, self.values, self.values)
+
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """``n(x)`` for samples ``X`` (S, n): shape (S, p, q)."""
         r = self.inv.shape[0]
         if r == 0:
             return np.broadcast_to(self.values[0], (X.shape[0], *self.values.shape[1:]))
-        xi = (X - self.center) @ self.inv.T  # (S, r)
-        # Lagrange weights of the nodes -sqrt(3), 0, sqrt(3) per direction: (S, r, 3)
-        lag = np.stack([xi * (xi - _GH3) / 6.0, 1.0 - xi**2 / 3.0, xi * (xi + _GH3) / 6.0], axis=2)
-        wts = lag[:, 0]
+        S = X.shape[0]
+        xi = self.inv @ (X - self.center).T  # (r, S)
+        # Lagrange weights of the nodes -sqrt(3), 0, sqrt(3) per direction: (r, 3, S); samples
+        # last, so that the tensor products below run over contiguous rows (1.5x faster at 4000
+        # samples and 81 nodes than samples first)
+        lag = np.stack([xi * (xi - _GH3) / 6.0, 1.0 - xi**2 / 3.0, xi * (xi + _GH3) / 6.0], axis=1)
+        wts = lag[0]
         for i in range(1, r):
-            wts = (wts[:, :, None] * lag[:, i][:, None, :]).reshape(X.shape[0], -1)
+            wts = (wts[:, None, :] * lag[i][None, :, :]).reshape(-1, S)
         G, p, q = self.values.shape
-        return (wts @ self.values.reshape(G, p * q)).reshape(X.shape[0], p, q)
+        return (self.values.reshape(G, p * q).T @ wts).T.reshape(S, p, q)
 
 
 @dataclass
@@ -516,6 +528,12 @@ def propagate(
         Zp = np.zeros((particles, D))
         Zp[:, : 2 * n] = z0 + rng.standard_normal((particles, 2 * n)) @ sqrt_psd(S0).T
         Zp[:, : 2 * n] += z0 - Zp[:, : 2 * n].mean(axis=0)  # the exact mean
+    # the samples' mean, centred samples and covariance, carried from one step to the next
+    zc, Xc, Sp = np.zeros(D), Zp, np.zeros((D, D))
+    if use_particles:
+        zc = Zp.mean(axis=0)
+        Xc = Zp - zc
+        Sp = Xc.T @ Xc / particles
     z, S, P = out.mean[0], out.cov[0], P0
     for k in range(N):
         q = int(actions[k])
@@ -529,8 +547,7 @@ def propagate(
         m_k, m_next, v = means[k], means[k + 1], controls[k]
         P_prev = P
         if use_particles:  # the moments the linearisation below is taken at are the samples'
-            z = Zp.mean(axis=0)
-            S = np.cov(Zp, rowvar=False, bias=True).reshape(D, D)
+            z, S = zc, Sp
         eta = z[n : 2 * n]
         S_eta = S[n : 2 * n, n : 2 * n]
         nominal_pred = A @ m_k + B @ v
@@ -598,11 +615,18 @@ def propagate(
         z = F @ z + g
         S_pre = F @ S @ F.T + Qk
         R_true = np.zeros((mode.p, mode.p))
+        fitted = None  # the sensor's noise interpolant, for samples drawing it at their own state
+        if use_particles and state_dep and mode.p:
+            fitted = NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n])
         if mode.p:
             if sensor_noise == "plan" or not state_dep:
                 R_true = mode.noise_cov(m_next)
             elif sensor_noise == "mean":
                 R_true = mode.noise_cov(m_next + z[:n])
+            elif fitted is not None:
+                # the interpolant's nodes are the cubature's points (up to n = 4): reuse them
+                # (the moments below are the samples', so only the step's R_root reads this)
+                R_true = fitted.expectation()
             else:
                 pts, w = cub  # type: ignore[misc]
                 xs = m_next + z[:n] + pts @ sqrt_psd(S_pre[:n, :n]).T
@@ -625,24 +649,23 @@ def propagate(
             W_root=sqrt_psd(Qw) if Qw.any() else np.zeros((n, 0)),
             R_root=sqrt_psd(R_true) if mode.p else np.zeros((0, 0)), sens=sens_map,
         )  # fmt: skip
-        if use_particles and state_dep and mode.p:
-            step.noise = NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n])
+        if fitted is not None:
+            step.noise = fitted
             step.m_next, step.C, step.Qp = m_next, mode.C, mode.process_cov
             step.P_prev, step.P_next = P_prev, P
         out.steps.append(step)
         if use_particles:
             Zn = step.advance(Zp, rng)
             z = Zn.mean(axis=0)
-            Xc, Yc = Zp - Zp.mean(axis=0), Zn - z
+            Yc = Zn - z
             S = Yc.T @ Yc / particles
-            Sx = Xc.T @ Xc / particles
-            w, V = np.linalg.eigh(0.5 * (Sx + Sx.T))
+            w, V = np.linalg.eigh(0.5 * (Sp + Sp.T))
             keep = w > 1e-12 * max(1.0, float(w.max(initial=0.0)))
             pinv = (V[:, keep] / w[keep]) @ V[:, keep].T
             F = (Yc.T @ Xc / particles) @ pinv  # the statistical linear regression of z_{k+1} on z_k
-            g = z - F @ Zp.mean(axis=0)
-            Qk = S - F @ Sx @ F.T
-            Zp = Zn
+            g = z - F @ zc
+            Qk = S - F @ Sp @ F.T
+            Zp, zc, Xc, Sp = Zn, z, Yc, S
         if not (np.all(np.isfinite(z)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
             raise InvalidArgumentError(
                 f"the predicted closed loop diverged at step {k + 1} (non-finite moments)"
@@ -700,7 +723,7 @@ def _planning_loop(
     return loop
 
 
-_LOOPS_KEPT = 4
+_LOOPS_KEPT = 8
 _LOOPS: list[tuple[tuple[Any, ...], tuple[Any, Any, ClosedLoopMoments]]] = []
 
 
