@@ -121,6 +121,35 @@ def test_mlo_plan_breaks_its_promise_and_closed_loop_keeps_it():
     assert not trackable(system, mlo.trajectory, domain)
 
 
+def test_closed_loop_check_screens_an_untrackable_plan_with_the_gaussian_closure(monkeypatch):
+    """The particle closure (ten Gaussian ones) only for an untrackable plan whose Gaussian
+    prediction passes; one whose Gaussian prediction fails is rejected on it (here the particles
+    agree: the linearisation under-states the rectifier's spread)."""
+    from idstlpy.synthesis import teacher
+
+    real = teacher.predicted_state
+    closures: list[str] = []
+
+    def spy(*args, closure="gaussian", **kwargs):
+        closures.append(closure)
+        return real(*args, closure=closure, **kwargs)
+
+    monkeypatch.setattr(teacher, "predicted_state", spy)
+    for half_width, passes in ((0.3, False), (1.2, True)):
+        problem = _hold_problem(half_width)
+        plan = problem.solve_result(seed=0, time_limit=30).trajectory
+        system, domain, formula = problem.switched_system, problem.control_domain, problem.stl_formula
+        gaussian = stl.robustness(real(system, plan, domain), formula)
+        particles = stl.robustness(real(system, plan, domain, closure="particles"), formula)
+        closures.clear()
+        _, margin, ok, tracks = teacher.closed_loop_check(system, plan, domain, formula)
+        assert not tracks and ok is passes
+        if passes:
+            assert closures == ["gaussian", "particles"] and margin == particles >= 0
+        else:
+            assert closures == ["gaussian"] and margin == gaussian < 0 and particles < 0
+
+
 def test_closed_loop_plan_holds_under_execution_at_the_promised_rate():
     problem = _hold_problem(0.3)
     cl = problem.solve_result(seed=0, time_limit=30, guarantee="closed_loop")

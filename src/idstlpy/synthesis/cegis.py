@@ -572,9 +572,11 @@ def _certify(
         predicted, margin, ok, tracks = closed_loop_check(system, traj, problem.control_domain, formula)
         logger.debug("closed-loop repair round %d: margin %.3g, trackable %s", r, margin, tracks)
         if best is not None and not ok and margin < best[1]:
-            # The round made it worse: back to the best plan, with smaller steps.
+            # The round made it worse: back to the best plan, with smaller steps. When that plan
+            # is the passing fallback, the next round would only re-check it and stop (one repair
+            # of a passing plan that rides the faces): stop now.
             traj, trust = best[0], trust * 0.5
-            if exact or r == rounds:
+            if exact or r == rounds or fallback is not None:
                 break
             continue
         best = (traj, margin)

@@ -416,6 +416,15 @@ def closed_loop_check(
 ) -> tuple[ProbabilisticTSTrajectory, float, bool, bool]:
     """What ``guarantee="closed_loop"`` verifies of a plan.
 
+    Parameters
+    ----------
+    system : SwitchedSystem
+    traj : ProbabilisticTSTrajectory
+        The plan (its MLO roll-out).
+    control_domain : Polytope
+    formula : PrSTL formula
+        What the predicted true state must satisfy.
+
     Returns
     -------
     predicted : ProbabilisticTSTrajectory
@@ -431,11 +440,23 @@ def closed_loop_check(
         pushed through the clip: a plan riding an input bound makes the clipped loop a rectifier
         whose spread the linearisation under-states). The planner tries one repair of a passing
         plan that is not trackable and keeps it if the repair does not give a trackable one.
+
+    Notes
+    -----
+    The particle closure costs about ten Gaussian ones (4000 samples), so an untrackable plan is
+    screened first: when its Gaussian prediction already fails, that is the verdict (``ok`` is
+    False, ``predicted`` and ``margin`` the Gaussian closure's). The screen only ever rejects:
+    a plan is accepted on the particle closure alone, so soundness is untouched. It may reject
+    a plan the particles would pass only when the linearisation is the more pessimistic of the
+    two, which a rectifier's under-stated spread makes rare and small (on the suite's MLO plans
+    the particle margin was at most 6e-4 above the Gaussian one, usually below it).
     """
     tracks = trackable(system, traj, control_domain)
-    closure = "gaussian" if tracks or control_domain is None else "particles"
-    predicted = predicted_state(system, traj, control_domain, closure=closure)
+    predicted = predicted_state(system, traj, control_domain, closure="gaussian")
     margin = robustness(predicted, formula)
+    if not tracks and control_domain is not None and margin >= 0:
+        predicted = predicted_state(system, traj, control_domain, closure="particles")
+        margin = robustness(predicted, formula)
     return predicted, margin, margin >= 0, tracks
 
 
@@ -483,6 +504,7 @@ def closed_loop_lp(
         out = solve(tracking_backoff(system, traj, control_domain, z, spread), covs)
     if out.feasible:
         return out
+    logger.debug("closed-loop LP: no plan keeps the tracking correction room; none kept")
     # No trackable plan on these requirements: one that rides the faces, judged with the
     # clipping's linearisation, is better than none (the loop flags it, see closed_loop_check).
     return solve(None, predicted.get_cov())
