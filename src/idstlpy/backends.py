@@ -83,6 +83,13 @@ class LinearModel:
         the eager feasibility MILPs the pump mostly fails and conflict diving finds the plan
         (NarrowPassage T = 200: SCIP 1.07 -> 0.78 s CPU without it; BENCHMARKS.md, Analysis).
         A primal heuristic only: answers and proofs of infeasibility are unchanged in kind.
+    first_look : bool, default False
+        True asks a MILP back-end for a cheap first look instead of a full solve: the model as
+        given (no presolve), the root node only, and only the primal heuristics that run before
+        its first LP (SCIP: presolving off, a node limit of 1, the root LP stopped after one
+        iteration; shift-and-propagate then solves the LP of the continuous part alone). It
+        returns ``time_limit`` without a plan where they find none, and its ``infeasible`` is
+        still a proof. A deterministic budget (no clock); HiGHS ignores it and solves fully.
     """
 
     c: np.ndarray
@@ -98,6 +105,7 @@ class LinearModel:
     feas_tol: float | None = None
     probing: Literal["full", "short", "off"] = "full"
     feaspump: bool = True
+    first_look: bool = False
 
     @property
     def num_vars(self) -> int:

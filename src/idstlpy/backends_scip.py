@@ -8,7 +8,7 @@ The model is handed to SCIP as a free-format MPS file in a temporary directory (
 than building it row by row through PySCIPOpt's expressions), and re-used while the same matrix
 comes back with other column bounds (the margin MILP's probes). SCIP runs single-threaded with
 its default settings but for what the model asks (cuts, node limit, feasibility tolerance,
-probing), silently, with ``limits/time`` as the cap.
+probing, a first look), silently, with ``limits/time`` as the cap.
 Statuses map as for HiGHS: SCIP's ``infeasible`` is its proof; ``inforunbd`` is reported as
 ``infeasible`` only for a model without objective (where unboundedness cannot occur), and as
 ``error`` otherwise.
@@ -72,7 +72,7 @@ class ScipBackend:
         import os
         import tempfile
 
-        from pyscipopt import Model, quicksum
+        from pyscipopt import SCIP_PARAMSETTING, Model, quicksum
 
         limit = max(float(time_limit), 1e-3)
         key = (model.A, model.row_lo, model.row_hi, model.integrality)
@@ -127,6 +127,10 @@ class ScipBackend:
             s.setParam("propagating/probing/maxprerounds", 0)
         if not model.feaspump:
             s.setParam("heuristics/feaspump/freq", -1)
+        if model.first_look:
+            s.setPresolve(SCIP_PARAMSETTING.OFF)
+            s.setParam("limits/nodes", 1)
+            s.setParam("lp/rootiterlim", 1)
         for key_, val in self.params.items():
             s.setParam(key_, val)
         with quiet_stdout():
