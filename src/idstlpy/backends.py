@@ -85,9 +85,9 @@ class LinearModel:
         A primal heuristic only: answers and proofs of infeasibility are unchanged in kind.
     first_look : bool, default False
         True asks a MILP back-end for a cheap first look instead of a full solve: the model as
-        given (no presolve), the root node only, and only the primal heuristics that run before
+        given (no presolve), the root node only, and only a primal heuristic that runs before
         its first LP (SCIP: presolving off, a node limit of 1, the root LP stopped after one
-        iteration; shift-and-propagate then solves the LP of the continuous part alone). It
+        iteration, shift-and-propagate alone, which solves the LP of the continuous part). It
         returns ``time_limit`` without a plan where they find none, and its ``infeasible`` is
         still a proof. A deterministic budget (no clock); HiGHS ignores it and solves fully.
     """
