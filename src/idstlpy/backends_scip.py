@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 
@@ -30,6 +30,17 @@ _INF = 1e20  # SCIP's default infinity
 # The model file goes through memory where the system has a RAM file system (removing a
 # temporary directory on a disk costs ~4 ms of wall clock per solve).
 _TMP = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+
+
+class _Cached(NamedTuple):
+    """The SCIP model of the last call, kept for a call on the same matrix (see ``solve``)."""
+
+    key: tuple[Any, ...]
+    scip: Any
+    xs: list[Any]
+    c: np.ndarray
+    lb: np.ndarray  # the column bounds it holds (infinities as SCIP's)
+    ub: np.ndarray
 
 
 class ScipBackend:
@@ -47,7 +58,7 @@ class ScipBackend:
 
     def __init__(self, params: dict[str, Any] | None = None) -> None:
         self.params = dict(params or {})
-        self._last: tuple[tuple[Any, ...], Any, list[Any], np.ndarray] | None = None
+        self._last: _Cached | None = None
 
     @classmethod
     def is_available(cls) -> bool:
@@ -65,9 +76,21 @@ class ScipBackend:
 
         A model whose matrix, row bounds and integrality are the very objects of the previous
         call on this instance (the margin MILP's probes: only the column bounds and the
-        objective change) re-uses the SCIP model read then: its bounds and objective are reset
-        and it is solved again from scratch (SCIP presolves anew), without writing and reading
-        the file again. The arrays of a model handed to a back-end are never changed in place.
+        objective change; a full solve after a first look) re-uses the SCIP model read then:
+        the bounds that changed and the objective are reset and it is solved
+        again from scratch (SCIP presolves anew), without writing and reading the file again.
+        The arrays of a model handed to a back-end are never changed in place.
+
+        Parameters
+        ----------
+        model : LinearModel
+            The LP or MILP.
+        time_limit : float
+            Wall-clock cap in seconds (at least 1e-3 is used).
+
+        Returns
+        -------
+        BackendSolution
         """
         import os
         import tempfile
@@ -77,23 +100,23 @@ class ScipBackend:
         limit = max(float(time_limit), 1e-3)
         key = (model.A, model.row_lo, model.row_hi, model.integrality)
         cached = self._last
-        if cached is not None and all(a is b for a, b in zip(cached[0], key, strict=True)):
-            s, xs = cached[1], cached[2]
-            self._last = (key, s, xs, model.c.copy())
+        lb = np.where(np.isfinite(model.lb), model.lb, np.where(model.lb > 0, _INF, -_INF))
+        ub = np.where(np.isfinite(model.ub), model.ub, np.where(model.ub > 0, _INF, -_INF))
+        if cached is not None and all(a is b for a, b in zip(cached.key, key, strict=True)):
+            s, xs = cached.scip, cached.xs
             s.freeTransform()
             s.resetParams()
-            for j, v in enumerate(xs):
-                # Bounds in an order that never crosses (an integer column's may be fixed).
-                lo, hi = float(model.lb[j]), float(model.ub[j])
-                lo = -_INF if lo == -np.inf else lo
-                hi = _INF if hi == np.inf else hi
+            # Only the bounds that differ from the last call's (an integer column's may be
+            # fixed: set in an order that never crosses).
+            for j in np.nonzero((lb != cached.lb) | (ub != cached.ub))[0].tolist():
+                v, lo, hi = xs[j], float(lb[j]), float(ub[j])
                 if lo > v.getUbOriginal():
                     s.chgVarUb(v, hi)
                     s.chgVarLb(v, lo)
                 else:
                     s.chgVarLb(v, lo)
                     s.chgVarUb(v, hi)
-            if not np.array_equal(cached[3], model.c):
+            if not np.array_equal(cached.c, model.c):
                 nz = np.nonzero(model.c)[0].tolist()
                 s.setObjective(quicksum(float(model.c[j]) * xs[j] for j in nz), "minimize")
         else:
@@ -107,7 +130,7 @@ class ScipBackend:
                     s.readProblem(path)
             by_name = {v.name: v for v in s.getVars()}
             xs = [by_name[f"x{j}"] for j in range(model.num_vars)]
-            self._last = (key, s, xs, model.c.copy())
+        self._last = _Cached(key, s, xs, model.c.copy(), lb, ub)
         s.setParam("limits/time", limit)
         s.setParam("parallel/maxnthreads", 1)
         if model.mip_rel_gap is not None:

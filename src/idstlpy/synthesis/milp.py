@@ -578,14 +578,16 @@ def _solve_margin(
 def _solve_feasibility(model: LinearModel, backend: Backend, budget: Budget) -> BackendSolution:
     """Any plan of the feasibility MILP: a first look at the model as built, then the full solve.
 
-    The first look (:attr:`LinearModel.first_look`) runs only the heuristics that come before
-    the first LP, on the model without presolve; where it finds no plan, the full solve starts
-    from scratch on the same (cached) model. On the eager MILPs of stlpy's scenarios presolve
-    reshapes the model so that the heuristics miss a plan shift-and-propagate finds at once on
-    the model as built, leaving it to diving after the root LP (NarrowPassage T = 100:
-    0.31 -> 0.06 s CPU, T = 200: 0.71 -> 0.16 s); where the look finds nothing it costs 5-20%
-    of the full solve (SteppingStones T = 100: 0.06 s on 0.16 s). Both are deterministic (a
-    node and an iteration limit, no clock), and an ``infeasible`` of either is a proof.
+    The first look (:attr:`LinearModel.first_look`) runs only shift-and-propagate, before the
+    first LP, on the model without presolve; where it finds no plan, the full solve starts from
+    scratch on the same (cached) model. On the eager MILPs of stlpy's scenarios presolve
+    reshapes the model so that the heuristics miss the plan shift-and-propagate finds at once
+    on the model as built, leaving it to diving after the root LP (NarrowPassage T = 100:
+    0.31 -> 0.06 s CPU, T = 200: 0.71 -> 0.16 s; EitherOr, RandomMultitarget, ReachAvoid at
+    T = 25-200 and SteppingStones at T = 25 gain too). Where the look finds nothing
+    (SteppingStones T = 50-200, DoorPuzzle) it costs 5-25% of the full solve. Both are
+    deterministic (node and iteration limits, no clock), and an ``infeasible`` of either is a
+    proof.
     """
     look = backend.solve(replace(model, first_look=True), max(budget.remaining(), 1e-3))
     if look.x is not None or look.status == "infeasible":
@@ -932,9 +934,10 @@ def solve_milp(
             float(x[tcol]), out.value, out.bound, out.proven, message,
         )
         return out
-    sol = _solve_feasibility(model, backend, budget) if objective is None else backend.solve(
-        model, max(budget.remaining(), 1e-3)
-    )
+    if objective is None:
+        sol = _solve_feasibility(model, backend, budget)
+    else:
+        sol = backend.solve(model, max(budget.remaining(), 1e-3))
     if sol.status in ("optimal", "time_limit") and sol.x is not None:
         controls = sol.x[nb + nx : nb + nx + nu].reshape(H, m) * scaling.du
         claims = np.round(sol.x[enc.p - 1]).astype(bool) if enc.p.size else np.zeros((0, H + 1), bool)
