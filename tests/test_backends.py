@@ -105,3 +105,52 @@ def test_scip_eager_milp_is_reproducible():
     b = reach_avoid(25).solve_result(seed=0, lazy_candidates=0, milp_backend="scip", time_limit=60)
     assert a.status == b.status == "found"
     assert np.array_equal(a.trajectory.get_control(), b.trajectory.get_control())
+
+
+@needs_scip
+def test_scip_first_look_then_full_solve_on_the_cached_model():
+    from dataclasses import replace
+
+    # Feasible: x + y >= 1 over binaries with a continuous z = x + y: the look finds a plan.
+    easy = _model([0, 0, 0], [[1, 1, 0], [1, 1, -1]], [1, 0], [INF, 0], [0, 0, 0], [1, 1, 5], [1, 1, 0])
+    scip = ScipBackend()
+    look = scip.solve(replace(easy, first_look=True), 10)
+    assert look.status == "optimal" and look.x is not None
+    assert look.x[0] + look.x[1] >= 1 - 1e-9 and abs(look.x[2] - look.x[0] - look.x[1]) <= 1e-9
+    # Infeasible by propagation alone (x + y = 3 over binaries): the look's answer is a proof.
+    assert scip.solve(replace(_model([0, 0], [[1, 1]], [3], [3], [0, 0], [1, 1], [1, 1]), first_look=True),
+                      10).status == "infeasible"
+    # Integer-infeasible by parity (2x + 2y - 2w = 1), LP-feasible: the look may stop without a
+    # plan, never with a wrong status, and the full solve on the same (cached) SCIP model
+    # answers as a fresh back-end does; then bounds changed on a cached model are honoured.
+    rows = [[2, 2, -2, 0], [1, -1, 0, 1]]
+    hard = _model([0, 0, 0, 0], rows, [1, 0.5], [1, 0.5], [0, 0, 0, 0], [3, 3, 3, 1], [1, 1, 1, 0])
+    look = scip.solve(replace(hard, first_look=True), 10)
+    assert look.status in ("infeasible", "time_limit") and look.x is None
+    assert scip.solve(hard, 10).status == ScipBackend().solve(hard, 10).status == "infeasible"
+    fixed = replace(easy, lb=np.array([0.0, 1.0, 0.0]))  # y fixed at 1 on the cached model
+    first = ScipBackend()
+    first.solve(easy, 10)
+    again = first.solve(fixed, 10)
+    assert again.status == "optimal" and again.x is not None and again.x[1] == pytest.approx(1.0)
+    assert first.solve(easy, 10).status == "optimal"  # and back
+
+
+def test_highs_ignores_the_first_look():
+    from dataclasses import replace
+
+    milp = _model([-1, -2], [[1, 1], [1, -1]], [-INF, -2], [3.5, INF], [0, 0], [3, 3], [1, 1])
+    sol = get_backend("highs", integer=True).solve(replace(milp, first_look=True), 10)
+    assert sol.status == "optimal" and sol.objective == pytest.approx(-5.0)
+
+
+@needs_scip
+def test_scip_eager_milp_takes_the_first_looks_plan(caplog):
+    # The feasibility MILP's plan comes from the first look (no full solve), and still holds.
+    problem = reach_avoid(25)
+    with caplog.at_level("INFO", logger="idstlpy.synthesis.milp"):
+        result = problem.solve_result(seed=0, lazy_candidates=0, milp_backend="scip", time_limit=60)
+    assert result.status == "found" and "eager MILP" in result.reason
+    assert stl.satisfies(result.trajectory, problem.stl_formula)
+    assert any("binaries" in r.getMessage() for r in caplog.records)
+    assert not any("first look found no plan" in r.getMessage() for r in caplog.records)
