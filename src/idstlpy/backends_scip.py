@@ -128,8 +128,13 @@ class ScipBackend:
                 write_mps(model, path)
                 with quiet_stdout():
                     s.readProblem(path)
-            by_name = {v.name: v for v in s.getVars()}
-            xs = [by_name[f"x{j}"] for j in range(model.num_vars)]
+            # The reader creates the columns in the order the file lists them (write_mps lists
+            # every column, x0 first): no name lookup unless that ever fails.
+            xs = s.getVars()
+            n = model.num_vars
+            if len(xs) != n or (n and (xs[0].name != "x0" or xs[-1].name != f"x{n - 1}")):
+                by_name = {v.name: v for v in xs}
+                xs = [by_name[f"x{j}"] for j in range(n)]
         self._last = _Cached(key, s, xs, model.c.copy(), lb, ub)
         s.setParam("limits/time", limit)
         s.setParam("parallel/maxnthreads", 1)
