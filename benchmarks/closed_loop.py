@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
+import json
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -362,6 +363,14 @@ def goal_cases(kinds: tuple[str, ...], size: str, solve_seed: int, time_limit: f
                    pp.real_system(problem), pp.real_initial_state(kind, problem), solve_s=solve_s)
 
 
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
 def _noise_kind(problem: Any) -> str:
     modes = problem.switched_system.system_modes
     sensing = "state-dependent" if any(m.p and m.has_state_dependent_noise for m in modes) else "constant"
@@ -371,11 +380,16 @@ def _noise_kind(problem: Any) -> str:
     return f"{sensing}{', W' if W > 0 else ''}{f', {len(modes)} modes' if len(modes) > 1 else ''}"
 
 
-def goal_row(case: Case, runs: int, seed: int = 0, samples: int = 20000) -> dict[str, Any]:
-    """validate(predict=True) on one case; the goal's numbers (and per-step ones to explain them)."""
+def goal_row(
+    case: Case, runs: int, seed: int = 0, samples: int = 20000, predict_seed: int = 0
+) -> dict[str, Any]:
+    """validate(predict=True) on one case; the goal's numbers (and per-step ones to explain them).
+
+    ``seed`` seeds the executions, ``predict_seed`` the prediction's model samples (kept apart so
+    that a second validation seed re-measures the same prediction)."""
     rep = stl.validate(case.problem, case.plan, case.real_system, case.x0, runs=runs, seed=seed,
                        clip_controls=case.clip, process_noise=case.process_noise, keep_trajectories=runs,
-                       predict=True, predict_options={"samples": samples, "seed": seed})
+                       predict=True, predict_options={"samples": samples, "seed": predict_seed})
     pred = rep.predicted
     cmp = rep.prediction_comparison()
     assert pred is not None and cmp is not None
@@ -390,6 +404,7 @@ def goal_row(case: Case, runs: int, seed: int = 0, samples: int = 20000) -> dict
     }
     row: dict[str, Any] = {
         "case": case.name, "steps": case.plan.num_of_steps, "runs": runs, "solve_s": case.solve_s,
+        "seed": seed, "samples": pred.samples, "entries": comparison_entries(cmp),
         "validate_s": rep.elapsed, "noise": _noise_kind(case.problem),
         "max_clip": float(pred.clip_probability.max()) if pred.num_of_steps else 0.0,
         "box_domain": _is_box(case.problem.control_domain),
@@ -414,6 +429,106 @@ def goal_row(case: Case, runs: int, seed: int = 0, samples: int = 20000) -> dict
         row[f"{reading}_bound_holds"] = e["bound_holds"]
         row[f"{reading}_estimate_outside"] = e["outside"]
     return row
+
+
+def comparison_entries(cmp: dict[str, Any]) -> list[dict[str, Any]]:
+    """The compared rates of ``ValidationReport.prediction_comparison`` as flat records."""
+    out = []
+    for group in ("predicates", "propositions"):
+        for name, v in cmp[group].items():
+            for reading, e in v.items():
+                if e["outside"] is not None:
+                    out.append({"group": group, "name": name, "reading": reading, "predicted": e["predicted"],
+                                "measured": e["measured"], "outside": e["outside"]})
+    for reading, e in cmp["success"].items():
+        if e["outside"] is not None:  # a success rate: compared as its complement, a failure rate
+            out.append({"group": "success", "name": "formula", "reading": reading,
+                        "predicted": 1.0 - e["predicted"], "measured": 1.0 - e["measured"],
+                        "outside": e["outside"]})
+    return out
+
+
+def outside_probability(p: float, runs: int) -> float:
+    """Chance that a rate predicted *exactly* (true rate ``p``) falls outside the Wilson 95%
+    interval of ``runs`` executions: what one compared rate contributes to the expected count."""
+    from scipy.stats import binom
+
+    k = np.arange(runs + 1)
+    cis = (wilson_interval(int(i), runs) for i in k)
+    out = np.array([not (lo - 1e-12 <= p <= hi + 1e-12) for lo, hi in cis])
+    return float(binom.pmf(k, runs, p)[out].sum())
+
+
+def two_sample_p(predicted: float, samples: int, measured: float, runs: int) -> float:
+    """Two-sided p-value (Fisher's exact test) that the model's ``samples`` draws and the
+    ``runs`` executions share one violation rate: the predicted rate is itself a Monte Carlo
+    estimate (of the particle loop), so the comparison is of two samples."""
+    from scipy.stats import fisher_exact
+
+    k1, k2 = round(predicted * samples), round(measured * runs)
+    return float(fisher_exact([[k1, samples - k1], [k2, runs - k2]]).pvalue)
+
+
+def holm(pvalues: list[float], alpha: float = 0.05) -> list[bool]:
+    """Holm's step-down rejections at family-wise level ``alpha`` (valid under any dependence)."""
+    order = np.argsort(pvalues)
+    reject = [False] * len(pvalues)
+    m = len(pvalues)
+    for rank, i in enumerate(order):
+        if pvalues[i] > alpha / (m - rank):
+            break
+        reject[i] = True
+    return reject
+
+
+def poisson_binomial_tail(probs: list[float], k: int) -> float:
+    """P[at least ``k`` of independent events with probabilities ``probs`` occur]."""
+    dist = np.zeros(len(probs) + 1)
+    dist[0] = 1.0
+    for q in probs:
+        dist[1:] = dist[1:] * (1 - q) + dist[:-1] * q
+        dist[0] *= 1 - q
+    return float(dist[k:].sum())
+
+
+def calibration(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per problem and over all problems of one validation seed: the literal outside count
+    against what an exact predictor would give (sum of :func:`outside_probability`), the
+    two-sample p-values and Holm's rejections over *all* compared rates of all problems measured
+    with that seed (one family)."""
+    per, totals = [], []
+    for seed in sorted({r["seed"] for r in rows}):
+        sel = [r for r in rows if r["seed"] == seed]
+        flat = [(r, e) for r in sel for e in r["entries"]]
+        for r, e in flat:
+            e["p_out"] = outside_probability(e["predicted"], r["runs"])
+            e["p_two"] = two_sample_p(e["predicted"], r["samples"], e["measured"], r["runs"])
+        rejected = holm([e["p_two"] for _, e in flat])
+        for (_, e), rej in zip(flat, rejected, strict=True):
+            e["holm"] = rej
+        groups = [(r["case"], r["entries"]) for r in sel] + [("**all**", [e for _, e in flat])]
+        for name, es in groups:
+            n_out = sum(e["outside"] for e in es)
+            (totals if name == "**all**" else per).append({
+                "case": name, "seed": seed, "compared": len(es), "outside": n_out,
+                "expected": sum(e["p_out"] for e in es), "min_p": min((e["p_two"] for e in es), default=1.0),
+                "p_below_05": sum(e["p_two"] < 0.05 for e in es), "holm": sum(e["holm"] for e in es),
+                "tail": poisson_binomial_tail([e["p_out"] for e in es], n_out),
+            })
+    return {"per": per, "totals": totals}
+
+
+def calibration_table(cal: dict[str, Any]) -> str:
+    """Markdown of :func:`calibration`."""
+    head = ("| problem | validation seed | compared | outside the Wilson 95% CI (literal) | expected if "
+            "exact | P[>= that many] | two-sample p < 0.05 | min two-sample p | Holm-rejected (all rates, "
+            "FWER 5%) |")
+    lines = [head, "|" + "---|" * (head.count(" | ") + 1)]
+    for c in [*cal["per"], *cal["totals"]]:
+        lines.append(f"| {c['case']} | {c['seed']} | {c['compared']} | {c['outside']} | "
+                     f"{c['expected']:.2f} | "
+                     f"{c['tail']:.3f} | {c['p_below_05']} | {c['min_p']:.3g} | {c['holm']} |")
+    return "\n".join(lines)
 
 
 def _is_box(domain: Any) -> bool:
@@ -496,20 +611,30 @@ def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
         if unknown:
             raise SystemExit(f"unknown kinds {sorted(unknown)}")
     rows, skipped = [], []
+    seeds = [int(x) for x in a.validate_seeds.split(",") if x.strip()]
     for case in goal_cases(kinds, a.size, a.solve_seed, a.time_limit):
         if isinstance(case, str):
             skipped.append(case)
             print(case, flush=True)
             continue
-        row = goal_row(case, a.runs)
-        if a.why and row["outside_names"]:
-            row["noclip"] = goal_row(dataclasses.replace(case, clip=False), a.runs)
-        rows.append(row)
-        print(f"{row['case']}: {row['steps']} steps, worst per-constraint |diff| belief "
-              f"{row['pred_belief_maxdiff']:.3f} state {row['pred_state_maxdiff']:.3f}, outside "
-              f"{row['outside']}/{row['compared']}, state success bound {_opt_pct(row['state_bound'])} "
-              f"measured {_pct(row['state_measured'])} ({row['validate_s']:.0f} s)", flush=True)
-    table_md = goal_table(rows, skipped)
+        for seed in seeds:
+            row = goal_row(case, a.runs, seed=seed)
+            if len(seeds) > 1:
+                row["case"] = f"{row['case']} [seed {seed}]"
+            if a.why and row["outside_names"]:
+                row["noclip"] = goal_row(dataclasses.replace(case, clip=False), a.runs, seed=seed)
+            rows.append(row)
+            print(f"{row['case']}: {row['steps']} steps, worst per-constraint |diff| belief "
+                  f"{row['pred_belief_maxdiff']:.3f} state {row['pred_state_maxdiff']:.3f}, outside "
+                  f"{row['outside']}/{row['compared']}, state success bound {_opt_pct(row['state_bound'])} "
+                  f"measured {_pct(row['state_measured'])} ({row['validate_s']:.0f} s)", flush=True)
+            if a.json:
+                Path(a.json).write_text(json.dumps(rows, default=_jsonable))
+    cal = calibration(rows)
+    if a.json:
+        Path(a.json).write_text(json.dumps(rows, default=_jsonable))
+    table_md = (goal_table(rows, skipped) + "\n\nCalibration over all compared rates:\n\n"
+                + calibration_table(cal))
     print()
     print(table_md)
     if a.out != "-":
@@ -524,7 +649,8 @@ def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
             f"- idstlpy revision: {mach['git']}",
             f"- each problem solved once (seed {a.solve_seed}, the listing's sampler parameters, "
             f"time limit {a.time_limit:g} s, perception size `{a.size}`), then `validate(runs={a.runs}, "
-            "predict=True)`: real system and true start of the perception suite (light-dark: the "
+            f"predict=True)` with each validation seed {seeds} (the prediction's samples: seed 0): "
+            "real system and true start of the perception suite (light-dark: the "
             "paper's), LQR horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain; prediction "
             "with its defaults (sensor_noise='expected', filter_sensitivity=True), 20000 model samples",
             "- a constraint's rate is the fraction of runs that broke it at a step where the plan "
@@ -532,6 +658,13 @@ def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
             "constraint and proposition, belief and true state, and the two success estimates) "
             "outside the measured Wilson 95% interval: about 1 in 20 is expected by chance when the "
             "prediction is exact; '(ABOVE)' marks a success bound above the measured interval",
+            "- calibration: 'expected if exact' sums, over the compared rates, the chance that a rate "
+            "predicted exactly falls outside the Wilson interval of the runs (binomial at the predicted "
+            "rate); 'P[>= that many]' is the Poisson-binomial tail of the literal count (as if the rates "
+            "were independent, which they are not: faces, propositions and readings overlap); the "
+            "two-sample p-value is Fisher's exact test of the model's samples against the runs (the "
+            "predicted rate is a Monte Carlo estimate too); Holm's step-down over every compared rate "
+            "of every problem (one family, valid under any dependence) at family-wise level 5%",
             "",
             table_md,
             "",
@@ -555,6 +688,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", default="full", choices=("small", "full"), help="(--goal) perception size")
     p.add_argument("--solve-seed", type=int, default=0, help="(--goal) the solver's seed")
     p.add_argument("--time-limit", type=float, default=120.0, help="(--goal) seconds per solve")
+    p.add_argument("--validate-seeds", default="0",
+                   help="(--goal) comma-separated validation seeds, each a full validate() of every plan")
+    p.add_argument("--json", default="", help="(--goal) write every row and compared rate to this file")
     p.add_argument("--why", action="store_true",
                    help="(--goal) re-run a problem with a flagged rate without clipping")
     a = p.parse_args(argv)
