@@ -24,7 +24,11 @@ its first adopted re-plan, a run of the replanning executor is the fixed run, bi
 - ``drift``: checked *only* when the belief leaves that ellipse (no schedule): the re-solves
   (at most ``--max-replans``) are kept for runs that go astray instead of being spent at scheduled
   checks of runs that follow their prediction (with ``risk = 0.99`` above the plan's own
-  predicted success, every check re-solves).
+  predicted success, every check re-solves);
+- ``drift_start``: ``drift`` with the start check (``execute(start_resolves=2)``): a plan whose
+  success predicted from the start belief is below the risk is re-solved before its first step
+  (at most twice, counted in ``--max-replans``; adopted when predicted better). Detour's plan
+  breaks the obstacle's corner at steps 3-11, before any drift check can see it.
 
 ``check`` and ``every`` scale with the plan (``check = max(5, N // 10)``, ``every =
 max(10, N // 5)``, ``N`` the plan's length) so a run costs about ten predictions or five re-solves
@@ -72,9 +76,11 @@ SAMPLER: dict[str, Any] = {
     "min_num_of_steps": 3,
     "max_num_of_steps": 15,
 }
-MODES = ("fixed", "on_risk", "every", "on_risk_cl", "on_drift", "drift")
+MODES = ("fixed", "on_risk", "every", "on_risk_cl", "on_drift", "drift", "drift_start")
 RISK = 0.99
 DRIFT = 0.95
+START_RESOLVES = 2
+"""``drift_start``: re-solves before the first step at most (of the run's ``--max-replans``)."""
 
 
 def _setup(kind: str, size: str) -> tuple[Any, Any, np.ndarray]:
@@ -128,6 +134,9 @@ def run_batch(
         kw = {"replan": "on_risk", "risk": RISK, "check_every": check, "drift": DRIFT}
     elif mode == "drift":  # checked only when the belief leaves its predicted ellipse (no schedule)
         kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT}
+    elif mode == "drift_start":  # drift, and a plan predicted below the risk at the start is re-solved first
+        kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT,
+              "start_resolves": START_RESOLVES}
     elif mode == "every":
         kw = {"replan": "every", "every": every}
     if mode == "on_risk_cl":  # the re-solves plan against the predicted true state

@@ -86,7 +86,8 @@ class Replan:
         Execution step ``k`` of the attempt: the re-solve starts from the executed belief ``X_k``.
     reason : str
         ``"risk"`` (predicted success below ``risk`` at a scheduled check), ``"drift"`` (the
-        same at a check made because the belief left its predicted ellipse), ``"every"`` (the
+        same at a check made because the belief left its predicted ellipse), ``"start"`` (the
+        same before the first step, ``execute(start_resolves=...)``), ``"every"`` (the
         schedule) or ``"violated"`` (the executed prefix already broke the formula: nothing to
         re-solve).
     predicted : float
@@ -270,6 +271,7 @@ def execute(
     every: int = 10,
     check_every: int = 1,
     drift: float | None = None,
+    start_resolves: int = 0,
     risk_measure: Literal["bound", "estimate"] = "bound",
     risk_on: Literal["belief", "state", "both"] = "both",
     risk_samples: int = 1000,
@@ -314,6 +316,12 @@ def execute(
         the ``drift`` confidence ellipse of its last predicted distribution (module notes). The
         plan is then executed one step at a time (the random stream, hence the execution up to
         the first adopted re-plan, is the same).
+    start_resolves : int
+        ``"on_risk"``: the start check. Before the first step the plan's success is predicted
+        from the start belief; while it is below ``risk``, the problem is re-solved (at most this
+        many times, counted in ``max_replans``; each adopted as after any check). A plan that
+        grazes a constraint in its first steps breaks it before a scheduled or drift check can
+        see it coming. 0 (default): no start check.
     risk_measure : {"bound", "estimate"}
         The prediction's sound lower bound or its sampled estimate.
     risk_on : {"belief", "state", "both"}
@@ -382,6 +390,7 @@ def execute(
         raise InvalidArgumentError(f"risk_on must be 'belief', 'state' or 'both', got {risk_on!r}")
     risk_samples = as_int(risk_samples, "risk_samples", minimum=1)
     max_replans = as_int(max_replans, "max_replans", minimum=0)
+    start_resolves = as_int(start_resolves, "start_resolves", minimum=0)
     if adopt not in ("better", "always"):
         raise InvalidArgumentError(f"adopt must be 'better' or 'always', got {adopt!r}")
     replan_time_limit = as_float(replan_time_limit, "replan_time_limit", 0.0, low_open=True)
@@ -495,8 +504,55 @@ def execute(
             return "every" if replan == "every" else "risk"
         return "drift" if drift is not None and drifted(k) else None
 
-    if replan == "on_risk" and drift is not None and formula is not TRUE and formula is not FALSE:
-        predicted_success(plan, 0, formula, belief, at=0)
+    def attempt(
+        k: int, j: int, psi: STLFormula, why: str, p_old: float
+    ) -> ProbabilisticTSTrajectory | None:
+        """Re-solve ``psi`` from the current belief at step ``k``; the new plan when adopted."""
+        nonlocal attempts
+        record, new_plan = _resolve(problem, belief, psi, base, replan_seed(ss, attempts), k, why, p_old)
+        attempts += 1
+        if new_plan is not None and adopt == "better":
+            # A fresh MLO plan may track worse than the old one: keep the better.
+            if math.isnan(p_old):
+                p_old = predicted_success(current, j, psi, belief)
+            p_new = predicted_success(new_plan, 0, psi, belief)
+            record = _with(record, predicted=p_old, new_predicted=p_new, adopted=p_new > p_old)
+        if record.adopted and new_plan is not None and drift is not None:
+            # the adopted plan's prediction is the drift test's reference
+            if adopt == "better" and last:  # the last prediction was the new plan's
+                reference[:] = [(k, *last[0])]
+            else:
+                predicted_success(new_plan, 0, psi, belief, at=k)
+        replans.append(record)
+        logger.info(
+            "execute: step %d, %s re-plan %s (%s, predicted %.3g -> %.3g, %.2f s)",
+            k,
+            record.reason,
+            "adopted" if record.adopted else "kept the old plan",
+            record.status,
+            record.predicted,
+            record.new_predicted,
+            record.solve_time,
+        )
+        if not (record.adopted and new_plan is not None):
+            return None
+        plans.append((k, new_plan))
+        return new_plan
+
+    if replan == "on_risk" and formula is not TRUE and formula is not FALSE and (drift or start_resolves):
+        # Before the first step: the drift test's first reference, and the start check (a plan
+        # predicted below ``risk`` from the start is re-solved before it is followed: a plan
+        # that grazes a constraint early breaks it before any later check can see it coming).
+        p_start = predicted_success(plan, 0, formula, belief, at=0)
+        tries = 0
+        while p_start < risk and tries < start_resolves and attempts < max_replans:
+            tries += 1
+            adopted = attempt(0, 0, formula, "start", p_start)
+            if adopted is not None:
+                current = adopted
+                del plans[:-1]  # the replaced plan was never followed
+                p_new = replans[-1].new_predicted
+                p_start = p_new if math.isfinite(p_new) else predicted_success(adopted, 0, formula, belief)
 
     while True:
         j = k - start
@@ -519,43 +575,10 @@ def execute(
                     p_old = predicted_success(current, j, psi, belief, at=k)
                     go = p_old < risk
                 if go:
-                    record, new_plan = _resolve(
-                        problem,
-                        belief,
-                        psi,
-                        base,
-                        replan_seed(ss, attempts),
-                        k,
-                        why,
-                        p_old,
-                    )
-                    attempts += 1
-                    if new_plan is not None and adopt == "better":
-                        # A fresh MLO plan may track worse than the old one: keep the better.
-                        if math.isnan(p_old):
-                            p_old = predicted_success(current, j, psi, belief)
-                        p_new = predicted_success(new_plan, 0, psi, belief)
-                        record = _with(record, predicted=p_old, new_predicted=p_new, adopted=p_new > p_old)
-                    if record.adopted and new_plan is not None:
-                        if drift is not None:  # the adopted plan's prediction is the reference
-                            if adopt == "better" and last:  # the last prediction was the new plan's
-                                reference[:] = [(k, *last[0])]
-                            else:
-                                predicted_success(new_plan, 0, psi, belief, at=k)
-                        current, start = new_plan, k
-                        plans.append((k, new_plan))
-                        j, remaining = 0, new_plan.num_of_steps
-                    replans.append(record)
-                    logger.info(
-                        "execute: step %d, %s re-plan %s (%s, predicted %.3g -> %.3g, %.2f s)",
-                        k,
-                        record.reason,
-                        "adopted" if record.adopted else "kept the old plan",
-                        record.status,
-                        record.predicted,
-                        record.new_predicted,
-                        record.solve_time,
-                    )
+                    adopted = attempt(k, j, psi, why, p_old)
+                    if adopted is not None:
+                        current, start = adopted, k
+                        j, remaining = 0, adopted.num_of_steps
         # Execute up to the next decision step (or the end of the plan) with simulate itself.
         if replan is None:
             chunk = remaining

@@ -633,8 +633,8 @@ def _predict(
 
 
 _REPLAN_OPTIONS = frozenset(
-    {"risk", "every", "check_every", "drift", "risk_measure", "risk_on", "risk_samples", "max_replans",
-     "replan_time_limit", "options", "solver_options", "adopt"}
+    {"risk", "every", "check_every", "drift", "start_resolves", "risk_measure", "risk_on", "risk_samples",
+     "max_replans", "replan_time_limit", "options", "solver_options", "adopt"}
 )
 """Keys ``replan_options`` accepts (the execution options are validate's own)."""
 
