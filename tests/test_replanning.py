@@ -158,6 +158,29 @@ def test_drift_checks_a_run_that_leaves_its_predicted_ellipse(case):
     assert np.array_equal(calm.real.get_state(), xi_r.get_state())
 
 
+def test_start_check_resolves_a_plan_predicted_below_the_risk_before_its_first_step(case):
+    problem, plan, real, x0 = case
+    kw = {"replan": "on_risk", "check_every": 100, "solver_options": OPTIONS, "seed": 4}
+    report = stl.execute(problem, plan, real, x0, risk=1.0, start_resolves=2, max_replans=3, **kw)
+    starts = [r for r in report.replans if r.reason == "start"]
+    assert len(starts) == 2 and all(r.step == 0 for r in starts)  # the plan stays below a risk of 1
+    assert starts[0].formula == str(problem.stl_formula)  # nothing executed: the formula itself
+    assert all(r.status == "found" and r.adopted == (r.new_predicted > r.predicted) for r in starts)
+    # Adopted at the start, a plan replaces the first one: only it is followed, from the start belief.
+    always = stl.execute(problem, plan, real, x0, risk=1.0, start_resolves=1, adopt="always", **kw)
+    assert [(r.step, r.reason, r.adopted) for r in always.replans] == [(0, "start", True)]
+    ((k, new),) = always.plans
+    assert k == 0 and new is not plan and np.allclose(new.get_mean(0), plan.get_mean(0))
+    end = min(always.num_of_steps, new.num_of_steps)
+    assert np.array_equal(always.belief.get_action()[:end], new.get_action()[:end])
+    # Counted in max_replans; and a plan already above the risk is followed as it is (simulate's run).
+    capped = stl.execute(problem, plan, real, x0, risk=1.0, start_resolves=2, max_replans=1, **kw)
+    assert [r.reason for r in capped.replans] == ["start"]
+    calm = stl.execute(problem, plan, real, x0, risk=0.0, start_resolves=2, **kw)
+    fixed = stl.execute(problem, plan, real, x0, seed=4)
+    assert calm.replans == () and np.array_equal(calm.real.get_state(), fixed.real.get_state())
+
+
 def test_adopted_plan_is_followed(case):
     problem, plan, real, x0 = case
     report = stl.execute(
@@ -183,6 +206,7 @@ def test_adopted_plan_is_followed(case):
         ({"risk_measure": "median"}, InvalidArgumentError, "risk_measure"),
         ({"risk_on": "plan"}, InvalidArgumentError, "risk_on"),
         ({"max_replans": -1}, InvalidArgumentError, "max_replans"),
+        ({"start_resolves": -1}, InvalidArgumentError, "start_resolves"),
         ({"adopt": "never"}, InvalidArgumentError, "adopt"),
         ({"replan_time_limit": 0}, InvalidArgumentError, "replan_time_limit"),
         ({"seed": "x"}, InvalidTypeError, "seed"),
