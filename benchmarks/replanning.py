@@ -236,7 +236,9 @@ def markdown(
         f"every: a re-solve every `max(10, N // 5)` steps; at most {args.max_replans} re-solves per run, "
         f"each capped at {args.replan_time_limit:g} s; on_risk_cl: on_risk whose re-solves use "
         f"guarantee='closed_loop'; on_drift: on_risk also checked whenever the executed belief's mean "
-        f"leaves the {DRIFT:.0%} ellipse of its last prediction; drift: checked only then",
+        f"leaves the {DRIFT:.0%} ellipse of its last prediction; drift: checked only then; drift_start: "
+        f"drift, and a plan predicted below the risk from the start belief re-solved before its first "
+        f"step (at most {START_RESOLVES} times, counted in the re-solves)",
         "",
         "| problem | steps | executor | runs | belief success [95% CI] | state success [95% CI] "
         "| re-solves / run (max) | adopted / run | re-solve outcomes | s / run |",
