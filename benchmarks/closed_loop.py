@@ -518,6 +518,40 @@ def calibration(rows: list[dict[str, Any]]) -> dict[str, Any]:
     return {"per": per, "totals": totals}
 
 
+def pooled(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each compared rate with its runs of every validation seed pooled (same plan, same
+    prediction): a systematic error shows as a small two-sample p-value here, a chance miss of
+    one seed does not. Sorted by that p-value, with Holm's verdict over all of them."""
+    acc: dict[tuple[str, str, str, str], dict[str, Any]] = {}
+    for r in rows:
+        base = r["case"].split(" [seed")[0]
+        for e in r["entries"]:
+            key = (base, e["group"], e["name"], e["reading"])
+            a = acc.setdefault(key, {"case": base, "group": e["group"], "name": e["name"],
+                                     "reading": e["reading"], "predicted": e["predicted"],
+                                     "samples": r["samples"], "hits": 0, "runs": 0, "seeds_outside": 0})
+            a["hits"] += round(e["measured"] * r["runs"])
+            a["runs"] += r["runs"]
+            a["seeds_outside"] += bool(e["outside"])
+    out = list(acc.values())
+    for a in out:
+        a["measured"] = a["hits"] / a["runs"]
+        a["p_two"] = two_sample_p(a["predicted"], a["samples"], a["measured"], a["runs"])
+    for a, rej in zip(out, holm([a["p_two"] for a in out]), strict=True):
+        a["holm"] = rej
+    return sorted(out, key=lambda a: a["p_two"])
+
+
+def pooled_lines(pool: list[dict[str, Any]], worst: int = 8) -> str:
+    """The ``worst`` pooled comparisons as Markdown bullets."""
+    return "\n".join(
+        f"- {a['case']}: {a['group']} `{a['name']}` ({a['reading']}): predicted {a['predicted']:.4f}, "
+        f"measured {a['hits']}/{a['runs']} = {a['measured']:.4f}, outside in {a['seeds_outside']} seed(s), "
+        f"two-sample p = {a['p_two']:.3g}{' (Holm: rejected)' if a['holm'] else ''}"
+        for a in pool[:worst]
+    )
+
+
 def calibration_table(cal: dict[str, Any]) -> str:
     """Markdown of :func:`calibration`."""
     head = ("| problem | validation seed | compared | outside the Wilson 95% CI (literal) | expected if "
@@ -635,6 +669,11 @@ def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
         Path(a.json).write_text(json.dumps(rows, default=_jsonable))
     table_md = (goal_table(rows, skipped) + "\n\nCalibration over all compared rates:\n\n"
                 + calibration_table(cal))
+    if len(seeds) > 1:
+        pool = pooled(rows)
+        n_rej = sum(a["holm"] for a in pool)
+        table_md += (f"\n\nThe seeds pooled ({len(pool)} rates, {n_rej} Holm-rejected); "
+                     "smallest two-sample p-values:\n\n" + pooled_lines(pool))
     print()
     print(table_md)
     if a.out != "-":
