@@ -653,7 +653,8 @@ def _certify(
             continue
         step = _line_search(run, traj, lp.controls, L, margin)
         if step is None:
-            break  # no fraction of the step helps: smaller trust regions only re-find them
+            trust *= 0.5  # no fraction of the step helps: a smaller trust region's LP next
+            continue
         traj, searched = step, True
     if fallback is not None:
         logger.info(
