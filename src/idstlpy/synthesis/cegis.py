@@ -482,12 +482,13 @@ def _eager(
     claims, controls = out.claims, out.controls
     if claims is None or controls is None:
         return None
-    checked = _retime(run, abstraction, scaling, claims, controls, options.objective, weights)
-    if checked is None and options.objective is None:
-        # A re-timed plan can graze a face by rounding (-4e-15): re-time it once more with room
-        # of 1e-5 of the largest state unit inside every required face, then check it again.
-        room = 1e-5 * float(np.max(scaling.dx))
-        checked = _retime(run, abstraction, scaling, claims, controls, None, weights, room)
+    # Re-timed with only the LP's own tightening (2e-7 of the smallest state unit), a plan can
+    # graze a face whose unit is larger (ReachAvoid's position, 10x the velocity's: 2e-8 on the
+    # scaled row, below HiGHS' tolerance) and fail the monitor by rounding (-1e-15), which cost a
+    # second re-timing. Without an objective that reads the margin, the re-timing leaves room of
+    # 1e-5 of the largest state unit inside every required face at once.
+    room = 1e-5 * float(np.max(scaling.dx)) if options.objective in (None, "time") else 0.0
+    checked = _retime(run, abstraction, scaling, claims, controls, options.objective, weights, room)
     if checked is None:
         return None
     whole = proposer.bound >= proposer.H or options.objective == "time"  # shorter plans are all inside
