@@ -123,6 +123,7 @@ def solve_plan_lp(
     effort_weights: np.ndarray | None = None,
     linearise: bool = False,
     control_backoff: np.ndarray | None = None,
+    refute_only: bool = False,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -165,6 +166,9 @@ def solve_plan_lp(
         Per step, how far inside each face of ``control_domain`` (its units) the input must stay
         (room for the executor's tracking correction, :func:`closed_loop_lp`). An
         ``infeasible`` answer is then about the shrunk domain, no proof about the problem.
+    refute_only : bool
+        Only the elastic phase: a feasible plan's controls are the elastic LP's (no margin or
+        objective phase); for a relaxation asked only for its refutation (a prefix of a plan).
 
     Returns
     -------
@@ -213,6 +217,8 @@ def solve_plan_lp(
     means, controls = rows.unscale(z, mean0)
     excess = float(sol.objective)
     if excess <= FEASIBLE_TOL * max(1, ns):
+        if refute_only:
+            return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
         z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights)
         if z2 is not None:
             means, controls = rows.unscale(z2, mean0)
@@ -375,6 +381,9 @@ def _phase(
         return None
     return sol.x[:ncol], float(sol.x[ncol])
 
+
+PREFIX_STEPS = 16
+"""Transitions of the first prefix on which :class:`LPTeacher` tries to refute a long plan."""
 
 ROOM_ROUNDS = 8
 """LP rounds the plan LP's plans get toward their execution room (a work budget)."""
@@ -584,6 +593,7 @@ class LPTeacher:
         stats: SolveStats,
         covs: np.ndarray | None = None,
         control_backoff: np.ndarray | None = None,
+        refute_only: bool = False,
     ) -> LPOutcome:
         """:func:`solve_plan_lp` for ``plan`` with this teacher's problem, units, back-end and objective."""
         problem = self.problem
@@ -604,16 +614,41 @@ class LPTeacher:
                 budget=budget,
                 objective=self._smooth,
                 effort_weights=self.effort_weights,
+                refute_only=refute_only,
             )
         stats.lp_calls += 1
         return out
+
+    def _prefix_refutation(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> LPOutcome | None:
+        """The plan LP of a prefix of ``plan`` when it is infeasible, else ``None``.
+
+        A plan of ``K`` transitions is tried first on its first ``P`` = :data:`PREFIX_STEPS`,
+        ``4 P``, ... transitions (while ``P <= K / 2``): the prefix's LP keeps only the rows of
+        steps ``<= P``, a relaxation of the plan's, so its Farkas certificate refutes the plan.
+        Conflicts at the frontier of reach lie in the first few steps (ReachAvoid's within 16 of
+        its 101), and the whole horizon's LP costs the lazy loop that much more per candidate; a
+        plan that passes every prefix costs at most two thirds of its own LP more.
+        """
+        K = plan.num_transitions
+        P = PREFIX_STEPS
+        while 2 * P <= K:
+            head = DiscretePlan(plan.required[:, : P + 1], plan.modes[: P + 1], P + 1)
+            out = self._solve(head, 0.0, budget, stats, refute_only=True)
+            if out.status == "infeasible":
+                return out
+            if out.status != "feasible":
+                return None
+            P *= 4
+        return None
 
     def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
         """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`)."""
         problem = self.problem
         system, init = problem.switched_system, problem.initial_state
         margin = execution_margin(system, init, self.abs, plan)
-        out = self._solve(plan, margin, budget, stats)
+        out = self._prefix_refutation(plan, budget, stats)
+        if out is None:
+            out = self._solve(plan, margin, budget, stats)
         self.last = out
         if out.status == "infeasible":
             last = max((k for k, _ in out.conflict), default=0)
