@@ -177,10 +177,12 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 problem, abstraction, scaling, lp_backend, 3, options.objective, weights, run.closed_loop
             )
         ]
-        sampler = SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
-        if sampler.applies(problem):
-            teachers.append(sampler)
         lp_exact = teachers[0].exact(problem)
+        # The sampler serves state-dependent noise only, where the LP is not exact; its set-up
+        # (~10 ms) is skipped elsewhere.
+        sampler = None if lp_exact else SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
+        if sampler is not None and sampler.applies(problem):
+            teachers.append(sampler)
         eager = lp_exact and system.num_modes == 1
         # An optimum over the horizon is the MILP's job: with an objective, go there at once.
         lazy_budget = 0 if options.objective is not None else options.lazy_candidates
@@ -211,7 +213,7 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                     _guide(proposer, abstraction, teacher, plan)
                 if not isinstance(verdict, Unknown):
                     break
-            if isinstance(verdict, Refuted) and sampler in teachers:
+            if isinstance(verdict, Refuted) and sampler is not None and sampler in teachers:
                 # A proof for this mode sequence only: the sampler chooses its own modes.
                 verdict = sampler.rescue(plan, verdict, budget, stats)
             if isinstance(verdict, Refuted):
@@ -405,6 +407,7 @@ def _retime(
                 time_limit=max(budget.remaining(), 1e-3),
                 objective=objective if objective in ("effort", "margin") else None,
                 effort_weights=weights,
+                assume_feasible=True,  # the MILP's witness: no elastic phase when it holds
             )
         stats.lp_calls += 1
         if lp.feasible and lp.controls is not None:

@@ -124,6 +124,7 @@ def solve_plan_lp(
     linearise: bool = False,
     control_backoff: np.ndarray | None = None,
     refute_only: bool = False,
+    assume_feasible: bool = False,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -169,6 +170,9 @@ def solve_plan_lp(
     refute_only : bool
         Only the elastic phase: a feasible plan's controls are the elastic LP's (no margin or
         objective phase); for a relaxation asked only for its refutation (a prefix of a plan).
+    assume_feasible : bool
+        The plan is expected to be feasible (a MILP's witness): the margin and objective phases
+        run first, and the elastic phase only when they find nothing (then as without it).
 
     Returns
     -------
@@ -207,6 +211,12 @@ def solve_plan_lp(
     if rows.impossible:
         return LPOutcome("infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs)
     limit = float(min(time_limit, 1e9))
+    if assume_feasible:
+        # The phases' rows are the plan's with t >= 0: a solution of theirs meets the plan.
+        z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights)
+        if z2 is not None:
+            means, controls = rows.unscale(z2, mean0)
+            return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
     model, ns = _elastic_model(rows)
     sol = backend.solve(model, limit)
     if sol.status != "optimal" or sol.x is None:
