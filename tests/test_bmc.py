@@ -96,3 +96,71 @@ def test_long_interval_encodes_compactly():
     # Sparse tables: O(H log b) gates, far below the H * b of a plain unrolling.
     assert enc.num_vars < 20 * horizon
     enc.close()
+
+
+def _witness_step_by_step(formula, truth, index, late):
+    """The witness walked one (sub-formula, step) pair at a time: the reference for the batched one."""
+    from idstlpy.formulas import STLAnd, STLAtomicProposition, STLOr, STLUntil
+
+    def constant_true(f):
+        return isinstance(f, STLAtomicProposition) and f.is_true and id(f) not in index
+
+    values = evaluate_bool(formula, truth, index)
+    L = truth.shape[1]
+    required = np.zeros_like(truth, dtype=bool)
+    last, seen, stack = 0, set(), [(formula, 0)]
+    while stack:
+        f, k = stack.pop()
+        if (id(f), k) in seen:
+            continue
+        seen.add((id(f), k))
+        last = max(last, k)
+        if isinstance(f, STLAtomicProposition):
+            if id(f) in index:
+                required[index[id(f)], k] = True
+        elif isinstance(f, STLAnd):
+            stack.extend((c, k) for c in f.children)
+        elif isinstance(f, STLOr):
+            stack.append((next(c for c in f.children if values[id(c)][k]), k))
+        elif isinstance(f, STLUntil):
+            v1, v2 = values[id(f.left)], values[id(f.right)]
+            start, end = k + f.a, min(k + f.b, L - 1)
+            stop = next((j for j in range(start, end + 1) if not v1[j]), end)
+            hits = [j for j in range(start, stop + 1) if v2[j]]
+            chosen = hits[-1] if late else hits[0]
+            stack.append((f.right, chosen))
+            if not constant_true(f.left):
+                stack.extend((f.left, j) for j in range(start, chosen))
+            last = max(last, chosen)
+        else:  # release
+            v1, v2 = values[id(f.left)], values[id(f.right)]
+            start, stop = k + f.a, k + f.b
+            end = stop
+            for j in range(start, min(stop, L - 1) + 1):
+                if not v2[j]:
+                    break
+                if v1[j]:
+                    end = j
+                    stack.append((f.left, j))
+                    break
+            if not constant_true(f.right):
+                stack.extend((f.right, j) for j in range(start, end + 1))
+            last = max(last, end)
+    return required, last + 1
+
+
+@settings(max_examples=200, deadline=None)
+@given(formulas(depth=4), st.integers(1, 12), st.integers(0, 2**31 - 1), st.booleans())
+def test_witness_matches_the_step_by_step_walk(formula, length, seed, late):
+    # The batched witness (one pass per sub-formula over its steps) is the closure the walk builds.
+    rng = np.random.default_rng(seed)
+    atoms = _atoms(formula)
+    index = {id(a): i for i, a in enumerate(atoms)}
+    truth = rng.random((len(atoms), length)) < 0.75
+    w = extract_witness(formula, truth, index, prefer_late=late)
+    if w is None:
+        assert not evaluate_bool(formula, truth, index)[id(formula)][0]
+        return
+    required, L = _witness_step_by_step(formula, truth, index, late)
+    assert w[1] == L
+    assert np.array_equal(w[0], required)

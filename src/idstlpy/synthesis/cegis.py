@@ -180,7 +180,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
         lp_exact = teachers[0].exact(problem)
         # The sampler serves state-dependent noise only, where the LP is not exact; its set-up
         # (~10 ms) is skipped elsewhere.
-        sampler = None if lp_exact else SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
+        sampler = None
+        if not lp_exact:
+            sampler = SamplerTeacher(problem, abstraction, proposer, options, scaling, seeds)
         if sampler is not None and sampler.applies(problem):
             teachers.append(sampler)
         eager = lp_exact and system.num_modes == 1

@@ -153,71 +153,97 @@ def extract_witness(
     if not values[id(formula)][0]:
         return None
     L = truth.shape[1]
-    nxt_cache: dict[tuple[int, str], np.ndarray] = {}
-    prv_cache: dict[int, np.ndarray] = {}
-
-    def nxt(key: int, tag: str, v: np.ndarray) -> np.ndarray:
-        got = nxt_cache.get((key, tag))
-        if got is None:
-            got = nxt_cache[(key, tag)] = _next_true(v)
-        return got
-
-    def prv(key: int, v: np.ndarray) -> np.ndarray:
-        got = prv_cache.get(key)
-        if got is None:
-            got = prv_cache[key] = _prev_true(v)
-        return got
-
+    # The witness is the closure of (formula, 0) under "this sub-formula must hold at this step",
+    # each choice depending on the pair alone: it is built sub-formula by sub-formula, parents
+    # first, over the set of steps each must hold at (one vectorised pass per sub-formula).
+    order = _parents_first(formula)
+    need: dict[int, np.ndarray] = {id(f): np.zeros(L, dtype=bool) for f in order}
+    need[id(formula)][0] = True
     required = np.zeros_like(truth, dtype=bool)
     last = 0
-    seen: set[tuple[int, int]] = set()
-    stack: list[tuple[STLFormula, int]] = [(formula, 0)]
-    while stack:
-        f, k = stack.pop()
-        if (id(f), k) in seen:
+    for f in order:
+        mask = need[id(f)]
+        if not mask.any():
             continue
-        seen.add((id(f), k))
-        last = max(last, k)
+        ks = np.flatnonzero(mask)
+        last = max(last, int(ks[-1]))
         if isinstance(f, STLAtomicProposition):
             if id(f) in atom_index:
-                required[atom_index[id(f)], k] = True
+                required[atom_index[id(f)], ks] = True
         elif isinstance(f, STLAnd):
-            stack.extend((c, k) for c in f.children)
+            for c in f.children:
+                need[id(c)] |= mask
         elif isinstance(f, STLOr):
-            child = next(c for c in f.children if values[id(c)][k])
-            stack.append((child, k))
+            left = mask.copy()  # each step to the first child true there
+            for c in f.children:
+                hit = left & values[id(c)]
+                need[id(c)] |= hit
+                left &= ~hit
         elif isinstance(f, STLUntil):
             v1, v2 = values[id(f.left)], values[id(f.right)]
-            start, end = k + f.a, min(k + f.b, L - 1)
+            first = np.minimum(ks + f.a, L)
+            end = np.minimum(ks + f.b, L - 1)
             # Witnesses: j in [start, min(end, first failure of the left side)] with the right side.
-            limit = min(end, int(nxt(id(f.left), "not", ~v1)[min(start, L)]))
+            limit = np.minimum(end, _next_true(~v1)[first])
             if prefer_late:
-                chosen = int(prv(id(f.right), v2)[limit]) if start <= limit else -1
+                prev = _prev_true(v2)
+                chosen = np.where(first <= limit, prev[np.clip(limit, 0, L - 1)], -1)
             else:
-                chosen = int(nxt(id(f.right), "is", v2)[min(start, L)])
-                chosen = chosen if chosen <= limit else -1
-            if chosen < start:  # the evaluation said true: unreachable
+                chosen = _next_true(v2)[first]
+                chosen = np.where(chosen <= limit, chosen, -1)
+            if np.any(chosen < first):  # the evaluation said true: unreachable
                 raise RuntimeError("until witness not found on a satisfying trace")
-            stack.append((f.right, chosen))
+            need[id(f.right)][chosen] = True
             if not _is_constant_true(f.left, atom_index):
-                stack.extend((f.left, j) for j in range(start, chosen))
-            last = max(last, chosen)
+                need[id(f.left)] |= _cover(first, chosen, L)
+            last = max(last, int(chosen.max()))
         elif isinstance(f, STLRelease):
             v1, v2 = values[id(f.left)], values[id(f.right)]
-            start, stop = k + f.a, k + f.b
-            s0 = min(start, L)
-            fail2 = int(nxt(id(f.right), "not", ~v2)[s0])
-            both = int(nxt(id(f), "both", v1 & v2)[s0])
-            witness = both if both < fail2 and both <= min(stop, L - 1) else None
-            end = witness if witness is not None else stop
-            if witness is not None:
-                stack.append((f.left, witness))
+            first = ks + f.a
+            stop = ks + f.b
+            s0 = np.minimum(first, L)
+            fail2 = _next_true(~v2)[s0]
+            both = _next_true(v1 & v2)[s0]
+            hit = (both < fail2) & (both <= np.minimum(stop, L - 1))
+            end = np.where(hit, both, stop)
+            need[id(f.left)][both[hit]] = True
             if not _is_constant_true(f.right, atom_index):
-                stack.extend((f.right, j) for j in range(start, end + 1))
-            last = max(last, end)
+                need[id(f.right)] |= _cover(first, end + 1, L)
+            last = max(last, int(end.max()))
         else:
             raise TypeError(f"cannot justify {type(f).__name__}")
     return required, last + 1
+
+
+def _parents_first(formula: STLFormula) -> list[STLFormula]:
+    """The distinct sub-formulas of ``formula`` (by identity), every one after all its parents."""
+    post: list[STLFormula] = []
+    seen: set[int] = set()
+    stack: list[tuple[STLFormula, bool]] = [(formula, False)]
+    while stack:
+        f, done = stack.pop()
+        if done:
+            post.append(f)
+            continue
+        if id(f) in seen:
+            continue
+        seen.add(id(f))
+        stack.append((f, True))
+        if isinstance(f, STLAnd | STLOr):
+            stack.extend((c, False) for c in reversed(f.children))
+        elif isinstance(f, STLUntil | STLRelease):
+            stack.extend([(f.right, False), (f.left, False)])
+    return post[::-1]
+
+
+def _cover(lo: np.ndarray, hi: np.ndarray, L: int) -> np.ndarray:
+    """The union of the step ranges ``[lo[r], hi[r])``, clipped to ``0..L-1``, as a mask (L,)."""
+    lo, hi = np.clip(lo, 0, L), np.clip(hi, 0, L)
+    keep = hi > lo
+    edges = np.zeros(L + 1, dtype=np.int64)
+    np.add.at(edges, lo[keep], 1)
+    np.add.at(edges, hi[keep], -1)
+    return np.cumsum(edges[:L]) > 0
 
 
 def trajectory_plan(formula: STLFormula, abstraction: Any, traj: Any) -> DiscretePlan | None:
