@@ -137,7 +137,12 @@ def switch_to_eager(
       the loop's very first conflicts are already large, so it is enumerating combinations
       from the start (PrSTL's noisy reach-avoid 9, 8, 7; NarrowPassage 7, 5, 3; EitherOr,
       RandomMultitarget, SteppingStones, DoorPuzzle 10-140), and each further candidate costs a
-      plan LP over the horizon that the MILP does not need;
+      plan LP over the horizon that the MILP does not need; from ``2 * early`` candidates on,
+      as soon as that median exceeds ``conflict_size`` itself: the margin is for the first
+      candidates only, which the SAT solver proposes before any LP has guided it (their
+      conflicts carry whatever the least violation happened to break: the double integrator's
+      5, 4, 3); a guided window above ``conflict_size`` is enumeration (ReachAvoid's 3, 4, 4
+      after its march to the goal, candidate 9);
     - then, from ``min_candidates`` candidates (``SolverOptions.lazy_candidates``) on, as soon
       as the median size of the last ``min_candidates`` conflicts exceeds ``conflict_size``
       (``SolverOptions.lazy_conflict_size``): large conflicts each exclude little;
@@ -152,7 +157,7 @@ def switch_to_eager(
     the first converges lazily in 13 candidates and the second would need one candidate per
     step; only the conflicts tell them apart. The double integrator's first conflicts are
     5, 4, 3, then 2 (median 4: it stays lazy); ReachAvoid's are 2 until its candidates reach the
-    obstacle, then 4-9 (it switches after 10-13).
+    obstacle, then 3-7 (it switches after 9).
 
     Parameters
     ----------
@@ -179,7 +184,8 @@ def switch_to_eager(
     sizes = [len(c) for c in conflicts]
     look = min(max(early, 1), min_candidates)
     if candidates >= look and len(sizes) >= look:
-        if float(np.median(sizes[-look:])) > conflict_size + early_margin:
+        threshold = conflict_size + (early_margin if candidates < 2 * look else 0.0)
+        if float(np.median(sizes[-look:])) > threshold:
             return True
     if candidates < min_candidates:
         return False
