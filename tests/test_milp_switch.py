@@ -30,9 +30,14 @@ def test_switch_early_look_reads_the_first_conflicts():
     # The one-obstacle double integrator's 5, 4, 3 (median 4) then 2s: it stays lazy.
     di = [[0] * 5, [0] * 4, [0] * 3] + [[0] * 2] * 9
     assert not any(switch_to_eager(di[:k], k, 10, 3.0) for k in range(3, 13))
-    # ReachAvoid's 2s, then conflicts growing at the obstacle: only once the last three do.
+    # ReachAvoid's 2s, then conflicts growing at the obstacle: once the last three (guided, from
+    # 6 candidates on) have a median above 3, at candidate 9.
     ra = [[0] * n for n in (2, 2, 2, 2, 2, 2, 3, 4, 4, 4, 3, 6, 7)]
-    assert [k for k in range(3, 14) if switch_to_eager(ra[:k], k, 10, 3.0)] == [13]
+    assert [k for k in range(3, 10) if switch_to_eager(ra[:k], k, 10, 3.0)] == [9]
+    # The margin holds for the first 2 * 3 candidates only: 4, 4, 4 stays lazy at 5, not at 6.
+    fours = [[0] * 4] * 6
+    assert not switch_to_eager(fours[:5], 5, 10, 3.0)
+    assert switch_to_eager(fours, 6, 10, 3.0)
     # The fixed count has no early look; the early look never goes past lazy_candidates.
     assert not switch_to_eager([[0] * 9] * 3, 3, 10, 0.0)
     assert switch_to_eager([[0] * 9] * 2, 2, 2, 3.0)
