@@ -329,6 +329,8 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--runs", type=int, default=50)
+    p.add_argument("--first", type=int, default=0,
+                   help="index of the first run (runs first .. first + runs - 1 of the seed stream)")
     p.add_argument("--kinds", default="", help="comma-separated perception kinds (default: all, cheap first)")
     p.add_argument("--size", default="full", choices=pp.SIZES)
     p.add_argument("--solve-seed", type=int, default=0)
@@ -350,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    seeds = np.random.SeedSequence(args.exec_seed).spawn(args.runs)
+    seeds = np.random.SeedSequence(args.exec_seed).spawn(args.first + args.runs)[args.first :]
     with ProcessPoolExecutor(args.jobs) as pool:
         for kind in kinds:
             path = work / f"{kind}.json"
