@@ -28,7 +28,8 @@ its first adopted re-plan, a run of the replanning executor is the fixed run, bi
 - ``drift_start``: ``drift`` with the start check (``execute(start_resolves=2)``): a plan whose
   success predicted from the start belief is below the risk is re-solved before its first step
   (at most twice, counted in ``--max-replans``; adopted when predicted better). Detour's plan
-  breaks the obstacle's corner at steps 3-11, before any drift check can see it.
+  breaks the obstacle's corner at steps 3-11, before any drift check can see it;
+- ``drift_start_cl``: ``drift_start`` whose re-solves use ``guarantee="closed_loop"``.
 
 ``check`` and ``every`` scale with the plan (``check = max(5, N // 10)``, ``every =
 max(10, N // 5)``, ``N`` the plan's length) so a run costs about ten predictions or five re-solves
@@ -76,7 +77,7 @@ SAMPLER: dict[str, Any] = {
     "min_num_of_steps": 3,
     "max_num_of_steps": 15,
 }
-MODES = ("fixed", "on_risk", "every", "on_risk_cl", "on_drift", "drift", "drift_start")
+MODES = ("fixed", "on_risk", "every", "on_risk_cl", "on_drift", "drift", "drift_start", "drift_start_cl")
 RISK = 0.99
 DRIFT = 0.95
 START_RESOLVES = 2
@@ -134,12 +135,12 @@ def run_batch(
         kw = {"replan": "on_risk", "risk": RISK, "check_every": check, "drift": DRIFT}
     elif mode == "drift":  # checked only when the belief leaves its predicted ellipse (no schedule)
         kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT}
-    elif mode == "drift_start":  # drift, and a plan predicted below the risk at the start is re-solved first
+    elif mode in ("drift_start", "drift_start_cl"):  # drift; a plan predicted below the risk re-solved first
         kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT,
               "start_resolves": START_RESOLVES}
     elif mode == "every":
         kw = {"replan": "every", "every": every}
-    if mode == "on_risk_cl":  # the re-solves plan against the predicted true state
+    if mode in ("on_risk_cl", "drift_start_cl"):  # the re-solves plan against the predicted true state
         options = options.with_(guarantee="closed_loop")
     out = []
     for ss in seeds:
@@ -238,7 +239,8 @@ def markdown(
         f"guarantee='closed_loop'; on_drift: on_risk also checked whenever the executed belief's mean "
         f"leaves the {DRIFT:.0%} ellipse of its last prediction; drift: checked only then; drift_start: "
         f"drift, and a plan predicted below the risk from the start belief re-solved before its first "
-        f"step (at most {START_RESOLVES} times, counted in the re-solves)",
+        f"step (at most {START_RESOLVES} times, counted in the re-solves); drift_start_cl: drift_start "
+        "whose re-solves use guarantee='closed_loop'",
         "",
         "| problem | steps | executor | runs | belief success [95% CI] | state success [95% CI] "
         "| re-solves / run (max) | adopted / run | re-solve outcomes | s / run |",
