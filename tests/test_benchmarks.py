@@ -8,26 +8,17 @@ must equal stlpy's robustness, not just agree in sign.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
-
-import idstlpy as I
-
-# ``benchmarks`` is a top-level package of the repository, not of the installed distribution.
-_ROOT = str(Path(__file__).resolve().parents[1])
-if _ROOT not in sys.path:
-    sys.path.insert(0, _ROOT)
-
-from benchmarks.prstl_milp import noisy_reach_avoid, solve_prstl_milp  # noqa: E402
-from benchmarks.stlpy_translate import (  # noqa: E402
+from benchmarks.prstl_milp import noisy_reach_avoid, solve_prstl_milp
+from benchmarks.stlpy_translate import (
     Translator,
     UntranslatableError,
     make_problem,
     stlpy_robustness_reference,
 )
+
+import idstlpy as I
 
 
 class _Formula:

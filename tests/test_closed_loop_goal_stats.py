@@ -3,17 +3,8 @@ leaves outside the Wilson intervals, the two-sample test, Holm's step-down, the 
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
-
-# ``benchmarks`` is a top-level package of the repository, not of the installed distribution.
-_ROOT = str(Path(__file__).resolve().parents[1])
-if _ROOT not in sys.path:
-    sys.path.insert(0, _ROOT)
-
-from benchmarks.closed_loop import (  # noqa: E402
+from benchmarks.closed_loop import (
     calibration,
     holm,
     outside_probability,

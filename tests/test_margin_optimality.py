@@ -15,21 +15,14 @@ as hard rows.
 from __future__ import annotations
 
 import itertools
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from benchmarks.stlpy_translate import make_problem
 from scipy.optimize import linprog
 
 import idstlpy as stl
 from idstlpy import prob as P
-
-_ROOT = str(Path(__file__).resolve().parents[1])
-if _ROOT not in sys.path:
-    sys.path.insert(0, _ROOT)
-
-from benchmarks.stlpy_translate import make_problem  # noqa: E402
 
 H = 3
 Box = tuple[float, float, float, float]  # x_lo, x_hi, y_lo, y_hi

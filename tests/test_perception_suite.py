@@ -8,21 +8,12 @@ infeasibility argument is checked numerically. The solver's success is measured 
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from benchmarks import perception_problems as pp
+from benchmarks import perception_suite as suite
 
 import idstlpy as stl
-
-# ``benchmarks`` is a top-level package of the repository, not of the installed distribution.
-_ROOT = str(Path(__file__).resolve().parents[1])
-if _ROOT not in sys.path:
-    sys.path.insert(0, _ROOT)
-
-from benchmarks import perception_problems as pp  # noqa: E402
-from benchmarks import perception_suite as suite  # noqa: E402
 
 FEASIBLE = [name for name, kind in pp.KINDS.items() if kind.expected == "feasible"]
 

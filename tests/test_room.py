@@ -7,24 +7,16 @@ room whatever it does, and a small polished double integrator plan holds under e
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
+from benchmarks import perception_problems as pp
+from benchmarks import perception_suite as suite
 
 import idstlpy as stl
 from idstlpy.synthesis.abstraction import Abstraction
 from idstlpy.synthesis.plan import DiscretePlan, extract_witness
 from idstlpy.synthesis.plan_lp import Scaling
 from idstlpy.synthesis.room import Z_MAX, Z_MIN, execution_room, room_lp
-
-_ROOT = str(Path(__file__).resolve().parents[1])
-if _ROOT not in sys.path:
-    sys.path.insert(0, _ROOT)
-
-from benchmarks import perception_problems as pp  # noqa: E402
-from benchmarks import perception_suite as suite  # noqa: E402
 
 
 def _room_of(problem, actions, controls):
