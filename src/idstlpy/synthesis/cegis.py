@@ -37,7 +37,6 @@ import numpy as np
 
 from ..backends import get_backend
 from ..belief import rollout
-from ..closed_loop import predicted_state
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -714,12 +713,7 @@ def _line_search(
     for a in STEP_FRACTIONS:
         run.budget.check("the closed-loop certification")
         moved = rollout(system, init, acts, start + a * (controls - start))
-        # closed_loop_check's own first screen, before it asks whether the plan is trackable
-        # (a loop of its own): on most fractions it is the verdict
-        moved_margin = robustness(predicted_state(system, moved, problem.control_domain), formula)
-        ok = False
-        if moved_margin >= 0:
-            _, moved_margin, ok, _ = closed_loop_check(system, moved, problem.control_domain, formula)
+        _, moved_margin, ok, _ = closed_loop_check(system, moved, problem.control_domain, formula)
         logger.debug("closed-loop repair: %.3g of the step, margin %.3g", a, moved_margin)
         if ok:
             return moved

@@ -453,7 +453,8 @@ def closed_loop_check(
     ok : bool
         ``margin >= 0``.
     tracks : bool
-        Whether the plan is trackable (:func:`idstlpy.closed_loop.trackable`): the prediction
+        Whether the plan is trackable (:func:`idstlpy.closed_loop.trackable`; False, not asked,
+        when the Gaussian prediction already fails): the prediction
         linearises the clipping of the correction, and is accurate where the inputs leave the
         correction room. A plan that is not is judged on the particle closure instead (samples
         pushed through the clip: a plan riding an input bound makes the clipped loop a rectifier
@@ -470,10 +471,13 @@ def closed_loop_check(
     two, which a rectifier's under-stated spread makes rare and small (on the suite's MLO plans
     the particle margin was at most 6e-4 above the Gaussian one, usually below it).
     """
-    tracks = trackable(system, traj, control_domain)
     predicted = predicted_state(system, traj, control_domain, closure="gaussian")
     margin = robustness(predicted, formula)
-    if not tracks and control_domain is not None and margin >= 0:
+    if margin < 0:
+        # The screen's verdict; trackability (a loop of its own) is not asked of a failing plan.
+        return predicted, margin, False, False
+    tracks = trackable(system, traj, control_domain)
+    if not tracks and control_domain is not None:
         predicted = predicted_state(system, traj, control_domain, closure="particles")
         margin = robustness(predicted, formula)
     return predicted, margin, margin >= 0, tracks
