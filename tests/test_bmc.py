@@ -42,6 +42,13 @@ def _atoms(formula):
     return [ap for ap in formula.atomic_propositions() if ap._constant is None]
 
 
+def _random_labels(formula, length, seed, p_true):
+    """Random truth values of ``formula``'s atoms over ``length`` steps, and their row index."""
+    atoms = _atoms(formula)
+    truth = np.random.default_rng(seed).random((len(atoms), length)) < p_true
+    return truth, {id(a): i for i, a in enumerate(atoms)}
+
+
 @settings(max_examples=150, deadline=None)
 @given(formulas(), st.integers(1, 9), st.integers(0, 2**31 - 1))
 def test_sat_encoding_matches_semantics(formula, length, seed):
@@ -75,10 +82,7 @@ def test_sat_encoding_matches_semantics(formula, length, seed):
 @settings(max_examples=150, deadline=None)
 @given(formulas(), st.integers(1, 10), st.integers(0, 2**31 - 1), st.booleans())
 def test_witness_is_sufficient(formula, length, seed, late):
-    rng = np.random.default_rng(seed)
-    atoms = _atoms(formula)
-    index = {id(a): i for i, a in enumerate(atoms)}
-    truth = rng.random((len(atoms), length)) < 0.7
+    truth, index = _random_labels(formula, length, seed, 0.7)
     w = extract_witness(formula, truth, index, prefer_late=late)
     holds = bool(evaluate_bool(formula, truth, index)[id(formula)][0])
     assert (w is not None) == holds
@@ -153,10 +157,7 @@ def _witness_step_by_step(formula, truth, index, late):
 @given(formulas(depth=4), st.integers(1, 12), st.integers(0, 2**31 - 1), st.booleans())
 def test_witness_matches_the_step_by_step_walk(formula, length, seed, late):
     # The batched witness (one pass per sub-formula over its steps) is the closure the walk builds.
-    rng = np.random.default_rng(seed)
-    atoms = _atoms(formula)
-    index = {id(a): i for i, a in enumerate(atoms)}
-    truth = rng.random((len(atoms), length)) < 0.75
+    truth, index = _random_labels(formula, length, seed, 0.75)
     w = extract_witness(formula, truth, index, prefer_late=late)
     if w is None:
         assert not evaluate_bool(formula, truth, index)[id(formula)][0]
