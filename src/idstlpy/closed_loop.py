@@ -202,20 +202,14 @@ class NoiseInterpolant:
         r = min(int(np.sum(keep)), 4)
         T = V[:, :r] * np.sqrt(w[:r])
         inv = (V[:, :r] / np.sqrt(w[:r])).T if r else np.zeros((0, center.shape[0]))
-        nodes = np.array([-_GH3, 0.0, _GH3])
-        grid = np.zeros((1, 0))
-        if r:
-            grid = np.stack([g.reshape(-1) for g in np.meshgrid(*([nodes] * r), indexing="ij")], axis=1)
+        grid = _cubature(r)[0] if r else np.zeros((1, 0))  # the 3-node Gauss-Hermite grid (r <= 4)
         values = np.stack([mode.noise(center + T @ xi) for xi in grid])
         return NoiseInterpolant(center, inv, values)
 
     def expectation(self) -> np.ndarray:
         """``E[n(x) n(x)']`` under ``N(c, T T')`` by the nodes' Gauss-Hermite rule: shape (p, p)."""
         r = self.inv.shape[0]
-        w1 = np.array([1 / 6, 2 / 3, 1 / 6])
-        w = np.ones(1)
-        for _ in range(r):
-            w = (w[:, None] * w1[None, :]).reshape(-1)
+        w = _cubature(r)[1] if r else np.ones(1)
         return np.einsum("g,gpq,grq->pr", w, self.values, self.values)
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
