@@ -29,7 +29,16 @@ its first adopted re-plan, a run of the replanning executor is the fixed run, bi
   success predicted from the start belief is below the risk is re-solved before its first step
   (at most twice, counted in ``--max-replans``; adopted when predicted better). Detour's plan
   breaks the obstacle's corner at steps 3-11, before any drift check can see it;
-- ``drift_start_cl``: ``drift_start`` whose re-solves use ``guarantee="closed_loop"``.
+- ``drift_start_cl``: ``drift_start`` whose re-solves use ``guarantee="closed_loop"``;
+- ``checked`` (``checked_est``): the start check made *once* per plan (``stl.start_check``,
+  :data:`CHECKS`: up to three MLO re-solves, then, while still below the risk, up to two under
+  ``guarantee="closed_loop"``; seeds from ``--solve-seed``), its plan then executed by ``drift``
+  whose re-solves use ``guarantee="closed_loop"``. Nothing is observed before the first step,
+  so the check is the same for every run: ``drift_start_cl`` makes it in every run, at the
+  cost of a solve or two per run. ``checked`` reads the risk on the sound bound (as every
+  executor above), ``checked_est`` on the sampled estimate (``risk_measure="estimate"``): the
+  union bound of a long plan stays below 0.99 where the plan succeeds in 99.7% of runs, and
+  a check on it re-solves in every run.
 
 ``check`` and ``every`` scale with the plan (``check = max(5, N // 10)``, ``every =
 max(10, N // 5)``, ``N`` the plan's length) so a run costs about ten predictions or five re-solves
@@ -77,7 +86,13 @@ SAMPLER: dict[str, Any] = {
     "min_num_of_steps": 3,
     "max_num_of_steps": 15,
 }
-MODES = ("fixed", "on_risk", "every", "on_risk_cl", "on_drift", "drift", "drift_start", "drift_start_cl")
+MODES = (
+    "fixed", "on_risk", "every", "on_risk_cl", "on_drift", "drift", "drift_start", "drift_start_cl",
+    "checked", "checked_est",
+)  # fmt: skip
+CHECKED = ("checked", "checked_est")
+CHECKS = (("mlo", 3), ("closed_loop", 2))
+"""``checked``: the start check's rounds (guarantee of the re-solves, re-solves at most)."""
 RISK = 0.99
 DRIFT = 0.95
 START_RESOLVES = 2
@@ -108,6 +123,39 @@ def solve_job(kind: str, size: str, seed: int, time_limit: float) -> dict[str, A
     }
 
 
+def check_job(kind: str, size: str, plan: Any, mode: str, seed: int, time_limit: float) -> dict[str, Any]:
+    """The start check of ``checked`` / ``checked_est``, made once for a plan (:data:`CHECKS`)."""
+    import idstlpy as stl
+
+    problem, _, _ = _setup(kind, size)
+    options = stl.SolverOptions.make(**SAMPLER)
+    measure = "estimate" if mode == "checked_est" else "bound"
+    t0 = time.perf_counter()
+    current, initial, replans, predicted = plan, None, [], float("nan")
+    for guarantee, resolves in CHECKS:
+        check = stl.start_check(
+            problem, current, risk=RISK, resolves=resolves, seed=seed, options=options,
+            solver_options={"guarantee": guarantee}, replan_time_limit=time_limit, risk_measure=measure,
+        )  # fmt: skip
+        initial = check.initial_predicted if initial is None else initial
+        current, predicted = check.plan, check.predicted
+        replans += [
+            (guarantee, r.status, r.adopted, r.new_predicted, bool(r.caps_hit)) for r in check.replans
+        ]
+        if predicted >= RISK:
+            break
+    return {
+        "plan": current,
+        "summary": {
+            "initial": initial,
+            "predicted": predicted,
+            "steps": current.num_of_steps,
+            "replans": replans,
+            "seconds": time.perf_counter() - t0,
+        },
+    }
+
+
 def schedule(num_of_steps: int) -> tuple[int, int]:
     """``(check, every)`` for a plan of ``num_of_steps`` steps (module notes)."""
     return max(5, num_of_steps // 10), max(10, num_of_steps // 5)
@@ -135,12 +183,15 @@ def run_batch(
         kw = {"replan": "on_risk", "risk": RISK, "check_every": check, "drift": DRIFT}
     elif mode == "drift":  # checked only when the belief leaves its predicted ellipse (no schedule)
         kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT}
+    elif mode in CHECKED:  # drift, the plan checked once before (check_job)
+        kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT,
+              "risk_measure": "estimate" if mode == "checked_est" else "bound"}
     elif mode in ("drift_start", "drift_start_cl"):  # drift; a plan predicted below the risk re-solved first
         kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT,
               "start_resolves": START_RESOLVES}
     elif mode == "every":
         kw = {"replan": "every", "every": every}
-    if mode in ("on_risk_cl", "drift_start_cl"):  # the re-solves plan against the predicted true state
+    if mode in ("on_risk_cl", "drift_start_cl", *CHECKED):  # re-solves against the predicted true state
         options = options.with_(guarantee="closed_loop")
     out = []
     for ss in seeds:
@@ -261,6 +312,19 @@ def markdown(
     lines += ["", "Goal (replanning reaches 99% where the fixed plan reaches 90%, per measure):", ""]
     for row in rows:
         lines.append(f"- {row['kind']}: {row['goal']}")
+    checks = [(row["kind"], mode, c) for row in rows for mode, c in sorted(row["checks"].items())]
+    if checks:
+        lines += ["", "Start checks (`checked`, `checked_est`: once per plan; re-solves as guarantee "
+                  "status -> predicted, * adopted, ! cap hit):", ""]
+        for kind, mode, c in checks:
+            tries = ", ".join(
+                f"{g} {st} -> {p:.4f}{'*' if a else ''}{'!' if cap else ''}"
+                for g, st, a, p, cap in c["replans"]
+            ) or "none (predicted above the risk)"
+            lines.append(
+                f"- {kind} {mode}: predicted {c['initial']:.4f} -> {c['predicted']:.4f} "
+                f"({c['steps']} steps); re-solves: {tries}; {c['seconds']:.1f} s"
+            )
     if missing:
         lines += ["", "Kinds without a plan (not executed):", ""]
         for m in missing:
@@ -301,13 +365,20 @@ def run_kind(
     record["steps"] = s["plan"].num_of_steps
     runs = record.setdefault("runs", {})
     todo = [m for m in args.modes if m not in runs]
+    plans = {m: s["plan"] for m in todo}
+    checks = record.setdefault("checks", {})
+    for mode in [m for m in todo if m in CHECKED]:
+        job = (kind, args.size, s["plan"], mode, args.solve_seed, args.time_limit)
+        c = pool.submit(check_job, *job).result()
+        plans[mode], checks[mode] = c["plan"], c["summary"]
+        print(f"{kind} {mode}: start check {c['summary']}", file=sys.stderr, flush=True)
     chunk = max(1, math.ceil(len(seeds) / 4))
     futures = {
         (mode, i): pool.submit(
             run_batch,
             kind,
             args.size,
-            s["plan"],
+            plans[mode],
             mode,
             seeds[i : i + chunk],
             args.replan_time_limit,
@@ -381,6 +452,7 @@ def write_report(kinds: list[str], args: argparse.Namespace, work: Path, wall: f
             missing.append(record)
             continue
         row = summarise(kind, record["steps"], record["runs"])
+        row["checks"] = {m: c for m, c in record.get("checks", {}).items() if m in row["modes"]}
         rows.append(row)
     Path(args.out).write_text(markdown(rows, missing, args, wall))
 

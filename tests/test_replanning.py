@@ -181,6 +181,61 @@ def test_start_check_resolves_a_plan_predicted_below_the_risk_before_its_first_s
     assert calm.replans == () and np.array_equal(calm.real.get_state(), fixed.real.get_state())
 
 
+def test_start_check_is_the_check_execute_makes_before_its_first_step(case):
+    problem, plan, real, x0 = case
+    # Seeded alike (execute's seed, start_check's seed), the re-solves are the same and so is the
+    # plan followed: the check depends on the problem, the plan and the seed only.
+    checked = stl.start_check(problem, plan, risk=1.0, resolves=2, seed=4, solver_options=OPTIONS)
+    report = stl.execute(
+        problem, plan, real, x0, seed=4, replan="on_risk", risk=1.0, check_every=100,
+        start_resolves=2, max_replans=2, solver_options=OPTIONS,
+    )  # fmt: skip
+    assert checked.replans == report.replans and len(checked.replans) == 2
+    assert all(r.reason == "start" and r.step == 0 and r.status == "found" for r in checked.replans)
+    assert checked.initial_predicted == checked.replans[0].predicted
+    best = max([checked.initial_predicted] + [r.new_predicted for r in checked.replans])
+    assert checked.predicted == best  # the best-predicted plan is kept ("better")
+    assert checked.replaced == (best > checked.initial_predicted)
+    ((k, followed),) = report.plans
+    assert k == 0 and np.array_equal(followed.get_action(), checked.plan.get_action())
+    assert np.array_equal(followed.get_mean(), checked.plan.get_mean())
+    # Made once, executed many times: the checked plan followed without a start check is the same
+    # run as the check made inside execute (nothing was re-solved after the start).
+    once = stl.execute(problem, checked.plan, real, x0, seed=4)
+    assert np.array_equal(once.real.get_state(), report.real.get_state())
+    # Deterministic, and a plan already above the risk is kept without a re-solve.
+    assert stl.start_check(problem, plan, risk=1.0, resolves=2, seed=4, solver_options=OPTIONS).replans == (
+        checked.replans
+    )
+    calm = stl.start_check(problem, plan, risk=0.0)
+    assert calm.plan is plan and calm.replans == () and not calm.replaced
+    assert calm.predicted == calm.initial_predicted and 0.0 <= calm.predicted <= 1.0
+
+
+@pytest.mark.parametrize(
+    ("kw", "error", "name"),
+    [
+        ({"risk": -0.1}, InvalidArgumentError, "risk"),
+        ({"resolves": -1}, InvalidArgumentError, "resolves"),
+        ({"seed": None}, InvalidTypeError, "seed"),
+        ({"risk_measure": "median"}, InvalidArgumentError, "risk_measure"),
+        ({"risk_on": "plan"}, InvalidArgumentError, "risk_on"),
+        ({"adopt": "never"}, InvalidArgumentError, "adopt"),
+        ({"replan_time_limit": -1}, InvalidArgumentError, "replan_time_limit"),
+        ({"solver_options": {"no_such_option": 1}}, InvalidArgumentError, "no_such_option"),
+        ({"clip_controls": 1}, InvalidTypeError, "clip_controls"),
+    ],
+)
+def test_start_check_bad_inputs_raise_package_errors_naming_the_argument(case, kw, error, name):
+    problem, plan, _, _ = case
+    with pytest.raises(error, match=name):
+        stl.start_check(problem, plan, **kw)
+    with pytest.raises(InvalidArgumentError, match="plan is None"):
+        stl.start_check(problem, None)
+    with pytest.raises(InvalidTypeError, match="problem"):
+        stl.start_check("problem", plan)
+
+
 def test_adopted_plan_is_followed(case):
     problem, plan, real, x0 = case
     report = stl.execute(

@@ -35,11 +35,13 @@ from .execution import (
     ClosedLoopPrediction,
     ExecutionReport,
     Replan,
+    StartCheck,
     ValidationReport,
     execute,
     finite_horizon_lqr,
     predict_closed_loop,
     simulate,
+    start_check,
     validate,
 )
 from .expressions import (
@@ -151,6 +153,8 @@ __all__ = [
     "execute",
     "ExecutionReport",
     "Replan",
+    "start_check",
+    "StartCheck",
     "progress",
     "predict_closed_loop",
     "ClosedLoopPrediction",

@@ -6,7 +6,8 @@ Functions (re-exported at the top level as ``idstlpy.finite_horizon_lqr``, ``ids
 - :func:`finite_horizon_lqr`: gains of the tracking law (``LCS.compute_finite_horizon_lqr``);
 - :func:`simulate`: one execution (``SwitchedSystem.simulate``);
 - :func:`validate`: many independent executions and the rates at which the plan's promise held;
-- :func:`execute`: one execution that re-plans from the executed belief (receding horizon).
+- :func:`execute`: one execution that re-plans from the executed belief (receding horizon);
+- :func:`start_check`: a plan's predicted success checked (and re-solved) before execution.
 
 Submodules (one job each; none is named like a function it defines):
 
@@ -15,14 +16,15 @@ Submodules (one job each; none is named like a function it defines):
 - :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
   control domain);
 - :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals;
-- :mod:`idstlpy.execution.replanning`: :func:`execute`, :class:`ExecutionReport`, :class:`Replan`.
+- :mod:`idstlpy.execution.replanning`: :func:`execute`, :func:`start_check`,
+  :class:`ExecutionReport`, :class:`Replan`, :class:`StartCheck`.
 """
 
 from __future__ import annotations
 
 from ..tracking import finite_horizon_lqr
 from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
-from .replanning import ExecutionReport, Replan, execute
+from .replanning import ExecutionReport, Replan, StartCheck, execute, start_check
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval
 
@@ -35,6 +37,8 @@ __all__ = [
     "predict_closed_loop",
     "Replan",
     "simulate",
+    "StartCheck",
+    "start_check",
     "validate",
     "ValidationReport",
     "wilson_interval",

@@ -34,6 +34,17 @@ re-plan's index, so the same seed gives the same execution and the same re-plans
 wall-clock cap was hit: the record says so, as ``SolveStats.caps_hit`` does). A re-solve that
 finds no plan keeps the old one; every attempt is recorded.
 
+The start check
+---------------
+Before the first step nothing has been observed, so whether a plan is good enough to start with
+depends on the problem and the plan only. :func:`start_check` predicts the plan's success from
+its start belief and, below ``risk``, re-solves the problem (at most ``resolves`` times, seeds
+derived from its own ``seed``), keeping the best-predicted plan. Call it once and execute its
+plan many times; or let ``execute(start_resolves=n)`` make the same check inside every run (its
+re-solve seeds then derive from the run's seed). It composes: a second call with
+``solver_options={"guarantee": "closed_loop"}`` tries plans made against the predicted true
+state when MLO re-solves did not reach the risk.
+
 What is predicted
 -----------------
 The success probability of the remaining plan is predicted with the planning model only (the
@@ -67,7 +78,7 @@ from ..tracking import system_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
 
-__all__ = ["ExecutionReport", "Replan", "execute", "replan_seed"]
+__all__ = ["ExecutionReport", "Replan", "StartCheck", "execute", "replan_seed", "start_check"]
 
 logger = logging.getLogger(__name__)
 
@@ -259,6 +270,145 @@ def _state_reading(
     return ProbabilisticTSTrajectory(states, np.zeros((states.shape[0], n, n)), actions, controls)
 
 
+@dataclass(frozen=True)
+class _RiskModel:
+    """How the executor predicts a plan's success: the planning model only, its gains, domain and
+    process noise, and the measure a risk threshold reads (``execute``'s checks, ``start_check``)."""
+
+    system: Any
+    gains: list[Any]
+    control_domain: Any
+    process_noise: str
+    measure: str
+    on: str
+    samples: int
+
+    @classmethod
+    def make(
+        cls,
+        problem: Any,
+        clip_controls: Any,
+        process_noise: str,
+        lqr_gains: Any,
+        default_lqr: Any,
+        risk_measure: Any,
+        risk_on: Any,
+        risk_samples: Any,
+    ) -> _RiskModel:
+        if risk_measure not in ("bound", "estimate"):
+            raise InvalidArgumentError(f"risk_measure must be 'bound' or 'estimate', got {risk_measure!r}")
+        if risk_on not in ("belief", "state", "both"):
+            raise InvalidArgumentError(f"risk_on must be 'belief', 'state' or 'both', got {risk_on!r}")
+        samples = as_int(risk_samples, "risk_samples", minimum=1)
+        if not isinstance(clip_controls, bool):
+            raise InvalidTypeError(f"clip_controls must be a bool, got {type(clip_controls).__name__}")
+        system = problem.switched_system
+        return cls(
+            system,
+            list(system_gains(system, lqr_gains, default_lqr).values()),
+            problem.control_domain if clip_controls else None,
+            process_noise,
+            risk_measure,
+            risk_on,
+            samples,
+        )
+
+    def predict(
+        self, plan: ProbabilisticTSTrajectory, j: int, psi: STLFormula, belief: GaussianBelief
+    ) -> tuple[float, Any]:
+        """Predicted probability that the rest of ``plan`` from its step ``j``, started at
+        ``belief``, satisfies ``psi``; and the prediction (None for a constant formula)."""
+        if psi is TRUE or psi is FALSE:
+            return (1.0 if psi is TRUE else 0.0), None
+        from .prediction import predict_closed_loop
+
+        pred = predict_closed_loop(
+            self.system,
+            _suffix(plan, j),
+            None,  # the planning model: the executor does not know the real system
+            belief.mean,
+            formula=psi,
+            control_domain=self.control_domain,
+            process_noise="model" if self.process_noise == "model" else "none",
+            lqr_gains=self.gains,
+            initial_belief=belief,
+            real_initial_cov=belief.cov,
+            samples=self.samples if self.measure == "estimate" else 0,
+            seed=0,
+            closure="gaussian",  # a check is made often: the cheap closure
+        )
+        if self.measure == "bound":
+            b, s = pred.belief_success_bound, pred.state_success_bound
+        else:
+            b, s = pred.belief_success_estimate, pred.state_success_estimate
+        value = {"belief": b, "state": s, "both": min(b, s)}[self.on]
+        return (float(value) if math.isfinite(value) else 0.0), pred
+
+
+def _resolve_options(
+    options: Any, solver_options: Mapping[str, Any] | None, replan_time_limit: Any, adopt: Any
+) -> Any:
+    """The re-solves' SolverOptions (``options`` with ``solver_options``, capped at
+    ``replan_time_limit``); also checks ``adopt``."""
+    from ..synthesis.options import SolverOptions
+
+    if adopt not in ("better", "always"):
+        raise InvalidArgumentError(f"adopt must be 'better' or 'always', got {adopt!r}")
+    replan_time_limit = as_float(replan_time_limit, "replan_time_limit", 0.0, low_open=True)
+    if options is None:
+        base = SolverOptions()
+    elif isinstance(options, SolverOptions):
+        base = options
+    else:
+        raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
+    if solver_options is not None:
+        if not isinstance(solver_options, Mapping):
+            raise InvalidTypeError(f"solver_options must be a mapping, got {type(solver_options).__name__}")
+        base = base.with_(**solver_options)
+    cap = replan_time_limit if base.time_limit is None else min(base.time_limit, replan_time_limit)
+    return base.with_(time_limit=cap)
+
+
+def _check_start(
+    problem: Any,
+    plan: ProbabilisticTSTrajectory,
+    belief: GaussianBelief,
+    risk: float,
+    resolves: int,
+    options: Any,
+    seed_of: Any,
+    model: _RiskModel,
+    adopt: str,
+) -> tuple[ProbabilisticTSTrajectory, float, Any, list[Replan]]:
+    """The start check (module notes): the plan to follow, its predicted success, its prediction
+    and the re-solve records. ``seed_of(i)`` is the solver seed of re-solve ``i``."""
+    formula = problem.stl_formula
+    p, pred = model.predict(plan, 0, formula, belief)
+    current = plan
+    records: list[Replan] = []
+    for i in range(resolves):
+        if p >= risk:
+            break
+        record, new = _resolve(problem, belief, formula, options, seed_of(i), 0, "start", p)
+        p_new, new_pred = (model.predict(new, 0, formula, belief) if new is not None else (math.nan, None))
+        if new is not None:
+            # adopt="better": a fresh MLO plan may track worse than the old one: keep the better.
+            record = _with(record, new_predicted=p_new, adopted=adopt == "always" or p_new > p)
+        records.append(record)
+        logger.info(
+            "start check: re-solve %d %s (%s, predicted %.3g -> %.3g, %.2f s)",
+            i,
+            "adopted" if record.adopted else "kept the old plan",
+            record.status,
+            p,
+            p_new,
+            record.solve_time,
+        )
+        if record.adopted and new is not None:
+            current, p, pred = new, p_new, new_pred
+    return current, p, pred, records
+
+
 def execute(
     problem: Any,
     plan: ProbabilisticTSTrajectory,
@@ -363,7 +513,6 @@ def execute(
     DimensionError
         When dimensions of the plan, the model and the real system disagree.
     """
-    from ..synthesis.options import SolverOptions
     from ..synthesis.problem import Problem
 
     t0 = time.perf_counter()
@@ -384,30 +533,9 @@ def execute(
         drift = as_float(drift, "drift", 0.0, 1.0, low_open=True)
         if drift == 1.0:
             raise InvalidArgumentError("drift must be < 1 (a confidence), got 1.0")
-    if risk_measure not in ("bound", "estimate"):
-        raise InvalidArgumentError(f"risk_measure must be 'bound' or 'estimate', got {risk_measure!r}")
-    if risk_on not in ("belief", "state", "both"):
-        raise InvalidArgumentError(f"risk_on must be 'belief', 'state' or 'both', got {risk_on!r}")
-    risk_samples = as_int(risk_samples, "risk_samples", minimum=1)
     max_replans = as_int(max_replans, "max_replans", minimum=0)
     start_resolves = as_int(start_resolves, "start_resolves", minimum=0)
-    if adopt not in ("better", "always"):
-        raise InvalidArgumentError(f"adopt must be 'better' or 'always', got {adopt!r}")
-    replan_time_limit = as_float(replan_time_limit, "replan_time_limit", 0.0, low_open=True)
-    if not isinstance(clip_controls, bool):
-        raise InvalidTypeError(f"clip_controls must be a bool, got {type(clip_controls).__name__}")
-    if options is None:
-        base = SolverOptions()
-    elif isinstance(options, SolverOptions):
-        base = options
-    else:
-        raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
-    if solver_options is not None:
-        if not isinstance(solver_options, Mapping):
-            raise InvalidTypeError(f"solver_options must be a mapping, got {type(solver_options).__name__}")
-        base = base.with_(**solver_options)
-    cap = replan_time_limit if base.time_limit is None else min(base.time_limit, replan_time_limit)
-    base = base.with_(time_limit=cap)
+    base = _resolve_options(options, solver_options, replan_time_limit, adopt)
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence | None):
         raise InvalidTypeError(f"seed must be an int, a SeedSequence or None, got {type(seed).__name__}")
     ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
@@ -415,11 +543,13 @@ def execute(
 
     system = problem.switched_system
     formula = problem.stl_formula
-    gains = list(system_gains(system, lqr_gains, default_lqr).values())
+    model = _RiskModel.make(
+        problem, clip_controls, process_noise, lqr_gains, default_lqr, risk_measure, risk_on, risk_samples
+    )
     sim_options: dict[str, Any] = {
-        "control_domain": problem.control_domain if clip_controls else None,
+        "control_domain": model.control_domain,
         "process_noise": process_noise,
-        "lqr_gains": gains,
+        "lqr_gains": model.gains,
     }
 
     # The drift test's reference: (execution step, predicted belief means (L, n), their
@@ -437,35 +567,17 @@ def execute(
     ) -> float:
         """Predicted probability that the rest of ``current`` from its step ``j`` satisfies ``psi``
         (with ``at``, the execution step, the prediction becomes the drift test's reference)."""
-        last.clear()
-        if psi is TRUE or psi is FALSE:
-            return 1.0 if psi is TRUE else 0.0
-        from .prediction import predict_closed_loop
+        value, pred = model.predict(current, j, psi, belief)
+        remember(pred, at)
+        return value
 
-        pred = predict_closed_loop(
-            system,
-            _suffix(current, j),
-            None,  # the planning model: the executor does not know the real system
-            belief.mean,
-            formula=psi,
-            control_domain=sim_options["control_domain"],
-            process_noise="model" if process_noise == "model" else "none",
-            lqr_gains=gains,
-            initial_belief=belief,
-            real_initial_cov=belief.cov,
-            samples=risk_samples if risk_measure == "estimate" else 0,
-            seed=0,
-            closure="gaussian",  # a check is made often: the cheap closure
-        )
+    def remember(pred: Any, at: int | None) -> None:
+        last.clear()
+        if pred is None:
+            return
         last[:] = [(pred.belief_mean, pred.belief_mean_cov)]
         if at is not None and drift is not None:
             reference[:] = [(at, pred.belief_mean, pred.belief_mean_cov)]
-        if risk_measure == "bound":
-            b, s = pred.belief_success_bound, pred.state_success_bound
-        else:
-            b, s = pred.belief_success_estimate, pred.state_success_estimate
-        value = {"belief": b, "state": s, "both": min(b, s)}[risk_on]
-        return float(value) if math.isfinite(value) else 0.0
 
     # Executed so far (lists of per-chunk arrays; row 0 of every later chunk repeats the last row).
     current = plan
@@ -540,19 +652,23 @@ def execute(
         return new_plan
 
     if replan == "on_risk" and formula is not TRUE and formula is not FALSE and (drift or start_resolves):
-        # Before the first step: the drift test's first reference, and the start check (a plan
-        # predicted below ``risk`` from the start is re-solved before it is followed: a plan
-        # that grazes a constraint early breaks it before any later check can see it coming).
-        p_start = predicted_success(plan, 0, formula, belief, at=0)
-        tries = 0
-        while p_start < risk and tries < start_resolves and attempts < max_replans:
-            tries += 1
-            adopted = attempt(0, 0, formula, "start", p_start)
-            if adopted is not None:
-                current = adopted
-                del plans[:-1]  # the replaced plan was never followed
-                p_new = replans[-1].new_predicted
-                p_start = p_new if math.isfinite(p_new) else predicted_success(adopted, 0, formula, belief)
+        # Before the first step: the start check (module notes) and the drift test's first
+        # reference, the prediction of the plan that is followed.
+        current, _, pred, records = _check_start(
+            problem,
+            plan,
+            belief,
+            risk,
+            min(start_resolves, max_replans),
+            base,
+            lambda i: replan_seed(ss, i),
+            model,
+            adopt,
+        )
+        replans.extend(records)
+        attempts += len(records)
+        plans[:] = [(0, current)]  # a plan replaced at the start was never followed
+        remember(pred, 0)
 
     while True:
         j = k - start
@@ -633,6 +749,115 @@ def execute(
         seed_entropy=int(entropy) if isinstance(entropy, int | np.integer) else tuple(entropy or ()),
         elapsed=time.perf_counter() - t0,
     )
+
+
+@dataclass(frozen=True)
+class StartCheck:
+    """Outcome of :func:`start_check`.
+
+    Parameters
+    ----------
+    plan : ProbabilisticTSTrajectory
+        The plan to follow: the given one, or a re-solved plan predicted better.
+    predicted : float
+        Predicted success of ``plan`` from its start belief (the risk measure's).
+    initial_predicted : float
+        Predicted success of the plan given to the check.
+    replans : tuple of Replan
+        The re-solves made (reason ``"start"``, step 0), in order.
+    """
+
+    plan: ProbabilisticTSTrajectory = field(repr=False)
+    predicted: float
+    initial_predicted: float
+    replans: tuple[Replan, ...]
+
+    @property
+    def replaced(self) -> bool:
+        """Whether a re-solved plan replaced the given one."""
+        return any(r.adopted for r in self.replans)
+
+
+def start_check(
+    problem: Any,
+    plan: ProbabilisticTSTrajectory,
+    *,
+    risk: float = 0.9,
+    resolves: int = 2,
+    seed: int | np.random.SeedSequence = 0,
+    risk_measure: Literal["bound", "estimate"] = "bound",
+    risk_on: Literal["belief", "state", "both"] = "both",
+    risk_samples: int = 1000,
+    adopt: Literal["better", "always"] = "better",
+    replan_time_limit: float = 30.0,
+    options: Any = None,
+    solver_options: Mapping[str, Any] | None = None,
+    clip_controls: bool = True,
+    process_noise: str = "model",
+    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
+    default_lqr: Mapping[str, Any] | None = None,
+) -> StartCheck:
+    """Check a plan before it is executed; re-solve it while its predicted success is below ``risk``.
+
+    The plan's success is predicted from its start belief as :func:`execute` predicts it
+    (the planning model, the executor's gains and clipping, ``risk_measure`` and ``risk_on``).
+    Below ``risk``, the problem is re-solved (at most ``resolves`` times, solver seeds derived
+    from ``seed``) and a new plan is kept when predicted better (``adopt="better"``) or whenever
+    one is found (``"always"``). Nothing is observed before the first step, so the check is the
+    same for every execution: make it once, then execute its plan (module notes).
+
+    Parameters
+    ----------
+    problem : Problem
+        The problem the plan solves.
+    plan : ProbabilisticTSTrajectory
+        The plan to check, ``N`` steps, starting at the problem's prior.
+    risk : float
+        The predicted success a plan needs to be followed as it is (in ``[0, 1]``).
+    resolves : int
+        Re-solves at most (>= 0).
+    seed : int or SeedSequence
+        Seed of the re-solves' seeds (re-solve ``i`` uses ``replan_seed(SeedSequence(seed), i)``).
+    risk_measure, risk_on, risk_samples, adopt, replan_time_limit, options, solver_options
+        As in :func:`execute`; ``solver_options={"guarantee": "closed_loop"}`` re-solves against
+        the predicted true state.
+    clip_controls, process_noise, lqr_gains, default_lqr
+        The executor's, as in :func:`~idstlpy.execution.validation.validate`.
+
+    Returns
+    -------
+    StartCheck
+
+    Raises
+    ------
+    InvalidTypeError
+        When ``problem`` is not a Problem, ``plan`` not a trajectory, or an option has the wrong
+        type.
+    InvalidArgumentError
+        When ``plan`` is None or an option is out of range (the message names it).
+    """
+    from ..synthesis.problem import Problem
+
+    if not isinstance(problem, Problem):
+        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
+    if plan is None:
+        raise InvalidArgumentError("plan is None: there is no plan to check (see problem.last_result.reason)")
+    if not isinstance(plan, ProbabilisticTSTrajectory):
+        raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
+    risk = as_float(risk, "risk", 0.0, 1.0)
+    resolves = as_int(resolves, "resolves", minimum=0)
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence):
+        raise InvalidTypeError(f"seed must be an int or a SeedSequence, got {type(seed).__name__}")
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    base = _resolve_options(options, solver_options, replan_time_limit, adopt)
+    model = _RiskModel.make(
+        problem, clip_controls, process_noise, lqr_gains, default_lqr, risk_measure, risk_on, risk_samples
+    )
+    belief = GaussianBelief(plan.get_mean(0).copy(), plan.get_cov(0).copy())
+    current, p, _, records = _check_start(
+        problem, plan, belief, risk, resolves, base, lambda i: replan_seed(ss, i), model, adopt
+    )
+    return StartCheck(current, p, records[0].predicted if records else p, tuple(records))
 
 
 def _pad(obs: np.ndarray, p_max: int) -> np.ndarray:
