@@ -181,6 +181,20 @@ def test_start_check_resolves_a_plan_predicted_below_the_risk_before_its_first_s
     assert calm.replans == () and np.array_equal(calm.real.get_state(), fixed.real.get_state())
 
 
+def test_no_schedule_leaves_the_drift_test_and_the_start_check(case):
+    problem, plan, real, x0 = case
+    slow = stl.mk_switched_sys([stl.mk_lcs(A=np.eye(2), B=0.25 * np.eye(2))])
+    kw = {"replan": "on_risk", "risk": 1.0, "max_replans": 1, "solver_options": OPTIONS, "seed": 3}
+    unscheduled = stl.execute(problem, plan, slow, x0, check_every=None, drift=0.95, **kw)
+    late = stl.execute(problem, plan, slow, x0, check_every=plan.num_of_steps + 1, drift=0.95, **kw)
+    assert unscheduled.num_replans == 1 and unscheduled.replans[0].reason == "drift"
+    assert unscheduled == late
+    # Neither schedule nor drift test: the run is simulate's (risk 1 would re-solve at any check).
+    blind = stl.execute(problem, plan, slow, x0, check_every=None, **kw)
+    fixed = stl.execute(problem, plan, slow, x0, seed=3)
+    assert blind.replans == () and np.array_equal(blind.real.get_state(), fixed.real.get_state())
+
+
 def test_start_check_is_the_check_execute_makes_before_its_first_step(case):
     problem, plan, real, x0 = case
     # Seeded alike (execute's seed, start_check's seed), the re-solves are the same and so is the

@@ -419,7 +419,7 @@ def execute(
     replan: ReplanMode = None,
     risk: float = 0.9,
     every: int = 10,
-    check_every: int = 1,
+    check_every: int | None = 1,
     drift: float | None = None,
     start_resolves: int = 0,
     risk_measure: Literal["bound", "estimate"] = "bound",
@@ -458,9 +458,10 @@ def execute(
         (in ``[0, 1]``).
     every : int
         ``"every"``: re-solve every this many executed steps (>= 1).
-    check_every : int
+    check_every : int or None
         ``"on_risk"``: predict every this many executed steps (>= 1). A prediction costs about
-        five executions of the remaining plan (0.1 s for an 82-step light-dark plan).
+        five executions of the remaining plan (0.1 s for an 82-step light-dark plan). ``None``:
+        no scheduled check; only the drift test and the start check decide.
     drift : float in (0, 1), optional
         ``"on_risk"``: also predict at any step at which the executed belief's mean lies outside
         the ``drift`` confidence ellipse of its last predicted distribution (module notes). The
@@ -528,7 +529,8 @@ def execute(
         raise InvalidArgumentError(f"replan must be None, 'on_risk' or 'every', got {replan!r}")
     risk = as_float(risk, "risk", 0.0, 1.0)
     every = as_int(every, "every", minimum=1)
-    check_every = as_int(check_every, "check_every", minimum=1)
+    if check_every is not None:
+        check_every = as_int(check_every, "check_every", minimum=1)
     if drift is not None:
         drift = as_float(drift, "drift", 0.0, 1.0, low_open=True)
         if drift == 1.0:
@@ -612,8 +614,10 @@ def execute(
     def decision_due(k: int) -> str | None:
         if replan is None or k == 0 or violated or attempts >= max_replans:
             return None
-        if k % (every if replan == "every" else check_every) == 0:
-            return "every" if replan == "every" else "risk"
+        if replan == "every" and k % every == 0:
+            return "every"
+        if replan == "on_risk" and check_every is not None and k % check_every == 0:
+            return "risk"
         return "drift" if drift is not None and drifted(k) else None
 
     def attempt(
@@ -700,9 +704,12 @@ def execute(
             chunk = remaining
         elif replan == "on_risk" and drift is not None:
             chunk = 1
+        elif replan == "every":
+            chunk = min(remaining, every - k % every)
+        elif check_every is None:
+            chunk = remaining  # no schedule and no drift test: only the start check decides
         else:
-            period = every if replan == "every" else check_every
-            chunk = min(remaining, period - k % period)
+            chunk = min(remaining, check_every - k % check_every)
         xi_sim, xi_real = simulate(
             system,
             _suffix(current, j),
