@@ -660,7 +660,7 @@ def test_problem_file_doc_names_every_key_and_solver_default():
     keys = set(schema.TOP_KEYS) | set(schema.MODE_KEYS) | set(schema.NOISE_TABLE_KEYS)
     keys |= set(schema.CONTROL_DOMAIN_KEYS) | set(schema.INITIAL_BELIEF_KEYS) | set(schema.PROPOSITION_KEYS)
     keys |= set(schema.CONSTRAINT_TABLE_KEYS) | set(schema.EXECUTION_KEYS) | set(schema.LQR_KEYS)
-    keys |= set(schema.VALIDATION_KEYS)
+    keys |= set(schema.VALIDATION_KEYS) | set(schema.REPLAN_OPTION_KEYS) | set(schema.START_CHECK_KEYS)
     missing = [k for k in sorted(keys) if not {f"`{k}", f"[{k}]", f".{k}]"} & set(_substrings(text, k))]
     assert not missing, f"docs/problem-files.md does not document {missing}"
     for f in dataclasses.fields(stl.SolverOptions):

@@ -13,6 +13,7 @@ used (``seed`` and ``seed_source``).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -20,7 +21,7 @@ import os
 import platform
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,6 +30,7 @@ import numpy as np
 
 from ..errors import IdstlpyError, InvalidArgumentError, ProblemFileError
 from ..problem_file import ExecutionSettings, ProblemSpec, apply_overrides, load_problem, text_sha256
+from ..synthesis import SolverOptions
 from .records import (
     RESULT_SCHEMA,
     jsonable,
@@ -48,6 +50,7 @@ __all__ = [
     "failure_record",
     "derived_seed",
     "new_record",
+    "replan_summary",
 ]
 
 logger = logging.getLogger("idstlpy.batch")
@@ -256,6 +259,7 @@ def new_record(job: Job) -> dict[str, Any]:
         "solver_options": None,
         "plan_source": None,
         "check": None,
+        "start_check": None,
         "validation": None,
         "error": None,
         "software": software_section(),
@@ -278,8 +282,9 @@ def run_job(job: Job | Mapping[str, Any]) -> dict[str, Any]:
         (``docs/results-schema.md``): the result's fields, the job's ``id`` and ``kind``, the
         ``problem`` (name, title, SHA-256, text, overrides), the ``seed`` used and its
         ``seed_source``, the ``solver_options``, the ``check`` of a saved plan, the
-        ``validation`` report, the ``error`` of a failed job, and ``timing`` (everything that
-        varies from run to run: wall time, solver times, host).
+        ``start_check`` made before the runs, the ``validation`` report, the ``error`` of a
+        failed job, and ``timing`` (everything that varies from run to run: wall time, solver
+        times, host).
     """
     if not isinstance(job, Job):
         job = Job.from_dict(job)
@@ -306,7 +311,13 @@ def run_job(job: Job | Mapping[str, Any]) -> dict[str, Any]:
             stats = record.get("stats") or {}
             record["timing"]["solver"] = {k: v for k, v in stats.items() if k.startswith("time")}
         if job.kind == "validate" and trajectory is not None:
-            report = _validate(problem, trajectory, execution, seed, job.seed is not None)
+            seed_from_job = job.seed is not None
+            options = SolverOptions.make(**solver_kwargs)
+            if execution.start_check is not None:
+                trajectory, record["start_check"], record["timing"]["start_check"] = _start_check(
+                    problem, trajectory, execution, options, seed, seed_from_job
+                )
+            report = _validate(problem, trajectory, execution, seed, seed_from_job, options)
             record["timing"]["validation"] = report.pop("elapsed", None)
             record["validation"] = report
     except Exception as exc:  # a failing job is a record, not a crash of the whole sweep
@@ -401,10 +412,83 @@ def _apply_lqr(problem: Any, execution: ExecutionSettings) -> None:
         )
 
 
+def _start_check(
+    problem: Any,
+    trajectory: Any,
+    execution: ExecutionSettings,
+    options: SolverOptions,
+    seed: int,
+    seed_from_job: bool,
+) -> tuple[Any, dict[str, Any], float]:
+    """``[validation.start_check]``: the check made once before the runs (``stl.start_check``).
+
+    Returns the plan to execute, the record's ``start_check`` section and the wall-clock seconds.
+    The re-solves use the file's ``[solver]`` options with the table's ``solver_options``.
+    """
+    from ..execution import start_check
+    from ..semantics import robustness
+
+    _apply_lqr(problem, execution)
+    kwargs = dict(execution.start_check or {})
+    # the seed rule of [validation] seed: a job's seed decides, else the table's, else a child
+    table_seed = kwargs.pop("seed", None)
+    sseed = derived_seed(seed, 2) if seed_from_job or table_seed is None else table_seed
+    t0 = time.perf_counter()
+    checked = start_check(problem, trajectory, seed=sseed, options=options, **kwargs)
+    elapsed = time.perf_counter() - t0
+    section = {
+        "seed": sseed,
+        "initial_predicted": checked.initial_predicted,
+        "predicted": checked.predicted,
+        "replaced": checked.replaced,
+        "margin": robustness(checked.plan, problem.stl_formula),
+        "resolves": [
+            {k: v for k, v in dataclasses.asdict(r).items() if k != "solve_time"} for r in checked.replans
+        ],
+        "plan": result_to_plan(checked.plan) if checked.replaced else None,
+    }
+    return checked.plan, section, elapsed
+
+
+def replan_summary(policy: str, replans: Sequence[int]) -> dict[str, Any]:
+    """The ``replan_summary`` of a record's validation: how often the runs re-solved.
+
+    Parameters
+    ----------
+    policy : {"on_risk", "every"}
+        The re-plan policy of the runs.
+    replans : sequence of int
+        The re-solves of every run (``ValidationReport.replans``).
+
+    Returns
+    -------
+    dict
+        ``policy``, ``runs_replanned`` (runs with at least one re-solve), ``total``, ``mean``
+        (per run) and ``max``.
+    """
+    counts = [int(r) for r in replans]
+    return {
+        "policy": policy,
+        "runs_replanned": sum(r > 0 for r in counts),
+        "total": sum(counts),
+        "mean": sum(counts) / len(counts) if counts else 0.0,
+        "max": max(counts, default=0),
+    }
+
+
 def _validate(
-    problem: Any, trajectory: Any, execution: ExecutionSettings, seed: int, seed_from_job: bool
+    problem: Any,
+    trajectory: Any,
+    execution: ExecutionSettings,
+    seed: int,
+    seed_from_job: bool,
+    options: SolverOptions,
 ) -> dict[str, Any]:
-    """Execute the plan ``execution.runs`` times in this process; returns the report as data."""
+    """Execute the plan ``execution.runs`` times in this process; returns the report as data.
+
+    With ``[validation] replan``, every run re-plans (``validate(replan=...)``); its re-solves
+    use ``options`` (the file's ``[solver]``) with the table's ``solver_options``.
+    """
     from ..execution import validate
 
     _apply_lqr(problem, execution)
@@ -414,6 +498,9 @@ def _validate(
         vseed = derived_seed(seed, 1)
     else:
         vseed = execution.seed
+    replan_options = None
+    if execution.replan is not None:
+        replan_options = {**execution.replan_options, "options": options}
     # "serial": the runs of one job stay in its worker (jobs are the unit of parallelism)
     report = validate(
         problem,
@@ -424,9 +511,13 @@ def _validate(
         seed=vseed,
         executor="serial",
         predict=execution.predict,
+        replan=execution.replan,
+        replan_options=replan_options,
     )
     data = report.as_dict()
     data["seed"] = vseed
+    if execution.replan is not None:
+        data["replan_summary"] = replan_summary(execution.replan, report.replans)
     return data
 
 

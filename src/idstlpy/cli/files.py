@@ -83,6 +83,14 @@ def register(subparsers: Any) -> None:
         help="also predict the execution (linear-Gaussian closed loop) and report predicted next "
         "to measured violation rates and success (the same as --set validation.predict=true)",
     )
+    validate.add_argument(
+        "--replan",
+        choices=("none", "on_risk", "every"),
+        default=None,
+        help="execute every run with re-planning (stl.execute): re-solve when the predicted success "
+        "drops below [validation.replan_options] risk, or every `every` steps (the same as --set "
+        'validation.replan="..."; docs/problem-files.md also has the start check)',
+    )
     _common(validate, single=True)
     validate.set_defaults(func=_cmd_validate)
 
@@ -344,6 +352,8 @@ def _single(args: argparse.Namespace, kind: str) -> int:
     overrides = parse_set_option(sets)
     if getattr(args, "predict", False):
         overrides["validation.predict"] = True
+    if getattr(args, "replan", None):
+        overrides["validation.replan"] = args.replan
     spec = apply_overrides(load_problem(args.file), overrides)
     saved = None
     plan_path = getattr(args, "plan", None)

@@ -73,6 +73,15 @@ class ExecutionSettings:
         Seed of the validation runs.
     predict : bool
         Also predict the execution (``validate(..., predict=True)``).
+    replan : {None, "on_risk", "every"}
+        ``[validation] replan``: the re-plan policy of every run (``validate(replan=...)``).
+    replan_options : dict
+        ``[validation.replan_options]`` as ``validate``'s ``replan_options`` (``"none"`` read as
+        None; ``solver_options`` a dict of :class:`~idstlpy.SolverOptions` fields). Empty
+        without the table.
+    start_check : dict or None
+        ``[validation.start_check]`` as keywords of :func:`~idstlpy.start_check` (made once,
+        before the runs), or None without the table.
     """
 
     real_system: SwitchedSystem
@@ -81,6 +90,9 @@ class ExecutionSettings:
     runs: int = sc.DEFAULT_VALIDATION_RUNS
     seed: int | None = None
     predict: bool = False
+    replan: str | None = None
+    replan_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    start_check: dict[str, Any] | None = None
 
 
 class BuiltProblem(NamedTuple):
@@ -185,8 +197,10 @@ class _Builder:
             problem = Problem(system, control, belief, formula)
         except IdstlpyError as exc:
             raise self.err(("modes",), f"the problem is inconsistent: {exc}") from None
-        solver = self.solver(data.get("solver", {}))
-        execution = self.execution(data.get("execution", {}), data.get("validation", {}), system, belief.mean)
+        solver = self.solver(("solver",), data.get("solver", {}))
+        execution = self.execution(
+            data.get("execution", {}), data.get("validation", {}), system, belief.mean, solver
+        )
         return BuiltProblem(problem, solver, execution)
 
     # -- systems -------------------------------------------------------------------------------
@@ -386,15 +400,16 @@ class _Builder:
                 modes.append(k)
         return STLAtomicProposition(preds, modes, name=name)
 
-    def solver(self, value: Any) -> dict[str, Any]:
-        path: FieldPath = ("solver",)
+    def solver(self, path: FieldPath, value: Any, base: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """A table of SolverOptions fields (``[solver]``, or a ``solver_options`` table that
+        overrides ``base``, the ``[solver]`` keywords, and is checked together with them)."""
         params = solver_parameters()
         value = sc.table(self.ctx, path, value, tuple(params))
         kwargs: dict[str, Any] = {}
         for key, v in value.items():
             kwargs[key] = self.solver_value(path + (key,), v, *params[key])
         try:
-            SolverOptions.make(**kwargs)
+            SolverOptions.make(**{**(base or {}), **kwargs})
         except IdstlpyError as exc:
             bad = next((k for k in kwargs if k in str(exc)), None)
             raise self.err(path + ((bad,) if bad else ()), str(exc)) from None
@@ -424,7 +439,12 @@ class _Builder:
         return v
 
     def execution(
-        self, value: Any, validation: Any, system: SwitchedSystem, mean: np.ndarray
+        self,
+        value: Any,
+        validation: Any,
+        system: SwitchedSystem,
+        mean: np.ndarray,
+        solver: Mapping[str, Any],
     ) -> ExecutionSettings:
         path: FieldPath = ("execution",)
         value = sc.table(self.ctx, path, value, sc.EXECUTION_KEYS)
@@ -473,4 +493,93 @@ class _Builder:
         predict = vv.get("predict", False)
         if not isinstance(predict, bool):
             raise self.err(vpath + ("predict",), f"must be true or false, got {sc.kind_of(predict)}")
-        return ExecutionSettings(real, x0, lqr, runs, seed, predict)
+        replan = self.choice(vpath + ("replan",), vv.get("replan", sc.NONE), sc.REPLAN_POLICIES)
+        replan_options: dict[str, Any] = {}
+        if "replan_options" in vv:
+            replan_options = self.options(
+                vpath + ("replan_options",), vv["replan_options"], sc.REPLAN_OPTION_KEYS, solver
+            )
+            if replan == sc.NONE:
+                logger.info("%s: [validation.replan_options] is not used: replan is none", self.spec.name)
+        start = (
+            self.options(vpath + ("start_check",), vv["start_check"], sc.START_CHECK_KEYS, solver)
+            if "start_check" in vv
+            else None
+        )
+        return ExecutionSettings(
+            real,
+            x0,
+            lqr,
+            runs,
+            seed,
+            predict,
+            None if replan == sc.NONE else replan,
+            replan_options,
+            start,
+        )
+
+    # -- replanning ----------------------------------------------------------------------------
+    def choice(self, path: FieldPath, value: Any, choices: tuple[str, ...]) -> str:
+        if not isinstance(value, str) or value not in choices:
+            shown = repr(value) if isinstance(value, str) else sc.kind_of(value)
+            raise self.err(path, f"must be one of {', '.join(map(repr, choices))}, got {shown}")
+        return value
+
+    def options(
+        self, path: FieldPath, value: Any, allowed: tuple[str, ...], solver: Mapping[str, Any]
+    ) -> dict[str, Any]:
+        """The keywords of ``execute`` / ``start_check`` in ``value``, checked as those functions
+        check them, so that a bad value is reported with its field before anything runs."""
+        value = sc.table(self.ctx, path, value, allowed)
+        out: dict[str, Any] = {}
+        for key, v in value.items():
+            p = path + (key,)
+            if key == "solver_options":
+                out[key] = self.solver(p, v, solver)
+            elif key in _CHOICES:
+                out[key] = self.choice(p, v, _CHOICES[key])
+            elif key in _COUNTS:
+                if key in _MAY_BE_NONE and v == sc.NONE:
+                    out[key] = None
+                else:
+                    if key in _MAY_BE_NONE and not sc.is_number(v):
+                        got = repr(v) if isinstance(v, str) else sc.kind_of(v)
+                        raise self.err(p, f"must be an integer or {sc.NONE!r}, got {got}")
+                    out[key] = sc.integer(self.ctx, p, v, _COUNTS[key])
+            elif key == "risk":
+                out[key] = sc.number(self.ctx, p, v, 0.0, 1.0)
+            elif key == "drift":
+                if v == sc.NONE:
+                    out[key] = None
+                    continue
+                if not sc.is_number(v):
+                    got = repr(v) if isinstance(v, str) else sc.kind_of(v)
+                    raise self.err(p, f"must be a number in (0, 1) or {sc.NONE!r}, got {got}")
+                out[key] = sc.number(self.ctx, p, v)
+                if not 0.0 < out[key] < 1.0:
+                    raise self.err(p, f"must lie in (0, 1) (a confidence), got {v}")
+            else:  # replan_time_limit: a wall-clock cap in seconds
+                out[key] = sc.number(self.ctx, p, v)
+                if out[key] <= 0.0:
+                    raise self.err(p, f"must be > 0 (seconds), got {v}")
+        return out
+
+
+# The option values of [validation.replan_options] and [validation.start_check] (execute's and
+# start_check's keywords): the allowed words, the least value of the counts, and the counts for
+# which "none" stands for Python's None.
+_CHOICES: dict[str, tuple[str, ...]] = {
+    "risk_measure": ("bound", "estimate"),
+    "risk_on": ("belief", "state", "both"),
+    "adopt": ("better", "always"),
+}
+_COUNTS = {
+    "every": 1,
+    "check_every": 1,
+    "start_resolves": 0,
+    "resolves": 0,
+    "seed": 0,
+    "risk_samples": 1,
+    "max_replans": 0,
+}
+_MAY_BE_NONE = frozenset({"check_every"})

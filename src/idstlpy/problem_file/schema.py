@@ -27,6 +27,10 @@ __all__ = [
     "EXECUTION_KEYS",
     "LQR_KEYS",
     "VALIDATION_KEYS",
+    "REPLAN_POLICIES",
+    "REPLAN_OPTION_KEYS",
+    "START_CHECK_KEYS",
+    "NONE",
     "DEFAULT_VALIDATION_RUNS",
     "kind_of",
     "is_number",
@@ -59,7 +63,38 @@ PROPOSITION_KEYS = ("constraints", "confidence", "modes")
 CONSTRAINT_TABLE_KEYS = ("expr", "confidence")
 EXECUTION_KEYS = ("real_system", "real_initial_state", "lqr")
 LQR_KEYS = ("horizon", "Q_final", "Q", "R")
-VALIDATION_KEYS = ("runs", "seed", "predict")
+VALIDATION_KEYS = ("runs", "seed", "predict", "replan", "replan_options", "start_check")
+REPLAN_POLICIES = ("none", "on_risk", "every")
+"""``[validation] replan``: ``"none"`` is ``validate(replan=None)`` (TOML has no null)."""
+REPLAN_OPTION_KEYS = (
+    "risk",
+    "every",
+    "check_every",
+    "drift",
+    "start_resolves",
+    "risk_measure",
+    "risk_on",
+    "risk_samples",
+    "max_replans",
+    "adopt",
+    "replan_time_limit",
+    "solver_options",
+)
+"""``[validation.replan_options]``: the keywords of ``execute`` (its ``options`` is ``[solver]``)."""
+START_CHECK_KEYS = (
+    "risk",
+    "resolves",
+    "seed",
+    "risk_measure",
+    "risk_on",
+    "risk_samples",
+    "adopt",
+    "replan_time_limit",
+    "solver_options",
+)
+"""``[validation.start_check]``: the keywords of ``start_check`` (its ``options`` is ``[solver]``)."""
+NONE = "none"
+"""How a file writes Python's None where an option takes one (``check_every``, ``drift``)."""
 DEFAULT_VALIDATION_RUNS = 100
 
 
