@@ -163,6 +163,40 @@ def test_bad_values_name_the_field(key, value, field, message):
     assert message in str(info.value) and info.value.field == field
 
 
+# the values of BAD that execute / start_check themselves take (the file's own words aside)
+_TABLES = {"replan_options": schema.REPLAN_OPTION_KEYS, "start_check": schema.START_CHECK_KEYS}
+PYTHON_BAD = [
+    (table, name, value)
+    for key, value, _, _ in BAD
+    if key.count(".") == 2
+    and (table := key.split(".")[1]) in _TABLES
+    and (name := key.split(".")[2]) in _TABLES[table]
+    and name != "seed"  # start_check(seed=-2) is a SeedSequence's error, not one naming the seed
+]
+
+
+@pytest.fixture(scope="module")
+def tiny_case():
+    problem, solver_kwargs, execution = load_problem(TINY).build()
+    plan = problem.solve(**solver_kwargs)
+    assert plan is not None, problem.last_result
+    return problem, plan, execution
+
+
+@pytest.mark.parametrize(("table", "key", "value"), PYTHON_BAD)
+def test_the_file_rejects_what_python_rejects(tiny_case, table, key, value):
+    """The file's checks are execute's and start_check's: a value rejected here is rejected there."""
+    problem, plan, execution = tiny_case
+    with pytest.raises(stl.IdstlpyError, match=key):
+        if table == "start_check":
+            stl.start_check(problem, plan, **{key: value})
+        else:
+            stl.execute(
+                problem, plan, execution.real_system, execution.real_initial_state, seed=0, replan="on_risk",
+                **{key: value},
+            )  # fmt: skip
+
+
 def test_bad_values_in_the_file_name_the_line(tmp_path):
     path = _tiny(tmp_path, TINY.replace("risk = 1.0", "risk = 2.0", 1))
     with pytest.raises(stl.ProblemFileError) as info:
@@ -267,3 +301,18 @@ def test_cli_replan_flag_and_overrides(tmp_path, capsys):
     assert main(["validate", str(path), "--out", str(tmp_path / "bad"), *bad]) == EXIT_USAGE
     assert "validation.replan_options.check_every (override)" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_a_sweep_over_the_replan_policy(tmp_path):
+    from idstlpy.batch import load_sweep
+
+    _tiny(tmp_path)
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(
+        'problem = "tiny.toml"\nkind = "validate"\n[grid]\n"validation.replan" = ["none", "every"]\n'
+    )
+    jobs = load_sweep(sweep).jobs()
+    assert [j.overrides for j in jobs] == [{"validation.replan": "none"}, {"validation.replan": "every"}]
+    sweep.write_text('problem = "tiny.toml"\n[grid]\n"validation.replan_options.drift" = [0.9, 1.5]\n')
+    with pytest.raises(stl.ProblemFileError, match="validation.replan_options.drift"):
+        load_sweep(sweep)
