@@ -135,6 +135,8 @@ def test_invalid_arguments(light_dark_case):
         validate(problem, plan, real, x0, runs=2, executor="fast")
     with pytest.raises(InvalidTypeError, match="seed"):
         validate(problem, plan, real, x0, runs=2, seed=1.5)
+    with pytest.raises(InvalidArgumentError, match="seed must be >= 0"):
+        validate(problem, plan, real, x0, runs=2, seed=-1)
 
 
 def test_listing_plan_meets_the_bar():

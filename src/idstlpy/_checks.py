@@ -142,3 +142,20 @@ def as_float(
 
 def _fmt_shape(shape: tuple[int | None, ...]) -> str:
     return "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+
+
+def as_seed_sequence(seed: Any, name: str = "seed", allow_none: bool = True) -> np.random.SeedSequence:
+    """Return ``seed`` (an int >= 0, a SeedSequence or, when allowed, None) as a SeedSequence.
+
+    ``None`` gives fresh entropy (recorded in the sequence's ``entropy``).
+    """
+    if isinstance(seed, np.random.SeedSequence):
+        return seed
+    if seed is None and allow_none:
+        return np.random.SeedSequence()
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        expected = "an int, a SeedSequence or None" if allow_none else "an int or a SeedSequence"
+        raise InvalidTypeError(f"{name} must be {expected}, got {type(seed).__name__}")
+    if seed < 0:
+        raise InvalidArgumentError(f"{name} must be >= 0, got {seed}")
+    return np.random.SeedSequence(int(seed))

@@ -68,7 +68,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.stats import chi2
 
-from .._checks import as_float, as_int
+from .._checks import as_float, as_int, as_seed_sequence
 from ..belief import GaussianBelief, to_belief
 from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
 from ..formulas import FALSE, TRUE, STLFormula
@@ -538,9 +538,7 @@ def execute(
     max_replans = as_int(max_replans, "max_replans", minimum=0)
     start_resolves = as_int(start_resolves, "start_resolves", minimum=0)
     base = _resolve_options(options, solver_options, replan_time_limit, adopt)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence | None):
-        raise InvalidTypeError(f"seed must be an int, a SeedSequence or None, got {type(seed).__name__}")
-    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    ss = as_seed_sequence(seed)
     rng = np.random.default_rng(ss)  # the same stream simulate(seed=seed) draws
 
     system = problem.switched_system
@@ -853,9 +851,7 @@ def start_check(
         raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
     risk = as_float(risk, "risk", 0.0, 1.0)
     resolves = as_int(resolves, "resolves", minimum=0)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence):
-        raise InvalidTypeError(f"seed must be an int or a SeedSequence, got {type(seed).__name__}")
-    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    ss = as_seed_sequence(seed, allow_none=False)
     base = _resolve_options(options, solver_options, replan_time_limit, adopt)
     model = _RiskModel.make(
         problem, clip_controls, process_noise, lqr_gains, default_lqr, risk_measure, risk_on, risk_samples

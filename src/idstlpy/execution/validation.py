@@ -58,7 +58,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._checks import as_int
+from .._checks import as_int, as_seed_sequence
 from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAtomicProposition, STLFormula
@@ -769,9 +769,7 @@ def validate(
         raise InvalidTypeError(
             f"executor must be a concurrent.futures.Executor, got {type(executor).__name__}"
         )
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer | np.random.SeedSequence | None):
-        raise InvalidTypeError(f"seed must be an int, a SeedSequence or None, got {type(seed).__name__}")
-    root = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    root = as_seed_sequence(seed)
     children = root.spawn(runs)
 
     system = problem.switched_system
