@@ -300,7 +300,10 @@ def markdown(
         f"leaves the {DRIFT:.0%} ellipse of its last prediction; drift: checked only then; drift_start: "
         f"drift, and a plan predicted below the risk from the start belief re-solved before its first "
         f"step (at most {START_RESOLVES} times, counted in the re-solves); drift_start_cl: drift_start "
-        "whose re-solves use guarantee='closed_loop'",
+        "whose re-solves use guarantee='closed_loop'; checked / checked_est: the start check made once "
+        f"per plan (up to {CHECKS[0][1]} MLO re-solves, then {CHECKS[1][1]} closed-loop ones, while below "
+        "the risk), then drift with closed-loop re-solves; checked_est reads the risk on the sampled "
+        f"estimate ({CHECK_SAMPLES} samples at the start, 1000 at a drift check)",
         "",
         "| problem | steps | executor | runs | belief success [95% CI] | state success [95% CI] "
         "| re-solves / run (max) | adopted / run | re-solve outcomes | s / run |",
