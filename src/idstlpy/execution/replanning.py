@@ -61,9 +61,9 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from scipy.stats import chi2
@@ -77,6 +77,9 @@ from ..semantics import robustness
 from ..tracking import system_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
+
+if TYPE_CHECKING:
+    from .prediction import ClosedLoopPrediction
 
 __all__ = ["ExecutionReport", "Replan", "StartCheck", "execute", "replan_seed", "start_check"]
 
@@ -315,7 +318,7 @@ class _RiskModel:
 
     def predict(
         self, plan: ProbabilisticTSTrajectory, j: int, psi: STLFormula, belief: GaussianBelief
-    ) -> tuple[float, Any]:
+    ) -> tuple[float, ClosedLoopPrediction | None]:
         """Predicted probability that the rest of ``plan`` from its step ``j``, started at
         ``belief``, satisfies ``psi``; and the prediction (None for a constant formula)."""
         if psi is TRUE or psi is FALSE:
@@ -376,10 +379,10 @@ def _check_start(
     risk: float,
     resolves: int,
     options: Any,
-    seed_of: Any,
+    seed_of: Callable[[int], int],
     model: _RiskModel,
     adopt: str,
-) -> tuple[ProbabilisticTSTrajectory, float, Any, list[Replan]]:
+) -> tuple[ProbabilisticTSTrajectory, float, ClosedLoopPrediction | None, list[Replan]]:
     """The start check (module notes): the plan to follow, its predicted success, its prediction
     and the re-solve records. ``seed_of(i)`` is the solver seed of re-solve ``i``."""
     formula = problem.stl_formula
@@ -571,7 +574,7 @@ def execute(
         remember(pred, at)
         return value
 
-    def remember(pred: Any, at: int | None) -> None:
+    def remember(pred: ClosedLoopPrediction | None, at: int | None) -> None:
         last.clear()
         if pred is None:
             return
