@@ -428,7 +428,6 @@ def _start_check(
     from ..execution import start_check
     from ..semantics import robustness
 
-    _apply_lqr(problem, execution)
     kwargs = dict(execution.start_check or {})
     # the seed rule of [validation] seed: a job's seed decides, else the table's, else a child
     table_seed = kwargs.pop("seed", None)
@@ -491,8 +490,8 @@ def _validate(
     """
     from ..execution import validate
 
-    _apply_lqr(problem, execution)
-    # a job's seed decides everything; otherwise the file's [validation] seed, else a child of
+    # (The modes carry the file's tracking gains: run_job gave them before solving.)
+    # A job's seed decides everything; otherwise the file's [validation] seed, else a child of
     # the solver's seed (never fresh entropy: the same job gives the same record)
     if seed_from_job or execution.seed is None:
         vseed = derived_seed(seed, 1)
