@@ -534,27 +534,22 @@ class _Builder:
         out: dict[str, Any] = {}
         for key, v in value.items():
             p = path + (key,)
-            if key == "solver_options":
-                out[key] = self.solver(p, v, solver)
-            elif key in _CHOICES:
-                out[key] = self.choice(p, v, _CHOICES[key])
-            elif key in _COUNTS:
-                if key in _MAY_BE_NONE and v == sc.NONE:
-                    out[key] = None
-                else:
-                    if key in _MAY_BE_NONE and not sc.is_number(v):
-                        got = repr(v) if isinstance(v, str) else sc.kind_of(v)
-                        raise self.err(p, f"must be an integer or {sc.NONE!r}, got {got}")
-                    out[key] = sc.integer(self.ctx, p, v, _COUNTS[key])
-            elif key == "risk":
-                out[key] = sc.number(self.ctx, p, v, 0.0, 1.0)
-            elif key == "drift":
+            if key in _MAY_BE_NONE:
                 if v == sc.NONE:
                     out[key] = None
                     continue
                 if not sc.is_number(v):
                     got = repr(v) if isinstance(v, str) else sc.kind_of(v)
-                    raise self.err(p, f"must be a number in (0, 1) or {sc.NONE!r}, got {got}")
+                    raise self.err(p, f"must be {_MAY_BE_NONE[key]} or {sc.NONE!r}, got {got}")
+            if key == "solver_options":
+                out[key] = self.solver(p, v, solver)
+            elif key in _CHOICES:
+                out[key] = self.choice(p, v, _CHOICES[key])
+            elif key in _COUNTS:
+                out[key] = sc.integer(self.ctx, p, v, _COUNTS[key])
+            elif key == "risk":
+                out[key] = sc.number(self.ctx, p, v, 0.0, 1.0)
+            elif key == "drift":
                 out[key] = sc.number(self.ctx, p, v)
                 if not 0.0 < out[key] < 1.0:
                     raise self.err(p, f"must lie in (0, 1) (a confidence), got {v}")
@@ -566,8 +561,8 @@ class _Builder:
 
 
 # The option values of [validation.replan_options] and [validation.start_check] (execute's and
-# start_check's keywords): the allowed words, the least value of the counts, and the counts for
-# which "none" stands for Python's None.
+# start_check's keywords): the allowed words, the least value of the counts, and the options for
+# which "none" stands for Python's None (with what they are otherwise).
 _CHOICES: dict[str, tuple[str, ...]] = {
     "risk_measure": ("bound", "estimate"),
     "risk_on": ("belief", "state", "both"),
@@ -582,4 +577,4 @@ _COUNTS = {
     "risk_samples": 1,
     "max_replans": 0,
 }
-_MAY_BE_NONE = frozenset({"check_every"})
+_MAY_BE_NONE = {"check_every": "an integer", "drift": "a number in (0, 1)"}
