@@ -372,6 +372,35 @@ def _resolve_options(
     return base.with_(time_limit=cap)
 
 
+def _judge(
+    record: Replan,
+    new: ProbabilisticTSTrajectory | None,
+    old: ProbabilisticTSTrajectory,
+    j: int,
+    psi: STLFormula,
+    belief: GaussianBelief,
+    p_old: float,
+    model: _RiskModel,
+    adopt: str,
+    predict_always: bool = False,
+) -> tuple[Replan, float, ClosedLoopPrediction | None]:
+    """A re-solve's record with the comparison ``adopt`` asks for; the new plan's predicted
+    success and prediction (NaN and None when not predicted).
+
+    ``adopt="better"``: a fresh MLO plan may track worse than the one followed (the rest of
+    ``old`` from its step ``j``, predicted ``p_old``, NaN when not yet predicted), so it is
+    adopted only when predicted better. ``"always"``: adopted when found, predicted only with
+    ``predict_always``.
+    """
+    if new is None or (adopt == "always" and not predict_always):
+        return record, math.nan, None
+    if math.isnan(p_old):
+        p_old, _ = model.predict(old, j, psi, belief)
+    p_new, pred = model.predict(new, 0, psi, belief)
+    adopted = adopt == "always" or p_new > p_old
+    return _with(record, predicted=p_old, new_predicted=p_new, adopted=adopted), p_new, pred
+
+
 def _check_start(
     problem: Any,
     plan: ProbabilisticTSTrajectory,
@@ -393,10 +422,8 @@ def _check_start(
         if p >= risk:
             break
         record, new = _resolve(problem, belief, formula, options, seed_of(i), 0, "start", p)
-        p_new, new_pred = (model.predict(new, 0, formula, belief) if new is not None else (math.nan, None))
-        if new is not None:
-            # adopt="better": a fresh MLO plan may track worse than the old one: keep the better.
-            record = _with(record, new_predicted=p_new, adopted=adopt == "always" or p_new > p)
+        # the loop goes on while below the risk: the new plan is predicted whatever ``adopt``
+        record, p_new, new_pred = _judge(record, new, current, 0, formula, belief, p, model, adopt, True)
         records.append(record)
         logger.info(
             "start check: re-solve %d %s (%s, predicted %.3g -> %.3g, %.2f s)",
@@ -558,7 +585,6 @@ def execute(
     # The drift test's reference: (execution step, predicted belief means (L, n), their
     # covariances (L, n, n)) of the last prediction of the plan followed.
     reference: list[tuple[int, np.ndarray, np.ndarray]] = []
-    last: list[tuple[np.ndarray, np.ndarray]] = []  # the latest prediction's
     threshold = float(chi2.ppf(drift, system.n)) if drift is not None else math.inf
 
     def predicted_success(
@@ -575,11 +601,7 @@ def execute(
         return value
 
     def remember(pred: ClosedLoopPrediction | None, at: int | None) -> None:
-        last.clear()
-        if pred is None:
-            return
-        last[:] = [(pred.belief_mean, pred.belief_mean_cov)]
-        if at is not None and drift is not None:
+        if pred is not None and at is not None and drift is not None:
             reference[:] = [(at, pred.belief_mean, pred.belief_mean_cov)]
 
     # Executed so far (lists of per-chunk arrays; row 0 of every later chunk repeats the last row).
@@ -628,16 +650,11 @@ def execute(
         nonlocal attempts
         record, new_plan = _resolve(problem, belief, psi, base, replan_seed(ss, attempts), k, why, p_old)
         attempts += 1
-        if new_plan is not None and adopt == "better":
-            # A fresh MLO plan may track worse than the old one: keep the better.
-            if math.isnan(p_old):
-                p_old = predicted_success(current, j, psi, belief)
-            p_new = predicted_success(new_plan, 0, psi, belief)
-            record = _with(record, predicted=p_old, new_predicted=p_new, adopted=p_new > p_old)
+        record, _, pred = _judge(record, new_plan, current, j, psi, belief, p_old, model, adopt)
         if record.adopted and new_plan is not None and drift is not None:
             # the adopted plan's prediction is the drift test's reference
-            if adopt == "better" and last:  # the last prediction was the new plan's
-                reference[:] = [(k, *last[0])]
+            if pred is not None:
+                remember(pred, k)
             else:
                 predicted_success(new_plan, 0, psi, belief, at=k)
         replans.append(record)
