@@ -10,6 +10,7 @@ import logging
 
 from . import dynamical_system
 from .belief import GaussianBelief, belief_step, rollout, to_belief
+from .continuous import Discretization, cov_factor, discretize, from_continuous
 from .dynamical_system import (
     LBS,
     LCS,
@@ -136,6 +137,10 @@ __all__ = [
     "mk_lcs",
     "mk_lbs",
     "mk_switched_sys",
+    "from_continuous",
+    "discretize",
+    "Discretization",
+    "cov_factor",
     "GaussianBelief",
     "to_belief",
     "belief_step",

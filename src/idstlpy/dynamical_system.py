@@ -573,8 +573,9 @@ def _state_space_matrices(sys: Any, func: str) -> tuple[np.ndarray, np.ndarray, 
     if not discrete:
         raise InvalidArgumentError(
             f"{func} takes a discrete-time state-space system, got {type(sys).__name__} with "
-            f"dt={dt!r} (continuous or unspecified time base); discretize it first, e.g. "
-            "sys.sample(Ts) in python-control or sys.to_discrete(dt) in scipy"
+            f"dt={dt!r} (continuous or unspecified time base); give it a sampling period with "
+            "idstlpy.from_continuous(sys, dt=Ts, noise_intensity=...) (zero-order hold, exact "
+            "noise discretisation), or discretize it first (sys.sample(Ts) in python-control)"
         )
     return (
         as_matrix(sys.A, f"{type(sys).__name__}.A"),
