@@ -192,19 +192,36 @@ class Abstraction:
         """Propositions whose confidence no reachable belief meets at any step ``1..horizon``.
 
         For a single-mode system the covariance schedule does not depend on the plan's inputs;
-        with state-dependent noise, the update with the noise's floor (``mode.noise_floor``)
+        with several modes sharing ``A`` the covariance floor over every switching sequence
+        (:mod:`.covariance_floor`) bounds every plan's schedule from below; with state-dependent
+        noise, the update with the noise's floor (``mode.noise_floor``)
         bounds it from below (the Riccati update is monotone in ``R`` and in the prior). A
         proposition whose region, shrunk by the *smallest* standard-deviation terms over the
         horizon, is empty cannot hold at any step. The schedule is rolled until it settles
         (or the horizon); a schedule still shrinking at ``max_steps`` proves nothing.
         """
-        if system.num_modes != 1 or not self.num_atoms or horizon < 1:
+        if not self.num_atoms or horizon < 1:
             return {}
-        from .plan_lp import cached_schedule
-
         steps = min(horizon, max_steps)
-        # Through the plan rows' cache: the lazy loop's candidates then reuse this schedule.
-        covs, _ = cached_schedule(self, system.system_modes, initial_cov, np.zeros(steps, dtype=int), budget)
+        every = ""
+        if system.num_modes != 1:
+            # Several modes: the floor over every switching sequence (where it is sound).
+            from .covariance_floor import covariance_floor
+
+            floor = covariance_floor(system.system_modes, initial_cov, steps, budget)
+            if floor is None:
+                return {}
+            covs = floor.covs
+            every = (
+                f" (for every mode sequence: the covariance floor over all switching sequences; {floor.how})"
+            )
+        else:
+            from .plan_lp import cached_schedule
+
+            # Through the plan rows' cache: the lazy loop's candidates then reuse this schedule.
+            covs, _ = cached_schedule(
+                self, system.system_modes, initial_cov, np.zeros(steps, dtype=int), budget
+            )
         tail = covs[1:]
         if steps < horizon:
             last, prev = tail[-1], tail[-2] if steps > 1 else initial_cov
@@ -228,7 +245,7 @@ class Abstraction:
                 out[i] = (
                     f"the confidence of {self.names()[i]} is out of reach: even the smallest covariance "
                     f"a belief can have (a sound lower bound; rms std {sd:.3g} at the last step checked) "
-                    f"leaves no mean inside it"
+                    f"leaves no mean inside it{every}"
                 )
         return out
 
