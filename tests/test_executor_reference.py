@@ -77,7 +77,9 @@ def _cases():
         2,
         {"process_noise": "none", "default_lqr": {"horizon": 3, "R": 0.2}},
     )
-    sd = _two_modes(lambda x: (0.1 + 0.2 * abs(x[0])) * np.eye(2), lambda x: np.array([[0.05 + x[1] ** 2]]), W)
+    sd = _two_modes(
+        lambda x: (0.1 + 0.2 * abs(x[0])) * np.eye(2), lambda x: np.array([[0.05 + x[1] ** 2]]), W
+    )
     p = _plan(sd, initial, 12, 6)
     real = stl.mk_switched_sys(
         [
@@ -135,8 +137,10 @@ def test_simulate_reproduces_recorded_runs_bit_for_bit(name):
         ref = recorded[f"{name}/{key}"]
         assert ref.shape == value.shape, (name, key)
         # same bits (NaN observations included): compare the raw 64-bit words
-        assert np.array_equal(ref.view(np.int64) if ref.dtype == float else ref,
-                              value.view(np.int64) if value.dtype == float else value), (name, key)
+        assert np.array_equal(
+            ref.view(np.int64) if ref.dtype == float else ref,
+            value.view(np.int64) if value.dtype == float else value,
+        ), (name, key)
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ from .execution import (
     start_check,
     validate,
 )
+from .executor import ExecutorSpec, OnlineExecutor
 from .expressions import (
     ConvexConstraint,
     ConvexRegion,
@@ -152,6 +153,8 @@ __all__ = [
     "load_result",
     "SolveStats",
     # execution
+    "OnlineExecutor",
+    "ExecutorSpec",
     "finite_horizon_lqr",
     "simulate",
     "validate",

@@ -1,0 +1,182 @@
+"""What runs a plan: one frozen, validated description of the executor.
+
+:class:`ExecutorSpec` gathers the settings that used to travel as repeated keywords of
+``simulate``, ``validate``, ``execute`` and the predictions (``control_domain``,
+``process_noise``, ``lqr_gains``, ``default_lqr``, ``real_system``) and resolves them once:
+
+- the tracking gains of every mode (the caller's ``lqr_gains``, else the mode's
+  ``lqr_gains``, else :data:`idstlpy.tracking.DEFAULT_LQR` weights), computed at construction;
+- the projection of an input on the control domain;
+- the plant that moves the true state: the model itself, a linear switched system (one mode for
+  all, or one per planning mode) or any step function ``(state, input, mode, rng) -> next_state``
+  (a nonlinear robot, a simulator);
+- which process noise disturbs the true state (``"model"``: the planning mode's ``W w``;
+  ``"real"``: the real linear mode's ``W w``; ``"none"``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Literal
+
+import numpy as np
+
+from ..closed_loop import real_modes_for
+from ..dynamical_system import LCS, SwitchedSystem
+from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
+from ..sets import Polytope
+from ..tracking import GainsOverride, box_bounds, control_projector, system_gains
+
+__all__ = ["ExecutorSpec", "PlantStep", "ProcessNoise"]
+
+ProcessNoise = Literal["model", "real", "none"]
+"""Which process noise disturbs the true state."""
+
+PlantStep = Callable[[np.ndarray, np.ndarray, int, np.random.Generator], Any]
+"""A plant given as a step function: ``(state (n,), input (m,), planning mode, rng) -> next state (n,)``."""
+
+
+@dataclass(frozen=True)
+class ExecutorSpec:
+    """A frozen description of what runs a plan (build it with :meth:`make`).
+
+    Attributes
+    ----------
+    system : SwitchedSystem
+        The planning model: its sensors make the observations, its matrices run the filter.
+    control_domain : Polytope or None
+        Admissible inputs (dimension ``m``); the corrected input is projected on it.
+    process_noise : {"model", "real", "none"}
+        Which disturbance moves the true state.
+    gains : mapping int -> tuple of ndarray (m, n)
+        The tracking gains ``K_0 .. K_{h-1}`` of every mode, resolved once.
+    real_modes : tuple of LCS or None
+        The linear plant's modes (one for all, or one per planning mode); None for a step plant.
+    plant_step : callable or None
+        The plant as a step function ``(state, input, mode, rng) -> next_state``; None for a
+        linear plant.
+    """
+
+    system: SwitchedSystem
+    control_domain: Polytope | None
+    process_noise: ProcessNoise
+    gains: Mapping[int, tuple[np.ndarray, ...]]
+    real_modes: tuple[LCS, ...] | None
+    plant_step: PlantStep | None
+    box: tuple[np.ndarray, np.ndarray] | None = field(repr=False)
+    project: Callable[[np.ndarray], np.ndarray] = field(repr=False)
+
+    @classmethod
+    def make(
+        cls,
+        system: SwitchedSystem,
+        *,
+        control_domain: Polytope | None = None,
+        process_noise: ProcessNoise = "model",
+        lqr_gains: GainsOverride = None,
+        default_lqr: Mapping[str, Any] | None = None,
+        real_system: SwitchedSystem | LCS | None = None,
+        plant: PlantStep | None = None,
+        modes: Any = None,
+    ) -> ExecutorSpec:
+        """Validate the executor's settings and resolve the tracking gains once.
+
+        Parameters
+        ----------
+        system : SwitchedSystem
+            The planning model.
+        control_domain : Polytope, optional
+            Admissible inputs (dimension ``m``); None applies the corrected input unclipped.
+        process_noise : {"model", "real", "none"}
+            Disturbance of the true state: the planning mode's ``W w`` (default), the real
+            linear mode's ``W w`` (a linear ``real_system`` only), or none. A step-function
+            ``plant`` draws its own disturbance from the generator it is given; ``"model"`` then
+            adds the planning mode's ``W w`` on top, ``"none"`` nothing.
+        lqr_gains : mapping or sequence, optional
+            Per mode, gains (m, n) overriding ``mode.lqr_gains``.
+        default_lqr : mapping, optional
+            Weights for modes without gains (see :data:`idstlpy.tracking.DEFAULT_LQR`).
+        real_system : SwitchedSystem or LCS, optional
+            A linear plant (one mode for all, or one per planning mode); default the model.
+        plant : callable, optional
+            A plant given as a step function ``(state, input, mode, rng) -> next_state``
+            (shapes (n,), (m,), int, ``numpy.random.Generator`` -> (n,)); exclusive with
+            ``real_system``.
+        modes : iterable of int, optional
+            The modes whose gains are resolved (default all).
+
+        Returns
+        -------
+        ExecutorSpec
+
+        Raises
+        ------
+        InvalidTypeError, DimensionError, InvalidArgumentError
+            Naming the argument that is wrong.
+        """
+        if not isinstance(system, SwitchedSystem):
+            raise InvalidTypeError(f"system must be a SwitchedSystem, got {type(system).__name__}")
+        if process_noise not in ("model", "real", "none"):
+            raise InvalidArgumentError(
+                f"process_noise must be 'model', 'real' or 'none', got {process_noise!r}"
+            )
+        project = control_projector(control_domain, system.m)
+        box = box_bounds(control_domain, system.m)
+        if plant is not None:
+            if real_system is not None:
+                raise InvalidArgumentError(
+                    "give either real_system (a linear plant) or plant (a step function)"
+                )
+            if not callable(plant):
+                raise InvalidTypeError(
+                    f"plant must be a step function (state, input, mode, rng) -> next_state, "
+                    f"got {type(plant).__name__}"
+                )
+            if process_noise == "real":
+                raise InvalidArgumentError(
+                    "process_noise='real' needs a linear real_system; a step-function plant draws its own "
+                    "disturbance (use 'none', or 'model' to add the planning mode's W w)"
+                )
+            real_modes = None
+        else:
+            real_modes = tuple(real_modes_for(real_system, system, np.zeros(0, dtype=int)))
+        gains = system_gains(system, lqr_gains, default_lqr, modes)
+        frozen = {}
+        for q, Ks in gains.items():
+            arrays = []
+            for K in Ks:
+                K = np.array(K, dtype=float)
+                K.flags.writeable = False
+                arrays.append(K)
+            frozen[q] = tuple(arrays)
+        return cls(
+            system=system,
+            control_domain=control_domain,
+            process_noise=process_noise,
+            gains=MappingProxyType(frozen),
+            real_modes=real_modes,
+            plant_step=plant,
+            box=box,
+            project=project,
+        )
+
+    def check_plan_modes(self, actions: np.ndarray) -> None:
+        """Raise :class:`DimensionError` when a plan uses a mode the plant or the gains lack."""
+        if not actions.size:
+            return
+        top = int(actions.max())
+        if int(actions.min()) < 0 or top >= self.system.num_modes:
+            raise DimensionError(
+                f"the plan uses modes {sorted(set(actions.tolist()))}, "
+                f"the system has 0..{self.system.num_modes - 1}"
+            )
+        if self.real_modes is not None and len(self.real_modes) > 1 and top >= len(self.real_modes):
+            raise DimensionError(
+                f"the plan uses mode {top}, real_system has modes 0..{len(self.real_modes) - 1} "
+                "(give one real mode per planning mode, or a single mode used for all)"
+            )
+        missing = sorted(set(actions.tolist()) - set(self.gains))
+        if missing:
+            raise InvalidArgumentError(f"the executor has no tracking gains for modes {missing}")
