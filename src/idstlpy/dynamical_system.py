@@ -12,6 +12,7 @@ a :class:`POLBS` adds the output ``C`` with a constant noise matrix
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -25,9 +26,31 @@ from .errors import (
     NoiseFunctionError,
     OutOfRangeError,
 )
+from .tracking import finite_horizon_lqr
 
 if TYPE_CHECKING:
     from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
+
+_SIMULATOR: dict[str, Callable[..., Any]] = {}
+"""The executor behind :meth:`SwitchedSystem.simulate`, registered by the layer that defines it.
+
+The model layer cannot import the executor (the executor imports the model), so
+:mod:`idstlpy.execution.simulation` registers :func:`~idstlpy.execution.simulation.simulate`
+here when it is imported (:func:`register_simulator`); ``import idstlpy`` (run before any of its
+modules) imports it, so the paper's ``switched_system.simulate(...)`` always finds it."""
+
+
+def register_simulator(simulate: Callable[..., Any]) -> None:
+    """Register the function behind :meth:`SwitchedSystem.simulate` (called by the execution layer).
+
+    Parameters
+    ----------
+    simulate : callable
+        ``simulate(system, reference_trajectory, num_of_steps, real_initial_state, real_system,
+        seed=None, **options)``.
+    """
+    _SIMULATOR["simulate"] = simulate
+
 
 __all__ = [
     "DynamicalSystem",
@@ -191,8 +214,6 @@ class LCS(DynamicalSystem):
             Gains ``K_0 .. K_{h-1}``; ``u = u_plan - K_0 (x - x_plan)``. Also stored on the mode
             as :attr:`lqr_gains` for :meth:`SwitchedSystem.simulate`.
         """
-        from .tracking import finite_horizon_lqr
-
         self.lqr_gains = finite_horizon_lqr(self.A, self.B, horizon, Q_final, Q, R)
         return self.lqr_gains
 
@@ -487,8 +508,8 @@ class SwitchedSystem(DynamicalSystem):
             Randomness of the disturbances and measurement noises.
         **options
             Keyword options of :func:`idstlpy.execution.simulation.simulate` (``control_domain``,
-            ``process_noise``, ``lqr_gains``, ``default_lqr``, ``initial_belief``); an unknown
-            keyword raises :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``).
+            ``process_noise``, ``lqr_gains``, ``default_lqr``, ``initial_belief``, ``plant``); an
+            unknown keyword raises :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``).
 
         Returns
         -------
@@ -497,10 +518,11 @@ class SwitchedSystem(DynamicalSystem):
         xi_real : RealTrajectory
             The true states, observations, modes and applied inputs.
         """
-        import inspect
-
-        from .execution import simulate
-
+        simulate = _SIMULATOR.get("simulate")
+        if simulate is None:  # pragma: no cover - importing any part of idstlpy registers it
+            raise InvalidArgumentError(
+                "no simulator is registered: import idstlpy (not only its model modules)"
+            )
         known = {
             name
             for name, par in inspect.signature(simulate).parameters.items()

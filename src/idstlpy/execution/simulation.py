@@ -22,7 +22,7 @@ import numpy as np
 
 from .._checks import as_int, as_vector
 from ..belief import GaussianBelief
-from ..dynamical_system import LCS, SwitchedSystem
+from ..dynamical_system import LCS, SwitchedSystem, register_simulator
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..executor import ExecutorSpec, OnlineExecutor, PlantStep, ProcessNoise
 from ..sets import Polytope
@@ -161,3 +161,6 @@ def simulate(
     xi_sim = ProbabilisticTSTrajectory(means, covs, actions, controls)
     xi_real = RealTrajectory(states, observations, actions, controls)
     return xi_sim, xi_real
+
+
+register_simulator(simulate)  # the paper's switched_system.simulate(...) (see dynamical_system)
