@@ -4,11 +4,10 @@ The public API follows the idSTLPy paper (da Silva, Yadav, Lin): variables and p
 PrSTL formulas, switched belief systems, ``Problem.solve`` and ``SwitchedSystem.simulate``.
 """
 
-from __future__ import annotations
-
-import logging
+import logging as _logging
 
 from . import dynamical_system
+from ._version import __version__
 from .belief import GaussianBelief, belief_step, rollout, to_belief
 from .continuous import Discretization, cov_factor, discretize, from_continuous
 from .dynamical_system import (
@@ -88,9 +87,8 @@ from .syntax import FormulaSyntaxError, parse_formula
 from .synthesis import Problem, SolveResult, SolverOptions, SolveStats, load_result
 from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
-logging.getLogger(__name__).addHandler(logging.NullHandler())
-
-__version__ = "0.1.0"
+_logging.getLogger(__name__).addHandler(_logging.NullHandler())
+del _logging
 
 __all__ = [
     "__version__",

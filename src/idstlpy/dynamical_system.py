@@ -285,13 +285,38 @@ class POLBSWithLinNoise(POLBS):
         self._R = self.V @ self.V.T
 
     def noise(self, x: Any) -> np.ndarray:
+        """The observation noise matrix: the constant ``V``, whatever the state.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state (not used: the noise is constant).
+
+        Returns
+        -------
+        ndarray, shape (p, r)
+            ``V`` itself (not a copy: do not modify it).
+        """
         return self.V
 
     def noise_cov(self, x: Any) -> np.ndarray:
+        """The observation noise covariance ``R = V V'``, whatever the state.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state (not used: the noise is constant).
+
+        Returns
+        -------
+        ndarray, shape (p, p)
+            ``V V'``, computed once (not a copy: do not modify it).
+        """
         return self._R
 
     @property
     def noise_floor(self) -> np.ndarray:
+        """The least observation noise covariance, shape (p, p): ``V V'`` itself (exact)."""
         return self._R
 
 
@@ -333,9 +358,31 @@ class POLBSWithNonLinNoise(POLBS):
 
     @property
     def noise_floor(self) -> np.ndarray:
+        """The declared ``V_floor`` as a (p, p) matrix, zero when none was declared.
+
+        Every ``R(x)`` is checked against it (a return below it raises
+        :class:`~idstlpy.errors.NoiseFunctionError`), so the proofs that use it stay sound.
+        """
         return self._floor
 
     def noise_cov(self, x: Any) -> np.ndarray:
+        """The observation noise covariance ``R(x) = n(x) n(x)'`` at state ``x``.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state (the belief's mean when planning).
+
+        Returns
+        -------
+        ndarray, shape (p, p)
+
+        Raises
+        ------
+        NoiseFunctionError
+            When ``V`` fails (see :meth:`noise`), ``R(x)`` is not finite or lies below the
+            declared ``V_floor``.
+        """
         nx = self.noise(x)
         if nx.size and float(np.abs(nx).max()) > 1e150:  # (finite: noise checked it)
             with np.errstate(over="ignore", invalid="ignore"):
@@ -356,9 +403,28 @@ class POLBSWithNonLinNoise(POLBS):
 
     @property
     def has_state_dependent_noise(self) -> bool:
+        """True: the observation noise is the function ``V`` of the state."""
         return True
 
     def noise(self, x: Any) -> np.ndarray:
+        """The observation noise matrix ``n(x) = V(x)``, checked.
+
+        Parameters
+        ----------
+        x : array_like, shape (n,)
+            The state (the belief's mean when planning).
+
+        Returns
+        -------
+        ndarray, shape (p, r)
+            ``V(x)`` as a float array; ``r`` is the same at every call.
+
+        Raises
+        ------
+        NoiseFunctionError
+            When ``V`` raises, returns something that is not a finite (p, r) matrix, or changes
+            its number of columns ``r`` between calls.
+        """
         # every return is checked (shape, finiteness); the messages are only built on failure
         try:
             out = self.V(x)

@@ -222,8 +222,17 @@ class _Parser:
     # -- grammar -------------------------------------------------------------------------------
     def parse(self) -> STLFormula:
         formula = self.formula()
-        if self.tok.kind != "end":
-            raise self.error(f"expected end of formula, got {self._show(self.tok)}")
+        tok = self.tok
+        if tok.kind != "end":
+            # A binary operator after a whole formula: its parentheses are missing. The grammar
+            # stays strict (``F[0,5] a U[0,9] b`` would be ambiguous), the message says the fix.
+            if tok.kind in ("name", "op") and tok.text in ("U", "R", "&", "|"):
+                kind = "binary temporal operators" if tok.text in ("U", "R") else "binary operators"
+                raise self.error(
+                    f"{kind} need parentheses: ({self.text.strip()}) "
+                    f"(expected end of formula, got {self._show(tok)})"
+                )
+            raise self.error(f"expected end of formula, got {self._show(tok)}")
         return formula
 
     def formula(self) -> STLFormula:
@@ -296,6 +305,11 @@ class _Parser:
             if self.tok.kind == "op" and self.tok.text in ("&", "|"):
                 raise self.error(
                     f"cannot mix '&' and '|' in one group; add parentheses around the {op!r} part"
+                )
+            if self.tok.kind == "name" and self.tok.text in ("U", "R"):
+                raise self.error(
+                    "binary temporal operators need parentheses: put '(x "
+                    f"{self.tok.text}[a,b] y)' around the operands of {self.tok.text!r}"
                 )
             self.expect(")")
             return STLAnd(children) if op == "&" else STLOr(children)

@@ -362,8 +362,10 @@ def _check_saved_plan(job: Job, problem: Any, record: dict[str, Any]) -> Any:
     # the saved result's own fields (statistics, objective...) come along; the verdict is ours
     from ..synthesis import SolveResult
 
+    # (its ``software`` too stays ours: this record is made by the running code)
+    own = ("schema", "status", "reason", "margin", "formula", "plan", "software")
     for key in result_to_dict(SolveResult("found", None, "")):
-        if key not in ("schema", "status", "reason", "margin", "formula", "plan") and key in saved:
+        if key not in own and key in saved:
             record[key] = jsonable(saved[key])
     record["formula"] = str(problem.stl_formula)
     record["plan"] = result_to_plan(rolled)

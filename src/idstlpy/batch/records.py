@@ -17,8 +17,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import platform
-import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -156,21 +154,19 @@ def problem_section(spec: ProblemSpec, include_text: bool = True) -> dict[str, A
     }
 
 
-def software_section() -> dict[str, str]:
-    """Versions of idstlpy, Python and NumPy, and the platform.
+def software_section() -> dict[str, str | None]:
+    """Which code made a record: versions of idstlpy, Python and NumPy, the platform, the commit.
 
     Returns
     -------
     dict
+        ``{"idstlpy", "commit", "python", "numpy", "platform"}``; ``commit`` is the git commit
+        of the checkout idstlpy runs from, ``None`` when it is not run from one (see
+        :func:`idstlpy._version.git_commit`). The same as a result's ``software`` field.
     """
-    from .. import __version__
+    from .._version import software_info
 
-    return {
-        "idstlpy": __version__,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "platform": sys.platform,
-    }
+    return software_info()
 
 
 def plan_steps(plan: Mapping[str, Any] | None) -> int | None:

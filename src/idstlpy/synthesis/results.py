@@ -16,6 +16,9 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
+
+from .._version import software_info
 from ..errors import InvalidArgumentError
 from ..trajectory import ProbabilisticTSTrajectory
 
@@ -184,6 +187,16 @@ class SolveResult:
     predicted : ProbabilisticTSTrajectory or None
         With ``guarantee="closed_loop"``: the predicted true-state distribution (means
         (N + 1, n), covariances (N + 1, n, n)) on which the monitor verified the formula.
+    software : dict
+        Which code made the result: ``{"idstlpy": version, "commit": git commit or None,
+        "python", "numpy", "platform"}`` (by default the running code's; a loaded result keeps
+        the one it was saved with). The JSON field ``software``.
+
+    Notes
+    -----
+    ``plan`` is another name for ``trajectory`` (the JSON field is ``plan``). Two results are
+    ``==`` when every field is equal, arrays element by element and NaN equal to NaN, so
+    ``load_result(result.save(path)) == result`` holds (the file is a bit-exact round trip).
     """
 
     status: Status
@@ -199,6 +212,27 @@ class SolveResult:
     optimal_scope: str = ""
     guarantee: str = "mlo"
     predicted: ProbabilisticTSTrajectory | None = None
+    software: dict[str, str | None] = field(default_factory=software_info)
+
+    @property
+    def plan(self) -> ProbabilisticTSTrajectory | None:
+        """The verified plan (another name for ``trajectory``; the JSON field ``plan``)."""
+        return self.trajectory
+
+    @property
+    def version(self) -> str | None:
+        """The version of idstlpy that made this result (``software["idstlpy"]``)."""
+        return self.software.get("idstlpy")
+
+    @property
+    def commit(self) -> str | None:
+        """The git commit of the code that made this result, ``None`` when unknown."""
+        return self.software.get("commit")
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, SolveResult):
+            return NotImplemented
+        return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
 
     @property
     def gap(self) -> float:
@@ -246,6 +280,7 @@ class SolveResult:
             "stats": self.stats.to_dict(),
             "plan": None if traj is None else _trajectory_to_dict(traj),
             "predicted": None if self.predicted is None else _trajectory_to_dict(self.predicted),
+            "software": dict(self.software),
         }
 
     @classmethod
@@ -306,6 +341,7 @@ class SolveResult:
             str(data.get("optimal_scope", "")),
             guarantee,
             None if pred is None else _trajectory_from_dict(pred),
+            _software_from(data.get("software")),
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -343,6 +379,39 @@ def load_result(path: str | os.PathLike[str]) -> SolveResult:
     except (OSError, json.JSONDecodeError) as exc:
         raise InvalidArgumentError(f"cannot read result file {os.fspath(path)!r}: {exc}") from None
     return SolveResult.from_dict(data)
+
+
+def _software_from(data: Any) -> dict[str, str | None]:
+    """The ``software`` field of a result file (empty for files written before 0.2.0)."""
+    if not isinstance(data, dict):
+        return {}
+    return {str(k): (None if v is None else str(v)) for k, v in data.items()}
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal by value: floats with NaN == NaN, trajectories and arrays element by element."""
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, ProbabilisticTSTrajectory) or isinstance(b, ProbabilisticTSTrajectory):
+        if not (isinstance(a, ProbabilisticTSTrajectory) and isinstance(b, ProbabilisticTSTrajectory)):
+            return False
+        return all(
+            _same(x, y)
+            for x, y in (
+                (a.get_mean(), b.get_mean()),
+                (a.get_cov(), b.get_cov()),
+                (a.get_action(), b.get_action()),
+                (a.get_control(), b.get_control()),
+            )
+        )
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        x, y = np.asarray(a), np.asarray(b)
+        return x.shape == y.shape and bool(np.array_equal(x, y, equal_nan=x.dtype.kind == "f"))
+    if isinstance(a, SolveStats) and isinstance(b, SolveStats):
+        return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
+    if isinstance(a, list | tuple) and isinstance(b, list | tuple):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return bool(a == b)
 
 
 def _trajectory_to_dict(traj: ProbabilisticTSTrajectory) -> dict[str, Any]:
