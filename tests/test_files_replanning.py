@@ -283,7 +283,8 @@ def test_summary_of_replans():
 def test_cli_replan_flag_and_overrides(tmp_path, capsys):
     path = _tiny(tmp_path, TINY.split("[validation.replan_options]")[0].replace('replan = "on_risk"\n', ""))
     out = tmp_path / "every"
-    args = ["validate", str(path), "--quiet", "--out", str(out), "--replan", "every"]
+    # (--target 0,0: this test is about the flags; the tiny plan's rates do not matter)
+    args = ["validate", str(path), "--quiet", "--out", str(out), "--replan", "every", "--target", "0,0"]
     sets = ["--set", "validation.replan_options.every=3", "--set", "validation.runs=2"]
     assert main([*args, *sets]) == EXIT_OK
     (record,) = [json.loads(p.read_text()) for p in out.glob("*.json")]
@@ -293,7 +294,8 @@ def test_cli_replan_flag_and_overrides(tmp_path, capsys):
     assert record["start_check"] is None
     # --replan none: a fixed plan, no replan fields (the record of a plain validation)
     out = tmp_path / "none"
-    assert main(["validate", str(path), "--quiet", "--out", str(out), "--replan", "none"]) == EXIT_OK
+    none = ["validate", str(path), "--quiet", "--out", str(out), "--replan", "none", "--target", "0,0"]
+    assert main(none) == EXIT_OK
     (record,) = [json.loads(p.read_text()) for p in out.glob("*.json")]
     assert "replans" not in record["validation"] and "replan_summary" not in record["validation"]
     # a bad value is an input error naming the field, before anything runs

@@ -166,7 +166,7 @@ def test_blind_mode_and_defaults():
     np.testing.assert_array_equal(mode.process_cov, np.zeros((2, 2)))
     assert solver == {}
     assert execution.real_system is problem.switched_system
-    np.testing.assert_array_equal(execution.real_initial_state, [0.0, 0.0])
+    assert execution.real_initial_state is None  # drawn from the prior by validate
     assert execution.lqr is None and execution.runs == 100 and execution.seed is None
 
 

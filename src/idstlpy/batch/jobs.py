@@ -514,6 +514,7 @@ def _validate(
         predict=execution.predict,
         replan=execution.replan,
         replan_options=replan_options,
+        execution_target=execution.execution_target,
     )
     data = report.as_dict()
     data["seed"] = vseed

@@ -16,6 +16,8 @@ Exit status, the same for every subcommand (``docs/cli.md``):
 2     usage or input error: bad arguments, an invalid problem, sweep or result file, a file that
       cannot be read or written; nothing was run
 3     a job failed with an error (its record has ``status = "error"``)
+4     every plan found and executed, but a validation's measured success rates fall short of
+      its execution target (default 90% belief / 95% true state; ``validate --target``)
 130   interrupted (Ctrl-C)
 ====  ==========================================================================================
 
@@ -34,7 +36,15 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from .exit_codes import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_NO_PLAN, EXIT_OK, EXIT_USAGE, exit_status
+from .exit_codes import (
+    EXIT_BELOW_TARGET,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_NO_PLAN,
+    EXIT_OK,
+    EXIT_USAGE,
+    exit_status,
+)
 
 __all__ = [
     "main",
@@ -44,6 +54,7 @@ __all__ = [
     "EXIT_NO_PLAN",
     "EXIT_USAGE",
     "EXIT_FAILED",
+    "EXIT_BELOW_TARGET",
     "EXIT_INTERRUPTED",
 ]
 
@@ -78,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="idstlpy",
         description="Active perception and control synthesis from PrSTL specifications.",
-        epilog="exit status: 0 ok, 1 no plan, 2 usage or input error, 3 a job failed (docs/cli.md)",
+        epilog="exit status: 0 ok, 1 no plan, 2 usage or input error, 3 a job failed, "
+        "4 validated below the execution target (docs/cli.md)",
     )
     parser.add_argument("--version", action="version", version=f"idstlpy {__version__}")
     _add_global_options(parser, top=True)

@@ -66,8 +66,9 @@ def register(subparsers: Any) -> None:
         description="Solve (or, with --plan, check a saved plan against the problem without "
         "solving), then run the plan on the file's [execution] real system ([validation] runs) "
         "and write one JSON result record.",
-        epilog="exit status: 0 plan found or accepted and executed, 1 no plan or the saved plan "
-        "is rejected, 2 input error, 3 the job failed",
+        epilog="exit status: 0 plan found or accepted and executed at or above the execution "
+        "target, 1 no plan or the saved plan is rejected, 2 input error, 3 the job failed, 4 the "
+        "measured success rates fall short of the execution target (--target)",
     )
     validate.add_argument("file", help="TOML problem file with [execution] and [validation]")
     validate.add_argument(
@@ -90,6 +91,15 @@ def register(subparsers: Any) -> None:
         help="execute every run with re-planning (stl.execute): re-solve when the predicted success "
         "drops below [validation.replan_options] risk, or every `every` steps (the same as --set "
         'validation.replan="..."; docs/problem-files.md also has the start check)',
+    )
+    validate.add_argument(
+        "--target",
+        type=_target,
+        metavar="BELIEF,STATE",
+        default=None,
+        help="the execution target the verdict is against: least success rates of the executed "
+        "belief and of the true state, e.g. 0.9,0.95 (the default; the same as --set "
+        "validation.execution_target=[0.9,0.95]); below it the exit status is 4",
     )
     _common(validate, single=True)
     validate.set_defaults(func=_cmd_validate)
@@ -186,6 +196,17 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
     return value
+
+
+def _target(text: str) -> list[float]:
+    parts = text.split(",")
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected BELIEF,STATE (two rates), got {text!r}") from None
+    if len(values) != 2 or not all(0.0 <= v <= 1.0 for v in values):
+        raise argparse.ArgumentTypeError(f"expected BELIEF,STATE, two rates in [0, 1], got {text!r}")
+    return values
 
 
 def _seed(text: str) -> int:
@@ -354,6 +375,8 @@ def _single(args: argparse.Namespace, kind: str) -> int:
         overrides["validation.predict"] = True
     if getattr(args, "replan", None):
         overrides["validation.replan"] = args.replan
+    if getattr(args, "target", None) is not None:
+        overrides["validation.execution_target"] = args.target
     spec = apply_overrides(load_problem(args.file), overrides)
     saved = None
     plan_path = getattr(args, "plan", None)
@@ -375,9 +398,23 @@ def _single(args: argparse.Namespace, kind: str) -> int:
         label = f"{verb} {spec.name} (seed {seed})"
     records = _run(args, [job], label)
     record = records[0]
+    _print_verdict(record)
     if figure is not None:
         _figure(spec, record, figure)
     return exit_status(records)
+
+
+def _print_verdict(record: Mapping[str, Any]) -> None:
+    """The validation's true start and verdict against its execution target (validate only)."""
+    validation = record.get("validation")
+    if not isinstance(validation, Mapping) or "verdict" not in validation:
+        return
+    start = validation.get("true_start")
+    if start == "prior":
+        print("true start: drawn from the prior (every run its own)")
+    elif isinstance(start, list):
+        print("true start: fixed at [" + ", ".join(f"{v:.4g}" for v in start) + "]")
+    print(f"verdict: {validation['verdict']}")
 
 
 def _figure(spec: ProblemSpec, record: Mapping[str, Any], figure: Path) -> None:

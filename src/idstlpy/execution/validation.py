@@ -58,9 +58,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._checks import as_int, as_seed_sequence
+from .._checks import as_int, as_seed_sequence, as_vector
 from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
+from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins, robustness
 from ..tracking import system_gains
@@ -70,7 +71,7 @@ from .simulation import simulate
 if TYPE_CHECKING:  # the prediction is imported when asked for (validate(predict=True))
     from .prediction import ClosedLoopPrediction
 
-__all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory"]
+__all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory", "prior_starts"]
 
 logger = logging.getLogger(__name__)
 
@@ -106,6 +107,41 @@ def wilson_interval(successes: int, trials: int, z: float = 1.959963984540054) -
     center = (p + z2 / (2 * trials)) / denom
     half = z * math.sqrt(p * (1 - p) / trials + z2 / (4 * trials * trials)) / denom
     return max(0.0, center - half), min(1.0, center + half)
+
+
+def prior_starts(plan: ProbabilisticTSTrajectory, runs: int, seed: Any = None) -> np.ndarray:
+    """True starts drawn from the plan's prior ``N(mean_0, cov_0)``, one row per run.
+
+    The draws come from ``default_rng(SeedSequence(seed))`` in one call of shape (runs, n), so
+    the first ``k`` rows do not depend on ``runs``; a singular ``cov_0`` draws in its range.
+
+    Parameters
+    ----------
+    plan : ProbabilisticTSTrajectory
+        The plan; its first belief is the prior.
+    runs : int
+        Number of starts (>= 0).
+    seed : int or SeedSequence, optional
+        Root seed (``validate``'s ``seed``).
+
+    Returns
+    -------
+    ndarray, shape (runs, n)
+    """
+    runs = as_int(runs, "runs", minimum=0)
+    mean, cov = plan.get_mean(0), plan.get_cov(0)
+    factor = _sqrt_psd(cov)
+    z = np.random.default_rng(as_seed_sequence(seed)).standard_normal((runs, mean.shape[0]))
+    return np.asarray(mean + z @ factor.T)
+
+
+def _sqrt_psd(cov: np.ndarray) -> np.ndarray:
+    """A factor ``L`` with ``L L' = cov`` (Cholesky, else the symmetric square root)."""
+    try:
+        return np.asarray(np.linalg.cholesky(cov))
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+        return np.asarray(v * np.sqrt(np.clip(w, 0.0, None)))
 
 
 def state_trajectory(real: RealTrajectory) -> ProbabilisticTSTrajectory:
@@ -165,6 +201,12 @@ class ValidationReport:
         part of equality); compare with :meth:`prediction_comparison`.
     replans : tuple of int
         With ``validate(replan=...)``: the re-solves of every run (empty without re-planning).
+    true_start : tuple of float or None
+        The fixed true start of every run, or None when every run drew its own true start from
+        the prior (the plan's initial belief), :func:`validate`'s default.
+    execution_target : ExecutionTarget
+        The success rates the verdict (:attr:`meets_target`, :meth:`verdict`) is against
+        (default 90% belief / 95% true state).
     """
 
     runs: int
@@ -187,6 +229,50 @@ class ValidationReport:
     )
     predicted: ClosedLoopPrediction | None = field(default=None, compare=False, repr=False)
     replans: tuple[int, ...] = ()
+    true_start: tuple[float, ...] | None = None
+    execution_target: ExecutionTarget = DEFAULT_EXECUTION_TARGET
+
+    @property
+    def start_drawn(self) -> bool:
+        """True when every run drew its true start from the prior (no fixed start)."""
+        return self.true_start is None
+
+    @property
+    def true_start_text(self) -> str:
+        """``"drawn from the prior"`` or ``"fixed at [x, y]"``: what the rates are about."""
+        if self.true_start is None:
+            return "drawn from the prior"
+        return "fixed at [" + ", ".join(f"{v:.4g}" for v in self.true_start) + "]"
+
+    @property
+    def meets_target(self) -> bool:
+        """Whether both measured success rates reach :attr:`execution_target`."""
+        return self.execution_target.met_by(self.belief_success_rate, self.state_success_rate)
+
+    def verdict(self) -> str:
+        """One line: the measured rates against :attr:`execution_target`, and which fall short.
+
+        ``"meets the target ..."`` or ``"BELOW the target ...: belief 85.0% < 90%"``; the
+        verdict compares the measured rates (not their intervals) with the target.
+
+        Returns
+        -------
+        str
+        """
+        target = self.execution_target
+        measured = (
+            f"belief {_pct(self.belief_success_rate)} {_ci(self.belief_ci)}, "
+            f"true state {_pct(self.state_success_rate)} {_ci(self.state_ci)}"
+        )
+        short = target.shortfalls(self.belief_success_rate, self.state_success_rate)
+        if not short:
+            return f"meets the target ({target}): {measured}"
+        what = "; ".join(
+            f"{'true state' if r == 'state' else r} {_pct(getattr(self, f'{r}_success_rate'))} "
+            f"< {100 * getattr(target, r):.4g}%"
+            for r in short
+        )
+        return f"BELOW the target ({target}): {what} (measured {measured})"
 
     def meets(self, belief: float = 0.90, state: float = 0.95) -> bool:
         """Whether both success rates reach the given bars.
@@ -284,7 +370,8 @@ class ValidationReport:
         cmp = self.prediction_comparison()
         lines = [
             f"{self.runs} runs of {self.num_of_steps} steps, plan margin {self.plan_margin:.4g}, "
-            f"{self.elapsed:.3g} s"
+            f"{self.elapsed:.3g} s",
+            f"true start: {self.true_start_text}",
         ]
 
         def cell(entry: dict[str, Any] | None, rate: float, ci: Sequence[float]) -> str:
@@ -314,6 +401,7 @@ class ValidationReport:
                 b = cell(None if entry is None else entry["belief"], v["belief"], v["belief_ci"])
                 st = cell(None if entry is None else entry["state"], v["state"], v["state_ci"])
                 lines.append(f"{name.ljust(width)}  {b} / {st}")
+        lines.append(f"verdict: {self.verdict()}")
         if cmp is not None:
             worst = cmp["max_abs_diff"]
             lines.append(
@@ -328,7 +416,8 @@ class ValidationReport:
             f"ValidationReport(runs={self.runs}, num_of_steps={self.num_of_steps}, "
             f"belief={_pct(self.belief_success_rate)} {_ci(self.belief_ci)}, "
             f"state={_pct(self.state_success_rate)} {_ci(self.state_ci)}, "
-            f"plan_margin={self.plan_margin:.4g}, propositions={len(self.proposition_violations)}, "
+            f"plan_margin={self.plan_margin:.4g}, true_start={self.true_start_text!r}, "
+            f"meets_target={self.meets_target}, propositions={len(self.proposition_violations)}, "
             f"predicates={len(self.predicate_violations)}, elapsed={self.elapsed:.3g}s)"
         )
 
@@ -338,7 +427,8 @@ class ValidationReport:
 
         head = (
             f"<b>ValidationReport</b>: {self.runs} runs of {self.num_of_steps} steps, "
-            f"plan margin {self.plan_margin:.4g}, {self.elapsed:.3g} s"
+            f"plan margin {self.plan_margin:.4g}, {self.elapsed:.3g} s; true start "
+            f"{escape(self.true_start_text)}; {escape(self.verdict())}"
         )
         rows = [
             "<tr><th></th><th>success</th><th>95% CI</th><th>margin min / median</th></tr>",
@@ -369,7 +459,9 @@ class ValidationReport:
         -------
         dict
             Rates, intervals, margin summaries (``min``, ``median``, ``max``; NaN when no run
-            has a finite margin) and violation rates.
+            has a finite margin) and violation rates; ``true_start`` (``"prior"`` or the fixed
+            start as a list), ``execution_target`` (``{"belief": b, "state": s}``),
+            ``meets_target`` and ``verdict`` (:meth:`verdict`).
         """
 
         return {
@@ -378,6 +470,7 @@ class ValidationReport:
             if isinstance(self.seed_entropy, tuple)
             else self.seed_entropy,
             "num_of_steps": self.num_of_steps,
+            "true_start": "prior" if self.true_start is None else list(self.true_start),
             "plan_margin": self.plan_margin,
             "belief_successes": self.belief_successes,
             "state_successes": self.state_successes,
@@ -389,6 +482,9 @@ class ValidationReport:
             "state_margin": _margin_stats(self.state_margins),
             "proposition_violations": {k: dict(v) for k, v in self.proposition_violations.items()},
             "predicate_violations": {k: dict(v) for k, v in self.predicate_violations.items()},
+            "execution_target": self.execution_target.as_dict(),
+            "meets_target": self.meets_target,
+            "verdict": self.verdict(),
             **({} if self.predicted is None else {"prediction": self._prediction_dict()}),
             **({"replans": list(self.replans)} if self.replans else {}),
             "elapsed": self.elapsed,
@@ -499,9 +595,15 @@ def _violations(
 
 
 def _execute(
-    payload: _Payload, seeds: Sequence[np.random.SeedSequence], first_index: int
+    payload: _Payload,
+    seeds: Sequence[np.random.SeedSequence],
+    first_index: int,
+    starts: np.ndarray | None = None,
 ) -> list[dict[str, Any]]:
-    """Run the executions of one batch (``first_index`` is the index of ``seeds[0]``)."""
+    """Run the executions of one batch (``first_index`` is the index of ``seeds[0]``).
+
+    ``starts`` (one row per seed) are the runs' true starts; None: ``payload.real_initial_state``.
+    """
     if payload.system is None:
         problem = payload.factory()  # type: ignore[misc]
         system, formula = problem.switched_system, problem.stl_formula
@@ -511,6 +613,7 @@ def _execute(
     promises = _promises(formula, payload.plan, L)
     results = []
     for offset, ss in enumerate(seeds):
+        x0 = payload.real_initial_state if starts is None else starts[offset]
         replans = 0
         if payload.replan is not None:
             from .replanning import execute
@@ -519,7 +622,7 @@ def _execute(
                 problem if payload.system is None else payload.problem,
                 payload.plan,
                 payload.real_system,
-                payload.real_initial_state,
+                x0,
                 seed=ss,  # execute draws from default_rng(ss): the same noise as simulate below
                 clip_controls=payload.sim_options["control_domain"] is not None,
                 process_noise=payload.sim_options["process_noise"],
@@ -532,7 +635,7 @@ def _execute(
                 system,
                 payload.plan,
                 payload.num_of_steps,
-                payload.real_initial_state,
+                x0,
                 payload.real_system,
                 seed=np.random.default_rng(ss),
                 **payload.sim_options,
@@ -557,10 +660,10 @@ def _execute(
 
 
 def _run_batch(
-    blob: bytes, seeds: Sequence[np.random.SeedSequence], first_index: int
+    blob: bytes, seeds: Sequence[np.random.SeedSequence], first_index: int, starts: np.ndarray | None = None
 ) -> list[dict[str, Any]]:
     """Worker entry point: unpickle the payload, then :func:`_execute`."""
-    return _execute(pickle.loads(blob), seeds, first_index)
+    return _execute(pickle.loads(blob), seeds, first_index, starts)
 
 
 def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> bytes | None:
@@ -602,8 +705,12 @@ def _predict(
     steps: int,
     sim_options: Mapping[str, Any],
     options: Mapping[str, Any] | None,
+    start_cov: np.ndarray | None = None,
 ) -> ClosedLoopPrediction:
-    """The prediction of exactly the execution ``validate`` runs (same gains, domain, noise, start)."""
+    """The prediction of exactly the execution ``validate`` runs (same gains, domain, noise, start).
+
+    ``start_cov``: the covariance of a true start drawn from the prior (None: a fixed start).
+    """
     from .prediction import predict_closed_loop
 
     if options is not None and not isinstance(options, Mapping):
@@ -626,6 +733,7 @@ def _predict(
         control_domain=sim_options["control_domain"],
         process_noise=sim_options["process_noise"],
         lqr_gains=sim_options["lqr_gains"],
+        real_initial_cov=start_cov,
         **opts,
     )
     logger.debug("validate: closed-loop prediction in %.3g s", time.perf_counter() - t0)
@@ -633,8 +741,21 @@ def _predict(
 
 
 _REPLAN_OPTIONS = frozenset(
-    {"risk", "every", "check_every", "drift", "start_resolves", "risk_measure", "risk_on", "risk_samples",
-     "max_replans", "replan_time_limit", "options", "solver_options", "adopt"}
+    {
+        "risk",
+        "every",
+        "check_every",
+        "drift",
+        "start_resolves",
+        "risk_measure",
+        "risk_on",
+        "risk_samples",
+        "max_replans",
+        "replan_time_limit",
+        "options",
+        "solver_options",
+        "adopt",
+    }
 )
 """Keys ``replan_options`` accepts (the execution options are validate's own)."""
 
@@ -665,7 +786,7 @@ def validate(
     problem: Any,
     solution: ProbabilisticTSTrajectory,
     real_system: Any,
-    real_initial_state: Any,
+    real_initial_state: Any = None,
     runs: int = 100,
     seed: int | np.random.SeedSequence | None = None,
     executor: Executor | str | None = None,
@@ -683,6 +804,7 @@ def validate(
     predict_options: Mapping[str, Any] | None = None,
     replan: str | None = None,
     replan_options: Mapping[str, Any] | None = None,
+    execution_target: ExecutionTarget | Sequence[float] | Mapping[str, float] | None = None,
 ) -> ValidationReport:
     """Execute a plan many times and measure how often its promise held.
 
@@ -694,8 +816,14 @@ def validate(
         The plan.
     real_system : SwitchedSystem
         The system moving the true state (e.g. :func:`idstlpy.scenarios.light_dark_real_system`).
-    real_initial_state : array_like, shape (n,)
-        True initial state of every run.
+    real_initial_state : array_like of shape (n,), "prior" or None
+        The true initial state. None or ``"prior"`` (the default): every run draws its own true
+        start from the prior, the plan's initial belief ``N(mean_0, cov_0)``, so the rates are
+        the ones the plan's promise is about when the true start is unknown. An array: every run
+        starts at that state (the paper's listing passes ``[0.5, 2.75]``). The report says which
+        (:attr:`ValidationReport.true_start`). The starts come from their own stream
+        (``default_rng(SeedSequence(seed))``, one draw of shape ``(runs, n)``), so run ``i``'s
+        noise is the same as with a fixed start.
     runs : int
         Number of independent executions (>= 1).
     seed : int or SeedSequence, optional
@@ -744,6 +872,11 @@ def validate(
         Further keywords of ``execute`` (``risk``, ``every``, ``check_every``, ``options``,
         ``solver_options``, ``replan_time_limit``, ...); the execution options are this call's.
 
+    execution_target : ExecutionTarget, (belief, state) pair, mapping or None
+        The success rates the report's verdict is against (default
+        :data:`~idstlpy.execution_target.DEFAULT_EXECUTION_TARGET`, 90% belief / 95% true
+        state); see :attr:`ValidationReport.meets_target` and :meth:`ValidationReport.verdict`.
+
     Returns
     -------
     ValidationReport
@@ -769,6 +902,7 @@ def validate(
         raise InvalidTypeError(
             f"executor must be a concurrent.futures.Executor, got {type(executor).__name__}"
         )
+    target = as_execution_target(execution_target)
     root = as_seed_sequence(seed)
     children = root.spawn(runs)
 
@@ -779,7 +913,16 @@ def validate(
         "process_noise": process_noise,
         "lqr_gains": gains,
     }
-    real_initial_state = np.asarray(real_initial_state, dtype=float)
+    starts: np.ndarray | None = None
+    if real_initial_state is None or (isinstance(real_initial_state, str) and real_initial_state == "prior"):
+        starts = prior_starts(solution, runs, root)
+        real_initial_state = solution.get_mean(0).copy()
+    elif isinstance(real_initial_state, str):
+        raise InvalidArgumentError(
+            f"real_initial_state must be an array of shape (n,), 'prior' or None, got {real_initial_state!r}"
+        )
+    else:
+        real_initial_state = as_vector(real_initial_state, "real_initial_state", system.n)
     # Validate every argument once, here, with one short run (errors name the argument).
     simulate(system, solution, min(steps, 1), real_initial_state, real_system, seed=0, **sim_options)
     replan_kw: dict[str, Any] | None = None
@@ -788,7 +931,14 @@ def validate(
     predicted = None
     if predict:
         predicted = _predict(
-            problem, solution, real_system, real_initial_state, steps, sim_options, predict_options
+            problem,
+            solution,
+            real_system,
+            real_initial_state,
+            steps,
+            sim_options,
+            predict_options,
+            None if starts is None else solution.get_cov(0),
         )
     payload = _Payload(
         system, problem.stl_formula, None, solution, real_system, real_initial_state, steps, sim_options, keep
@@ -813,19 +963,22 @@ def validate(
             own_pool = pool = ProcessPoolExecutor(max_workers=max_workers)
 
     chunk = max(1, math.ceil(runs / (4 * max_workers)))
-    batches = [(i, children[i : i + chunk]) for i in range(0, runs, chunk)]
+    batches = [
+        (i, children[i : i + chunk], None if starts is None else starts[i : i + chunk])
+        for i in range(0, runs, chunk)
+    ]
     results: list[dict[str, Any]] = []
     try:
         if pool is None:
-            for i, seeds in batches:
-                results.extend(_execute(payload, seeds, i))
+            for i, seeds, x0s in batches:
+                results.extend(_execute(payload, seeds, i, x0s))
                 if progress is not None:
                     progress(len(results), runs)
         else:
             if isinstance(pool, ThreadPoolExecutor) or blob is None:  # threads share the payload
-                futures = [pool.submit(_execute, payload, seeds, i) for i, seeds in batches]
+                futures = [pool.submit(_execute, payload, seeds, i, x0s) for i, seeds, x0s in batches]
             else:
-                futures = [pool.submit(_run_batch, blob, seeds, i) for i, seeds in batches]
+                futures = [pool.submit(_run_batch, blob, seeds, i, x0s) for i, seeds, x0s in batches]
             done = 0
             for fut in futures:
                 part = fut.result()
@@ -838,6 +991,11 @@ def validate(
             own_pool.shutdown()
     report = _report(
         problem.stl_formula, solution, steps, root, results, time.perf_counter() - t0, predicted=predicted
+    )
+    report = dataclasses.replace(
+        report,
+        true_start=None if starts is not None else tuple(float(v) for v in real_initial_state),
+        execution_target=target,
     )
     comparison = report.prediction_comparison()
     if comparison is not None:

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..belief import GaussianBelief, to_belief
 from ..dynamical_system import LCS, SwitchedSystem, mk_lbs, mk_lcs, mk_switched_sys
-from ..errors import IdstlpyError, ProblemFileError
+from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError, ProblemFileError
+from ..execution_target import ExecutionTarget, as_execution_target
 from ..expressions import ProbabilisticLinearPredicate, RealValuedVariable, mk_variable, prob
 from ..formulas import STLAtomicProposition
 from ..sets import Polytope
@@ -62,8 +63,9 @@ class ExecutionSettings:
     ----------
     real_system : SwitchedSystem
         The system the plan runs on (default: the planning model itself).
-    real_initial_state : ndarray, shape (n,)
-        True initial state (default: the initial belief's mean).
+    real_initial_state : ndarray of shape (n,), or None
+        Fixed true initial state; None (the key left out): every validation run draws its true
+        start from the prior (``validate``'s default).
     lqr : dict or None
         ``horizon``, ``Q_final``, ``Q``, ``R`` of the tracking controller of every mode
         (:meth:`~idstlpy.dynamical_system.LCS.compute_finite_horizon_lqr`), or None.
@@ -82,10 +84,13 @@ class ExecutionSettings:
     start_check : dict or None
         ``[validation.start_check]`` as keywords of :func:`~idstlpy.start_check` (made once,
         before the runs), or None without the table.
+    execution_target : ExecutionTarget or None
+        ``[validation] execution_target = [belief, state]``: the verdict's target (None: the
+        default, 90% / 95%).
     """
 
     real_system: SwitchedSystem
-    real_initial_state: np.ndarray
+    real_initial_state: np.ndarray | None
     lqr: dict[str, Any] | None = None
     runs: int = sc.DEFAULT_VALIDATION_RUNS
     seed: int | None = None
@@ -93,6 +98,7 @@ class ExecutionSettings:
     replan: str | None = None
     replan_options: dict[str, Any] = dataclasses.field(default_factory=dict)
     start_check: dict[str, Any] | None = None
+    execution_target: ExecutionTarget | None = None
 
 
 class BuiltProblem(NamedTuple):
@@ -472,7 +478,7 @@ class _Builder:
         x0 = (
             sc.vector(self.ctx, path + ("real_initial_state",), value["real_initial_state"], n)
             if "real_initial_state" in value
-            else np.array(mean, dtype=float)
+            else None  # drawn from the prior by every validation run
         )
         lqr: dict[str, Any] | None = None
         if "lqr" in value:
@@ -506,6 +512,14 @@ class _Builder:
             if "start_check" in vv
             else None
         )
+        target = None
+        if "execution_target" in vv:
+            try:
+                target = as_execution_target(vv["execution_target"], "execution_target")
+            except (InvalidArgumentError, InvalidTypeError) as exc:
+                raise self.err(
+                    vpath + ("execution_target",), f"must be [belief, state] with rates in [0, 1]: {exc}"
+                ) from exc
         return ExecutionSettings(
             real,
             x0,
@@ -516,6 +530,7 @@ class _Builder:
             None if replan == sc.NONE else replan,
             replan_options,
             start,
+            target,
         )
 
     # -- replanning ----------------------------------------------------------------------------
