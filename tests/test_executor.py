@@ -186,3 +186,71 @@ def test_state_dependent_noise_gives_each_run_its_covariance():
     assert not np.allclose(covs[0], covs[1])
     _, one = law.filter(0, M[1:2], plan.get_cov(0), U[1:2], Y[1:2])
     np.testing.assert_array_equal(one, covs[1])
+
+
+def _linear_plant(A, B):
+    def step(x, u, q, rng):
+        return A @ x + B @ u
+
+    return step
+
+
+def test_a_linear_step_function_plant_is_the_linear_real_system_bit_for_bit():
+    problem, system, plan = _listing()
+    real = light_dark_real_system()
+    A, B = real.mode(0).A, real.mode(0).B
+    a_sim, a_real = stl.simulate(system, plan, 20, LIGHT_DARK_REAL_INITIAL_STATE, real, seed=3)
+    b_sim, b_real = system.simulate(
+        plan, 20, LIGHT_DARK_REAL_INITIAL_STATE, None, seed=3, plant=_linear_plant(A, B)
+    )
+    for a, b in [(a_sim.get_mean(), b_sim.get_mean()), (a_real.get_state(), b_real.get_state())]:
+        assert np.array_equal(a, b)
+
+
+def test_plant_reaches_validate_and_execute():
+    problem, system, plan = _listing(8)
+    real = light_dark_real_system()
+    step = _linear_plant(real.mode(0).A, real.mode(0).B)
+    x0 = LIGHT_DARK_REAL_INITIAL_STATE
+    ref = stl.validate(problem, plan, real, x0, runs=4, seed=2, executor="serial")
+    got = stl.validate(problem, plan, None, x0, runs=4, seed=2, executor="serial", plant=step)
+    assert got.belief_margins == ref.belief_margins and got.state_margins == ref.state_margins
+    run_ref = stl.execute(problem, plan, real, x0, seed=4)
+    run = stl.execute(problem, plan, None, x0, seed=4, plant=step)
+    assert np.array_equal(run.real.get_state(), run_ref.real.get_state())
+    with pytest.raises(InvalidArgumentError, match="predict needs a linear real_system"):
+        stl.validate(problem, plan, None, x0, runs=2, executor="serial", plant=step, predict=True)
+
+
+def test_plant_errors_name_the_problem():
+    problem, system, plan = _listing(3)
+    x0 = LIGHT_DARK_REAL_INITIAL_STATE
+    with pytest.raises(DimensionError, match="plant step function must return a state of shape"):
+        stl.simulate(system, plan, 3, x0, None, plant=lambda x, u, q, rng: np.zeros(3))
+    with pytest.raises(InvalidArgumentError, match="either real_system"):
+        stl.simulate(system, plan, 3, x0, light_dark_real_system(), plant=lambda x, u, q, rng: x)
+
+
+def test_nonlinear_plant_with_its_own_noise_is_reproducible():
+    """The plant's generator is the run's: the same seed gives the same nonlinear run."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "examples" / "unicycle.py"
+    spec = importlib.util.spec_from_file_location("unicycle_example", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    problem = module.linearised_problem()
+    system = problem.switched_system
+    plan = stl.rollout(system, problem.initial_state, np.zeros(6, dtype=int), np.tile([1.0, 0.3], (6, 1)))
+    runs = [
+        stl.simulate(
+            system, plan, 6, np.zeros(3), None, seed=9, plant=module.unicycle_step, process_noise="none"
+        )
+        for _ in range(2)
+    ]
+    assert np.array_equal(runs[0][1].get_state(), runs[1][1].get_state())
+    other = stl.simulate(
+        system, plan, 6, np.zeros(3), None, seed=10, plant=module.unicycle_step, process_noise="none"
+    )
+    assert not np.array_equal(runs[0][1].get_state(), other[1].get_state())

@@ -71,6 +71,7 @@ from scipy.stats import chi2
 from .._checks import as_float, as_int, as_seed_sequence
 from ..belief import GaussianBelief, to_belief
 from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
+from ..executor import PlantStep
 from ..formulas import FALSE, TRUE, STLFormula
 from ..progression import progress
 from ..semantics import robustness
@@ -464,6 +465,7 @@ def execute(
     process_noise: str = "model",
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
     default_lqr: Mapping[str, Any] | None = None,
+    plant: PlantStep | None = None,
 ) -> ExecutionReport:
     """Execute a plan under real noise, re-planning from the executed belief when asked to.
 
@@ -473,8 +475,9 @@ def execute(
         The problem the plan solves (model, control domain, formula).
     plan : ProbabilisticTSTrajectory
         The plan to execute first (``problem.solve``'s result), ``N`` steps.
-    real_system : SwitchedSystem or LCS
-        The system moving the true state (one mode per planning mode, or one for all).
+    real_system : SwitchedSystem, LCS or None
+        The system moving the true state (one mode per planning mode, or one for all); None with
+        ``plant``.
     real_initial_state : array_like, shape (n,)
         True initial state.
     seed : int, SeedSequence or None
@@ -529,6 +532,10 @@ def execute(
         :class:`~idstlpy.SolverOptions` fields overriding ``options`` (e.g. ``rrt_timeout``).
     clip_controls, process_noise, lqr_gains, default_lqr
         As in :func:`~idstlpy.execution.validation.validate`.
+    plant : callable, optional
+        A (nonlinear) plant as a step function ``(state, input, mode, rng) -> next_state``
+        moving the true state instead of ``real_system`` (which must then be None); see
+        :func:`~idstlpy.execution.simulation.simulate`. The risk checks predict with the model.
 
     Returns
     -------
@@ -580,6 +587,7 @@ def execute(
         "control_domain": model.control_domain,
         "process_noise": process_noise,
         "lqr_gains": model.gains,
+        "plant": plant,
     }
 
     # The drift test's reference: (execution step, predicted belief means (L, n), their

@@ -62,6 +62,7 @@ from .._checks import as_int, as_seed_sequence, as_vector
 from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
+from ..executor import PlantStep
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins, robustness
 from ..tracking import system_gains
@@ -627,6 +628,7 @@ def _execute(
                 clip_controls=payload.sim_options["control_domain"] is not None,
                 process_noise=payload.sim_options["process_noise"],
                 lqr_gains=payload.sim_options["lqr_gains"],
+                plant=payload.sim_options["plant"],
                 **payload.replan,
             )
             xi_sim, xi_real, replans = run.belief, run.real, run.num_replans
@@ -805,6 +807,7 @@ def validate(
     replan: str | None = None,
     replan_options: Mapping[str, Any] | None = None,
     execution_target: ExecutionTarget | Sequence[float] | Mapping[str, float] | None = None,
+    plant: PlantStep | None = None,
 ) -> ValidationReport:
     """Execute a plan many times and measure how often its promise held.
 
@@ -814,8 +817,9 @@ def validate(
         The problem the plan solves (model, control domain, formula).
     solution : ProbabilisticTSTrajectory
         The plan.
-    real_system : SwitchedSystem
-        The system moving the true state (e.g. :func:`idstlpy.scenarios.light_dark_real_system`).
+    real_system : SwitchedSystem or None
+        The system moving the true state (e.g. :func:`idstlpy.scenarios.light_dark_real_system`);
+        None with ``plant``.
     real_initial_state : array_like of shape (n,), "prior" or None
         The true initial state. None or ``"prior"`` (the default): every run draws its own true
         start from the prior, the plan's initial belief ``N(mean_0, cov_0)``, so the rates are
@@ -876,6 +880,11 @@ def validate(
         The success rates the report's verdict is against (default
         :data:`~idstlpy.execution_target.DEFAULT_EXECUTION_TARGET`, 90% belief / 95% true
         state); see :attr:`ValidationReport.meets_target` and :meth:`ValidationReport.verdict`.
+    plant : callable, optional
+        A (nonlinear) plant as a step function ``(state, input, mode, rng) -> next_state``
+        moving the true state instead of ``real_system`` (which must then be None); see
+        :func:`~idstlpy.execution.simulation.simulate`. With a process pool it must be picklable
+        (a module-level function). Not with ``predict`` (the prediction is of a linear loop).
 
     Returns
     -------
@@ -912,7 +921,12 @@ def validate(
         "control_domain": problem.control_domain if clip_controls else None,
         "process_noise": process_noise,
         "lqr_gains": gains,
+        "plant": plant,
     }
+    if plant is not None and predict:
+        raise InvalidArgumentError(
+            "predict needs a linear real_system: the prediction cannot follow a plant function"
+        )
     starts: np.ndarray | None = None
     if real_initial_state is None or (isinstance(real_initial_state, str) and real_initial_state == "prior"):
         starts = prior_starts(solution, runs, root)
