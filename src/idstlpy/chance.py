@@ -8,6 +8,15 @@ A Gaussian belief ``N(m, S)`` satisfies ``P[h'x + c <= 0] >= 1 - eps`` iff
 ``h`` (the term is taken as 0 there), and no mean can meet it with positive variance (the term is
 ``+inf``). Every part of the package (sets, monitor, abstraction, teachers, MILP, validation)
 calls these functions, vectorised over faces and, where given, over a time axis.
+
+A *joint* chance constraint ``P[H x + c <= 0] >= 1 - eps`` (a whole polytope, one confidence)
+is judged by Boole's inequality: it holds when the per-face violation probabilities sum to at
+most ``eps`` (:func:`joint_risk`), which is sound for the region's probability and equivalent to
+the existence of per-face risks ``eps_f``, ``sum eps_f <= eps``, each face meeting its own
+deterministic equivalent. :func:`joint_slack` is its margin in the units of :func:`slack`: the
+largest ``r`` such that every face moved inwards by ``r`` still passes (a 1-D root, found by
+bisection and reported on its feasible side). :func:`allocate_shares` chooses the per-face risks
+the planner plans with.
 """
 
 from __future__ import annotations
@@ -15,9 +24,9 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.special import ndtri
+from scipy.special import ndtr, ndtri
 
-__all__ = ["quantile", "std_terms", "slack"]
+__all__ = ["quantile", "std_terms", "slack", "joint_risk", "joint_slack", "allocate_shares"]
 
 
 def quantile(eps: Any) -> np.ndarray:
@@ -79,3 +88,184 @@ def slack(H: np.ndarray, c: np.ndarray, z: np.ndarray, mean: np.ndarray, cov: np
     ndarray, shape (F,) or (T, F)
     """
     return -(mean @ H.T + c + std_terms(H, z, cov))
+
+
+def _face_moments(H: np.ndarray, c: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance ``d_f = -(h_f' m + c_f)`` and standard deviation ``sqrt(h_f' S h_f)`` per face."""
+    d = -(mean @ H.T + c)
+    if cov.ndim == 2:
+        var = np.einsum("fi,ij,fj->f", H, cov, H)
+    else:
+        var = np.einsum("fi,tij,fj->tf", H, cov, H)
+    return d, np.sqrt(np.maximum(var, 0.0))
+
+
+def _tail(d: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """``P[N(0, sd^2) > d]`` per face: ``Phi(-d / sd)``; 0 or 1 for a face without variance."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = ndtr(-d / sd)
+    return np.where(sd > 0, out, np.where(d >= 0, 0.0, 1.0))
+
+
+def joint_risk(H: np.ndarray, c: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Boole's bound on ``P[x not in {H x + c <= 0}]`` for ``x ~ N(mean, cov)``.
+
+    Parameters
+    ----------
+    H, c : ndarray, shapes (F, n), (F,)
+        The region's faces ``h_f' x + c_f <= 0``.
+    mean : ndarray, shape (n,) or (T, n)
+    cov : ndarray, shape (n, n) or (T, n, n)
+
+    Returns
+    -------
+    ndarray, shape () or (T,)
+        ``sum_f P[h_f' x + c_f > 0]`` (may exceed 1).
+    """
+    d, sd = _face_moments(H, c, mean, cov)
+    return np.asarray(np.sum(_tail(d, sd), axis=-1), dtype=float)
+
+
+def joint_slack(
+    H: np.ndarray, c: np.ndarray, eps: float, mean: np.ndarray, cov: np.ndarray, iterations: int = 100
+) -> np.ndarray:
+    """Margin of a joint chance constraint under Boole's inequality (``>= 0``: it holds).
+
+    The largest ``r`` with ``sum_f P[h_f' x + c_f + r > 0] <= eps``: every face can move ``r``
+    inwards and some allocation ``eps_f`` (``sum eps_f <= eps``) still meets every face's
+    deterministic equivalent. With one face it is :func:`slack` itself. The root lies between
+    the equal-share slack (``eps / F`` per face, feasible) and the single-face slack at ``eps``
+    (an upper bound); bisection keeps the feasible end, so a returned ``r >= 0`` is a proof.
+
+    Parameters
+    ----------
+    H, c : ndarray, shapes (F, n), (F,)
+    eps : float
+        The allowed probability of leaving the region, in ``[0, 0.5]``.
+    mean : ndarray, shape (n,) or (T, n)
+    cov : ndarray, shape (n, n) or (T, n, n)
+    iterations : int, default 100
+        Bisection steps.
+
+    Returns
+    -------
+    ndarray, shape () or (T,)
+    """
+    H = np.asarray(H, dtype=float)
+    c = np.asarray(c, dtype=float)
+    F = H.shape[0]
+    if eps <= 0.0 or F == 1:
+        z = quantile(np.full(F, eps))
+        return np.asarray(np.min(slack(H, c, z, mean, cov), axis=-1), dtype=float)
+    d, sd = _face_moments(H, c, mean, cov)
+    lo = np.min(d - float(quantile(eps / F)) * sd, axis=-1)
+    hi = np.min(d - float(quantile(eps)) * sd, axis=-1)
+    lo = np.minimum(lo, hi)
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    lo = np.where(finite, lo, -np.inf)
+    a = np.where(finite, lo, 0.0)
+    b = np.where(finite, hi, 0.0)
+    for _ in range(iterations):
+        mid = 0.5 * (a + b)
+        ok = np.sum(_tail(d - mid[..., None], sd), axis=-1) <= eps
+        a = np.where(ok, mid, a)
+        b = np.where(ok, b, mid)
+        if np.all(b - a <= 1e-15 * np.maximum(1.0, np.abs(a))):
+            break
+    return np.asarray(np.where(finite, a, lo), dtype=float)
+
+
+def _analytic_center(H: np.ndarray, c: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """The point maximising ``sum_f log(-(h_f' x + c_f))`` (damped Newton from an interior point).
+
+    Unlike the Chebyshev centre it is unique (the middle of a long box, not one of its ends).
+    """
+    x = np.asarray(start, dtype=float).copy()
+
+    def value(y: np.ndarray) -> float:
+        d = -(H @ y + c)
+        return float(np.sum(np.log(d))) if np.all(d > 0) else -np.inf
+
+    for _ in range(100):
+        d = -(H @ x + c)
+        w = H / d[:, None]
+        grad = np.sum(w, axis=0)  # gradient of -sum log d
+        hess = w.T @ w
+        try:
+            step = -np.linalg.solve(hess + 1e-12 * np.eye(hess.shape[0]), grad)
+        except np.linalg.LinAlgError:
+            break
+        decrement = float(-grad @ step)
+        if decrement < 1e-14:
+            break
+        t, base = 1.0, value(x)
+        while t > 1e-12 and value(x + t * step) < base + 0.25 * t * decrement:
+            t *= 0.5
+        if t <= 1e-12:
+            break
+        x = x + t * step
+    return x
+
+
+def allocate_shares(H: np.ndarray, c: np.ndarray, eps: float, cov: np.ndarray, mix: float = 0.5) -> np.ndarray:
+    """Per-face risks for planning a joint chance constraint (they sum to ``eps``).
+
+    The allocation that lets the widest belief of the prior's shape meet the region: the
+    region's analytic centre ``x0`` and the scale ``a`` at which ``N(x0, a^2 cov)`` meets the
+    joint constraint with margin 0 give the risks ``P[h_f' x + c_f > 0]`` there (the faces that
+    bind get the risk; far faces almost none). They are mixed with equal shares
+    (``mix * eps / F`` each) because a plan need not sit at the centre. Equal shares when the
+    region is unbounded or has no interior, or ``eps = 0``.
+
+    Parameters
+    ----------
+    H, c : ndarray, shapes (F, n), (F,)
+    eps : float
+    cov : ndarray, shape (n, n)
+        The shape of the beliefs (the prior's covariance; the identity where it is zero).
+    mix : float, default 0.5
+        Weight of the equal shares, in ``[0, 1]``.
+
+    Returns
+    -------
+    ndarray, shape (F,)
+        Non-negative, summing to at most ``eps``.
+    """
+    from .sets import Polytope  # sets imports this module
+
+    H = np.asarray(H, dtype=float)
+    c = np.asarray(c, dtype=float)
+    F, n = H.shape
+    equal = np.full(F, eps / F)
+    if eps <= 0.0 or F == 1:
+        return equal
+    poly = Polytope(H, c)
+    center, radius = poly._chebyshev
+    if center is None or not np.isfinite(radius) or radius <= 1e-12 or radius >= 1e6 * (1 - 1e-9):
+        return equal
+    center = _analytic_center(H, c, center)
+    S = np.asarray(cov, dtype=float)
+    sd0 = np.sqrt(np.maximum(np.einsum("fi,ij,fj->f", H, S, H), 0.0))
+    if not np.all(sd0 > 0):
+        S = np.eye(n)
+        sd0 = np.linalg.norm(H, axis=1)
+    d = -(H @ center + c)
+    # The margin at N(x0, a^2 S) falls with a: bisection on log a for the root.
+    lo, hi = 1e-12, 1.0
+    while joint_slack(H, c, eps, center, hi * hi * S) > 0 and hi < 1e12:
+        hi *= 4.0
+    for _ in range(200):
+        mid = np.sqrt(lo * hi)
+        if joint_slack(H, c, eps, center, mid * mid * S) >= 0:
+            lo = mid
+        else:
+            hi = mid
+        if hi / lo < 1 + 1e-9:
+            break
+    need = _tail(d, lo * sd0)
+    total = float(np.sum(need))
+    if not np.isfinite(total) or total <= 0:
+        return equal
+    need = need * (eps / total)
+    out = mix * equal + (1.0 - mix) * need
+    return out * min(1.0, eps / float(np.sum(out)))

@@ -34,10 +34,12 @@ __all__ = [
     "ConvexConstraint",
     "LinearPredicate",
     "ProbabilisticLinearPredicate",
+    "JointChanceConstraint",
     "DiscretePredicate",
     "DiscreteFormula",
     "mk_variable",
     "prob",
+    "prob_in",
 ]
 
 _ids = itertools.count()
@@ -211,7 +213,7 @@ class LinearExpression:
 
     # -- comparisons build predicates -----------------------------------------------------------
     def _compare(self, other: Any, less: bool) -> LinearPredicate | Any:
-        if isinstance(other, ConvexConstraint | DiscreteVariable | _Probability):
+        if isinstance(other, ConvexConstraint | DiscreteVariable | _Probability | _JointProbability):
             return NotImplemented
         diff = (self - other) if less else (other - self)
         if not isinstance(diff, LinearExpression):
@@ -542,7 +544,8 @@ def prob(pred: LinearPredicate) -> _Probability:
     Parameters
     ----------
     pred : LinearPredicate or ConvexRegion
-        ``h' x + c <= 0`` (or a conjunction of them, which gives one chance constraint per face);
+        ``h' x + c <= 0`` (or a conjunction of them, which gives one chance constraint per face:
+        95% on each face of a box is *not* 95% for the box; use :func:`prob_in` for that);
         for example ``x[0] <= 1``.
 
     Returns
@@ -552,6 +555,245 @@ def prob(pred: LinearPredicate) -> _Probability:
         :class:`ProbabilisticLinearPredicate`.
     """
     return _Probability(pred)
+
+
+class JointChanceConstraint(ConvexConstraint):
+    """One confidence for a whole polytope: ``P[x in {H x + c <= 0}] >= 1 - eps``.
+
+    Usually built with :func:`prob_in`: ``prob_in(logical_and(x[0] >= -1, x[0] <= 1)) >= 0.95``.
+
+    A Gaussian belief satisfies it (the monitor's reading, :func:`idstlpy.chance.joint_slack`)
+    when Boole's inequality certifies it: the per-face violation probabilities
+    ``P[h_f' x + c_f > 0]`` sum to at most ``eps``. That is sound (the region then holds with
+    probability at least ``1 - eps``) and is the same as the existence of a risk allocation
+    ``eps_f >= 0``, ``sum eps_f <= eps``, under which every face meets its own deterministic
+    equivalent ``h_f' m + c_f + Phi^-1(1 - eps_f) sqrt(h_f' S h_f) <= 0``.
+
+    The planner plans against one such allocation, :attr:`shares`: a sufficient condition that
+    every part of the solver reads as ordinary chance constraints (:attr:`face_constraints`).
+    Unless fixed by the caller (:meth:`with_shares`), the problem chooses the shares for its
+    prior (:func:`idstlpy.chance.allocate_shares`).
+
+    Parameters
+    ----------
+    H : array_like, shape (F, n)
+        Face normals (finite, at least one face).
+    c : array_like, shape (F,)
+        Face offsets (finite).
+    variable : RealValuedVariable
+        The variable ``x`` (dimension ``n``).
+    eps : float
+        Allowed probability of leaving the region, in ``[0, 0.5]``.
+    shares : array_like, shape (F,), optional
+        The risk allocation among the faces (non-negative, summing to at most ``eps``); equal
+        shares ``eps / F`` when omitted.
+    fixed : bool, default False
+        Whether the shares were chosen by the caller (then the problem keeps them).
+    """
+
+    def __init__(
+        self,
+        H: Any,
+        c: Any,
+        variable: RealValuedVariable,
+        eps: float,
+        shares: Any = None,
+        fixed: bool = False,
+    ) -> None:
+        if not isinstance(variable, RealValuedVariable):
+            raise InvalidTypeError(
+                f"variable must be a RealValuedVariable, got {type(variable).__name__}"
+            )
+        H = np.atleast_2d(np.asarray(H, dtype=float))
+        c = np.atleast_1d(np.asarray(c, dtype=float))
+        if H.shape[0] == 0:
+            raise InvalidArgumentError("a joint chance constraint needs at least one face")
+        if H.shape != (c.shape[0], variable.size):
+            raise DimensionError(
+                f"H must have shape ({c.shape[0]}, {variable.size}) for {c.shape[0]} faces over "
+                f"{variable.name} (size {variable.size}), got {H.shape}"
+            )
+        if not (np.all(np.isfinite(H)) and np.all(np.isfinite(c))):
+            raise InvalidArgumentError("a joint chance constraint needs finite H and c")
+        self.H = H
+        self.c = c
+        self.variable = variable
+        self.eps = as_float(eps, "eps", 0.0, 0.5)
+        F = H.shape[0]
+        if shares is None:
+            out = np.full(F, self.eps / F)
+        else:
+            out = np.asarray(shares, dtype=float).reshape(-1)
+            if out.shape != (F,):
+                raise DimensionError(f"shares must have length {F} (one per face), got {out.shape[0]}")
+            if not np.all(np.isfinite(out)) or np.any(out < 0):
+                raise InvalidArgumentError(f"shares must be finite and >= 0, got {out.tolist()}")
+            total = float(np.sum(out))
+            if total > self.eps * (1 + 1e-9) + 1e-300:
+                raise InvalidArgumentError(
+                    f"shares must sum to at most eps = {self.eps!r} (Boole's inequality), "
+                    f"they sum to {total!r}"
+                )
+        # Sound by construction: never more than eps in floating point either.
+        total = float(np.sum(out))
+        if total > self.eps:
+            out = out * (self.eps / total) * (1 - 1e-12)
+        self.shares = out
+        self.fixed = bool(fixed)
+
+    @property
+    def num_faces(self) -> int:
+        """Number of faces ``F``."""
+        return int(self.H.shape[0])
+
+    @property
+    def faces(self) -> tuple[LinearPredicate, ...]:
+        """The deterministic faces ``h_f' x + c_f <= 0``."""
+        return tuple(LinearPredicate(h, float(c), self.variable) for h, c in zip(self.H, self.c, strict=True))
+
+    @property
+    def face_constraints(self) -> tuple[ProbabilisticLinearPredicate, ...]:
+        """The planner's reading: one chance constraint per face at its share (sufficient)."""
+        return tuple(
+            ProbabilisticLinearPredicate(h, float(c), self.variable, float(e))
+            for h, c, e in zip(self.H, self.c, self.shares, strict=True)
+        )
+
+    @property
+    def region(self) -> Polytope:
+        """The region as a :class:`~idstlpy.sets.Polytope` ``{x : H x + c <= 0}``."""
+        return Polytope(self.H, self.c)
+
+    def with_shares(self, shares: Any, fixed: bool = True) -> JointChanceConstraint:
+        """The same constraint planned with another risk allocation.
+
+        Parameters
+        ----------
+        shares : array_like, shape (F,)
+            Non-negative per-face risks summing to at most ``eps``.
+        fixed : bool, default True
+            Keep these shares when a problem is built (``False``: the problem may re-allocate).
+
+        Returns
+        -------
+        JointChanceConstraint
+        """
+        return JointChanceConstraint(self.H, self.c, self.variable, self.eps, shares, fixed)
+
+    def __str__(self) -> str:
+        body = " & ".join(
+            f"{format_affine(h, float(c), self.variable.name)} <= 0"
+            for h, c in zip(self.H, self.c, strict=True)
+        )
+        return f"P[{body}] >= {_fmt_num(1 - self.eps)}"
+
+    def __repr__(self) -> str:
+        return f"JointChanceConstraint({self})"
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("a chance constraint has no truth value; use logical_and / logical_or")
+
+    def _key(self) -> tuple[Any, ...]:
+        # The shares are how the planner meets the constraint, not what it means: not in the key.
+        return (
+            tuple(tuple(float(v) for v in row) for row in self.H),
+            tuple(float(v) for v in self.c),
+            self.eps,
+            self.variable.name,
+            self.variable.size,
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if self is other:
+            return True
+        if not isinstance(other, JointChanceConstraint):
+            return False
+        return self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(("JointChanceConstraint", self._key()))
+
+
+class _JointProbability:
+    """``prob_in(region)``: waits for ``>= 1 - eps`` to become a joint chance constraint."""
+
+    def __init__(self, region: Any, variable: Any = None) -> None:
+        if isinstance(region, ProbabilisticLinearPredicate | JointChanceConstraint) or (
+            isinstance(region, ConvexRegion) and region.is_probabilistic
+        ):
+            raise InvalidTypeError(
+                "prob_in() takes a region of linear predicates (x[0] <= 1, ...), "
+                "got chance constraints already"
+            )
+        if isinstance(region, ConvexRegion):
+            preds = list(region.predicates)
+            self.H = np.array([p.h for p in preds])
+            self.c = np.array([p.c for p in preds])
+            self.variable = region.variable
+        elif isinstance(region, LinearPredicate):
+            self.H, self.c, self.variable = region.h[None, :], np.array([region.c]), region.variable
+        elif isinstance(region, Polytope):
+            if not isinstance(variable, RealValuedVariable):
+                raise InvalidTypeError(
+                    "prob_in(polytope, variable): a Polytope needs the state variable it is over "
+                    f"(variable=x), got {type(variable).__name__}"
+                )
+            if region.dim != variable.size:
+                raise DimensionError(
+                    f"region has dimension {region.dim}, variable {variable.name} has size "
+                    f"{variable.size}"
+                )
+            self.H, self.c, self.variable = np.asarray(region.H), np.asarray(region.c), variable
+        else:
+            raise InvalidTypeError(
+                "prob_in() takes a region such as logical_and(x[0] >= -1, x[0] <= 1) (or a "
+                f"Polytope with variable=), got {type(region).__name__}"
+            )
+
+    def __ge__(self, level: Any) -> JointChanceConstraint:
+        p = as_float(level, "probability level (1 - eps)", 0.5, 1.0)
+        return JointChanceConstraint(self.H, self.c, self.variable, min(max(1.0 - p, 0.0), 0.5))
+
+    __gt__ = __ge__
+
+    def __le__(self, level: Any) -> Any:
+        raise InvalidTypeError(
+            "write prob_in(region) >= 1 - eps; upper bounds on probability are not PrSTL"
+        )
+
+    __lt__ = __le__
+
+    def __bool__(self) -> bool:
+        raise InvalidTypeError("prob_in(region) must be compared: prob_in(region) >= 1 - eps")
+
+
+def prob_in(region: Any, variable: RealValuedVariable | None = None) -> _JointProbability:
+    """Start a joint chance constraint: ``prob_in(region) >= 1 - eps`` is ``P[x in region] >= 1 - eps``.
+
+    One confidence for the whole region, where ``prob(region) >= 1 - eps`` gives one per face
+    (95% on each face of a box holds the box less often than 95%).
+
+    Parameters
+    ----------
+    region : LinearPredicate, ConvexRegion or Polytope
+        The region: a conjunction of linear predicates, e.g.
+        ``logical_and(x[0] >= -0.25, x[0] <= 0.25, x[1] >= -0.25, x[1] <= 0.25)`` or
+        ``x <= [1, 1]``; a :class:`~idstlpy.sets.Polytope` needs ``variable``.
+    variable : RealValuedVariable, optional
+        The state variable, for a Polytope only.
+
+    Returns
+    -------
+    object
+        Compare it with ``>= 1 - eps`` (``eps`` in ``[0, 0.5]``) to obtain a
+        :class:`JointChanceConstraint`.
+
+    Raises
+    ------
+    InvalidTypeError
+        For chance constraints or anything that is not a region of linear predicates.
+    """
+    return _JointProbability(region, variable)
 
 
 class DiscreteFormula:

@@ -41,6 +41,7 @@ from .errors import InvalidArgumentError, InvalidTypeError
 from .expressions import (
     ConvexRegion,
     DiscreteFormula,
+    JointChanceConstraint,
     LinearPredicate,
     ProbabilisticLinearPredicate,
     RealValuedVariable,
@@ -69,6 +70,7 @@ __all__ = [
     "as_formula",
     "format_formula",
     "format_atom",
+    "allocate_joint_risk",
 ]
 
 MAX_BOUND = 2**53
@@ -220,9 +222,15 @@ def _predicate_key(p: ProbabilisticLinearPredicate) -> tuple[Any, ...]:
 class STLAtomicProposition(STLFormula):
     """A state formula: chance constraints on the belief and a set of admissible modes.
 
-    Holds at step ``k`` iff the belief ``X_k`` lies in :attr:`cone` and (for ``k >= 1``) the mode
-    ``q_{k-1}`` used to arrive at ``X_k`` is in :attr:`modes`. Usually built with
-    :func:`logical_and` (``logical_and(prob(x[0] <= 1) >= 0.95, q == 0, name="goal")``).
+    Holds at step ``k`` iff the belief ``X_k`` meets its chance constraints and joint chance
+    constraints and (for ``k >= 1``) the mode ``q_{k-1}`` used to arrive at ``X_k`` is in
+    :attr:`modes`. Usually built with :func:`logical_and`
+    (``logical_and(prob(x[0] <= 1) >= 0.95, q == 0, name="goal")``).
+
+    :attr:`predicates` lists the proposition's own chance constraints followed by the faces of
+    its joint constraints at their planned shares (:attr:`JointChanceConstraint.face_constraints`):
+    :attr:`cone`, the solver's reading, is a sufficient condition for the proposition. The
+    monitor (:func:`idstlpy.semantics.atom_margins`) judges each joint constraint as a whole.
 
     Parameters
     ----------
@@ -232,6 +240,8 @@ class STLAtomicProposition(STLFormula):
         Admissible modes (non-negative integers); ``None`` means every mode.
     name : str, optional
         Name used when printing and in plans (a Python identifier).
+    joints : iterable of JointChanceConstraint, optional
+        Joint chance constraints ``P[x in region] >= 1 - eps`` (one confidence per region).
     """
 
     def __init__(
@@ -240,6 +250,7 @@ class STLAtomicProposition(STLFormula):
         modes: Iterable[int] | None = None,
         name: str | None = None,
         *,
+        joints: Iterable[JointChanceConstraint] = (),
         _constant: bool | None = None,
     ) -> None:
         preds = _as_tuple(predicates, "predicates", "an iterable of chance constraints")
@@ -249,6 +260,16 @@ class STLAtomicProposition(STLFormula):
                     f"an atomic proposition takes chance constraints prob(pred) >= 1 - eps, "
                     f"got {type(p).__name__}"
                 )
+        jts = _as_tuple(joints, "joints", "an iterable of joint chance constraints")
+        for j in jts:
+            if not isinstance(j, JointChanceConstraint):
+                raise InvalidTypeError(
+                    f"joints takes joint chance constraints prob_in(region) >= 1 - eps, "
+                    f"got {type(j).__name__}"
+                )
+        self.joints: tuple[JointChanceConstraint, ...] = jts
+        self.num_single = len(preds)
+        preds = preds + tuple(f for j in jts for f in j.face_constraints)
         if len({id(p.variable) for p in preds}) > 1:
             raise InvalidArgumentError(
                 "all chance constraints of a proposition must be over one variable"
@@ -306,7 +327,8 @@ class STLAtomicProposition(STLFormula):
             self._constant,
             self.name,
             self.modes,
-            tuple(_predicate_key(p) for p in self.predicates),
+            tuple(_predicate_key(p) for p in self.predicates[: self.num_single]),
+            tuple(j._key() for j in self.joints),
         )
 
     def __repr__(self) -> str:
@@ -495,6 +517,8 @@ def as_formula(value: Any, what: str = "argument") -> STLFormula:
         return value
     if isinstance(value, ProbabilisticLinearPredicate):
         return STLAtomicProposition([value])
+    if isinstance(value, JointChanceConstraint):
+        return STLAtomicProposition(joints=[value])
     if isinstance(value, ConvexRegion) and value.is_probabilistic:
         return STLAtomicProposition(value.predicates)  # type: ignore[arg-type]
     if isinstance(value, DiscreteFormula):
@@ -553,12 +577,16 @@ def logical_and(*args: Any, name: str | None = None) -> Any:
     args = _operands(args, "logical_and")
     linear: list[LinearPredicate] = []
     chance: list[ProbabilisticLinearPredicate] = []
+    joints: list[JointChanceConstraint] = []
     modes: frozenset[int] | None = None
     formulas: list[STLFormula] = []
     has_state_formula = False
     for i, arg in enumerate(args):
         if isinstance(arg, ProbabilisticLinearPredicate):
             chance.append(arg)
+        elif isinstance(arg, JointChanceConstraint):
+            joints.append(arg)
+            has_state_formula = True
         elif isinstance(arg, LinearPredicate):
             linear.append(arg)
         elif isinstance(arg, ConvexRegion):
@@ -567,7 +595,8 @@ def logical_and(*args: Any, name: str | None = None) -> Any:
             modes = arg.modes if modes is None else modes & arg.modes
             has_state_formula = True
         elif isinstance(arg, STLAtomicProposition) and arg.name is None:
-            chance.extend(arg.predicates)
+            chance.extend(arg.predicates[: arg.num_single])
+            joints.extend(arg.joints)
             if arg.modes is not None:
                 modes = arg.modes if modes is None else modes & arg.modes
             has_state_formula = True
@@ -588,7 +617,7 @@ def logical_and(*args: Any, name: str | None = None) -> Any:
         return ConvexRegion(chance)
     state = None
     if chance or has_state_formula or name is not None:
-        state = STLAtomicProposition(chance, modes, name=name)
+        state = STLAtomicProposition(chance, modes, name=name, joints=joints)
     parts = ([state] if state is not None else []) + formulas
     if len(parts) == 1:
         return parts[0]
@@ -784,8 +813,9 @@ def format_atom(ap: STLAtomicProposition, use_name: bool = True) -> str:
         return ap.name
     items = [
         f"P[{format_affine(p.h, p.c, p.variable.name)} <= 0] >= {_fmt_num(1.0 - p.eps)}"
-        for p in ap.predicates
+        for p in ap.predicates[: ap.num_single]
     ]
+    items.extend(str(j) for j in ap.joints)
     if ap.modes is not None:
         if not ap.modes:
             items.append("false")
@@ -829,3 +859,56 @@ def format_formula(formula: STLFormula) -> str:
             f"{format_formula(formula.right)})"
         )
     raise InvalidTypeError(f"cannot format {type(formula).__name__}: not a PrSTL formula")
+
+
+def allocate_joint_risk(formula: STLFormula, cov: Any) -> STLFormula:
+    """The formula with every joint chance constraint's shares chosen for beliefs shaped like ``cov``.
+
+    Each :class:`JointChanceConstraint` that the caller did not fix
+    (:meth:`~JointChanceConstraint.with_shares`) gets the allocation of
+    :func:`idstlpy.chance.allocate_shares`. The result is equal to ``formula`` (the shares are
+    how the solver plans, not what the formula means) and shares its sub-formulas where nothing
+    changed; a formula without joint constraints is returned as is.
+
+    Parameters
+    ----------
+    formula : STLFormula
+    cov : array_like, shape (n, n)
+        The covariance whose shape the allocation assumes (a problem passes its prior's).
+
+    Returns
+    -------
+    STLFormula
+    """
+    from .chance import allocate_shares
+
+    if not any(ap.joints for ap in formula.atomic_propositions()):
+        return formula
+    cov = np.asarray(cov, dtype=float)
+    memo: dict[int, STLFormula] = {}
+
+    def rec(f: STLFormula) -> STLFormula:
+        key = id(f)
+        if key in memo:
+            return memo[key]
+        out: STLFormula = f
+        if isinstance(f, STLAtomicProposition):
+            if f.joints and f._constant is None:
+                joints = [
+                    j if j.fixed else j.with_shares(allocate_shares(j.H, j.c, j.eps, cov), fixed=False)
+                    for j in f.joints
+                ]
+                out = STLAtomicProposition(
+                    f.predicates[: f.num_single], f.modes, name=f.name, joints=joints
+                )
+        else:
+            kids = tuple(rec(c) for c in f.children)
+            if any(k is not c for k, c in zip(kids, f.children, strict=True)):
+                if isinstance(f, STLTemporalFormula):
+                    out = type(f)(kids[0], f.a, f.b, kids[1])
+                else:
+                    out = type(f)(kids)
+        memo[key] = out
+        return out
+
+    return rec(formula)

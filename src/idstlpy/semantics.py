@@ -7,6 +7,9 @@ satisfies nothing):
 
 - ``pi^Q`` holds at ``k`` iff ``k == 0`` or ``q_{k-1}`` is in ``Q`` (the mode used to arrive);
 - a chance constraint holds iff ``h' mean_k + c + Phi^-1(1-eps) sqrt(h' cov_k h) <= 0``;
+- a joint chance constraint ``P[x in region] >= 1 - eps`` holds iff Boole's inequality
+  certifies it: the faces' violation probabilities sum to at most ``eps`` (sound: the region
+  then holds with probability ``>= 1 - eps``; :func:`idstlpy.chance.joint_slack`);
 - ``f1 U[a,b] f2`` at ``k``: some ``k'`` in ``[k+a, k+b]`` has ``f2`` and ``f1`` holds on
   ``[k+a, k')``;
 - ``f1 R[a,b] f2`` at ``k``: ``f2`` on all of ``[k+a, k+b]``, or some ``k'`` in the window has
@@ -14,7 +17,8 @@ satisfies nothing):
 
 The margin (robustness) replaces truth values by numbers: for a chance constraint the slack
 ``-(h' mean + c + Phi^-1(1-eps) sd)``, min over conjunctions, max over disjunctions, ``+inf`` /
-``-inf`` for mode atoms. It is ``>= 0`` exactly when the formula holds, and its magnitude is the
+``-inf`` for mode atoms; for a joint chance constraint the largest distance every face can move
+inwards with the constraint still certified. It is ``>= 0`` exactly when the formula holds, and its magnitude is the
 distance of the tightest deciding constraint from its bound.
 """
 
@@ -27,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ._checks import as_int
-from .chance import slack
+from .chance import joint_slack, slack
 from .errors import DimensionError, InvalidTypeError
 from .formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from .trajectory import ProbabilisticTSTrajectory
@@ -63,7 +67,8 @@ def atom_margins(
     Returns
     -------
     ndarray, shape (L,)
-        The smallest chance-constraint slack at each step (``+inf`` without predicates),
+        The smallest chance-constraint slack (joint constraints: :func:`~idstlpy.chance.joint_slack`)
+        at each step (``+inf`` without predicates),
         ``-inf`` where the arriving mode is not allowed or the proposition is false.
     """
     L = means.shape[0]
@@ -77,7 +82,11 @@ def atom_margins(
                 f"proposition {ap.name or ap} is over a {cone.dim}-dimensional variable, "
                 f"the trajectory has state dimension {means.shape[1]}"
             )
-        out = np.min(slack(cone.H, cone.c, cone.z, means, covs), axis=1)
+        k = ap.num_single
+        if k:
+            out = np.min(slack(cone.H[:k], cone.c[:k], cone.z[:k], means, covs), axis=1)
+        for joint in ap.joints:  # judged as a whole, not at the solver's shares
+            out = np.minimum(out, joint_slack(joint.H, joint.c, joint.eps, means, covs))
     if ap.modes is not None and L > 1:
         allowed = np.isin(actions, np.fromiter(ap.modes, dtype=int, count=len(ap.modes)))
         out[1:] = np.where(allowed, out[1:], _NEG)

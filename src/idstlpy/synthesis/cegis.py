@@ -79,6 +79,9 @@ class _Run:
         self.proofs_hold = not self.closed_loop or not any(
             mode.p and mode.has_state_dependent_noise for mode in system.system_modes
         )
+        # Joint chance constraints are planned at one risk allocation (a sufficient condition):
+        # a refutation under it proves nothing about the others.
+        self.joint = any(ap.joints for ap in self.formula.atomic_propositions())
 
     def done(
         self,
@@ -95,6 +98,12 @@ class _Run:
             reason += (
                 " under the MLO reading; with state-dependent sensor noise that is no proof for "
                 "guarantee='closed_loop'"
+            )
+        if status == "infeasible" and self.joint:
+            status = "budget_exhausted"
+            reason += (
+                " at the planned risk allocation of the joint chance constraints; other "
+                "allocations were not refuted, so this is no proof"
             )
         if status != "found" and "time_limit" in stats.caps_hit:
             reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
@@ -330,6 +339,8 @@ def _optimise(
     result.objective_bound = bound
     result.optimal = optimal
     result.optimal_scope = scope
+    if run.joint:  # optimal (and bounded) at the planned risk allocation only: not claimed
+        result.optimal, result.optimal_scope, result.objective_bound = False, "", float("nan")
     return result
 
 

@@ -9,7 +9,7 @@ from typing import Any
 from ..belief import GaussianBelief
 from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
-from ..formulas import STLFormula, as_formula
+from ..formulas import STLFormula, allocate_joint_risk, as_formula
 from ..sets import Polytope
 from ..trajectory import ProbabilisticTSTrajectory
 from .options import SolverOptions
@@ -95,7 +95,8 @@ class Problem:
         self.switched_system = switched_system
         self.control_domain = control_domain
         self.initial_state = initial_state
-        self.stl_formula = formula
+        # Joint chance constraints get the risk allocation that suits this prior (same meaning).
+        self.stl_formula = allocate_joint_risk(formula, initial_state.cov)
         self.last_result: SolveResult | None = None
 
     def solve(
