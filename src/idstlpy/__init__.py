@@ -50,12 +50,14 @@ from .expressions import (
     ConvexRegion,
     DiscretePredicate,
     DiscreteVariable,
+    JointChanceConstraint,
     LinearExpression,
     LinearPredicate,
     ProbabilisticLinearPredicate,
     RealValuedVariable,
     mk_variable,
     prob,
+    prob_in,
 )
 from .formulas import (
     FALSE,
@@ -95,6 +97,8 @@ __all__ = [
     # variables and predicates
     "mk_variable",
     "prob",
+    "prob_in",
+    "JointChanceConstraint",
     "LinearExpression",
     "RealValuedVariable",
     "DiscreteVariable",

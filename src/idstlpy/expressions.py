@@ -750,9 +750,12 @@ class _JointProbability:
                 f"Polytope with variable=), got {type(region).__name__}"
             )
 
-    def __ge__(self, level: Any) -> JointChanceConstraint:
+    def __ge__(self, level: Any) -> JointChanceConstraint | ProbabilisticLinearPredicate:
         p = as_float(level, "probability level (1 - eps)", 0.5, 1.0)
-        return JointChanceConstraint(self.H, self.c, self.variable, min(max(1.0 - p, 0.0), 0.5))
+        eps = min(max(1.0 - p, 0.0), 0.5)
+        if self.H.shape[0] == 1:  # one face: the chance constraint itself
+            return ProbabilisticLinearPredicate(self.H[0], float(self.c[0]), self.variable, eps)
+        return JointChanceConstraint(self.H, self.c, self.variable, eps)
 
     __gt__ = __ge__
 
@@ -786,7 +789,8 @@ def prob_in(region: Any, variable: RealValuedVariable | None = None) -> _JointPr
     -------
     object
         Compare it with ``>= 1 - eps`` (``eps`` in ``[0, 0.5]``) to obtain a
-        :class:`JointChanceConstraint`.
+        :class:`JointChanceConstraint` (a :class:`ProbabilisticLinearPredicate` for a region of
+        one face).
 
     Raises
     ------

@@ -8,7 +8,9 @@ Grammar (whitespace is free)::
     unary    := ("F" | "G") interval formula
     interval := "[" INT "," INT "]"                             (0 <= start <= end <= 2**53)
     atom     := NAME | "true" | "false" | "{" [item ("&" item)*] "}"
-    item     := "P[" affine "<=" "0" "]" ">=" NUMBER | "(" mode ("|" mode)+ ")" | mode | "false"
+    item     := chance | "(" mode ("|" mode)+ ")" | mode | "false"
+    chance   := "P[" face ("&" face)* "]" ">=" NUMBER      (two faces or more: one joint constraint)
+    face     := affine "<=" "0"
     mode     := "q" "==" INT
     affine   := ["-"] term (("+" | "-") term)*
     term     := NUMBER ["*" VAR "[" INT "]"] | VAR "[" INT "]"
@@ -16,7 +18,9 @@ Grammar (whitespace is free)::
 ``NAME`` is a named atomic proposition (looked up in the ``atoms`` mapping of
 :func:`parse_formula`); ``VAR`` is the name of the state variable (``x``). ``F[a,b] f`` is
 ``true U[a,b] f`` and ``G[a,b] f`` is ``false R[a,b] f``. An unnamed proposition prints its
-definition in braces: ``{P[x[0] - 1.0 <= 0] >= 0.9 & q == 1}``; ``{}`` is the proposition with
+definition in braces: ``{P[x[0] - 1.0 <= 0] >= 0.9 & q == 1}``. ``P[f1 & f2 & ...] >= p`` is a
+*joint* chance constraint, one confidence for the whole region (``prob_in(region) >= p``), where
+``P[f1] >= p & P[f2] >= p`` gives one per face. ``{}`` is the proposition with
 no constraint at all and ``{false}`` the one with an empty set of modes. Numbers print with
 ``repr(float)``, so ``str(parse_formula(str(f), ...)) == str(f)`` for every formula.
 
@@ -34,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
-from .expressions import ProbabilisticLinearPredicate, RealValuedVariable
+from .expressions import JointChanceConstraint, ProbabilisticLinearPredicate, RealValuedVariable
 from .formulas import (
     FALSE,
     MAX_BOUND,
@@ -333,13 +337,18 @@ class _Parser:
     def braced_atom(self) -> STLAtomicProposition:
         self.expect("{")
         predicates: list[ProbabilisticLinearPredicate] = []
+        joints: list[JointChanceConstraint] = []
         modes: frozenset[int] | None = None
         if self.accept("}"):
             return STLAtomicProposition()
         while True:
             tok = self.tok
             if tok.kind == "name" and tok.text == "P":
-                predicates.append(self.chance_constraint())
+                item = self.chance_constraint()
+                if isinstance(item, JointChanceConstraint):
+                    joints.append(item)
+                else:
+                    predicates.append(item)
             else:
                 item = self.mode_item()
                 modes = item if modes is None else modes & item
@@ -347,7 +356,7 @@ class _Parser:
                 break
             if not self.accept("&"):
                 raise self.error(f"expected '&' or '}}', got {self._show(self.tok)}")
-        return STLAtomicProposition(predicates, modes)
+        return STLAtomicProposition(predicates, modes, joints=joints)
 
     def mode_item(self) -> frozenset[int]:
         tok = self.tok
@@ -378,15 +387,13 @@ class _Parser:
             )
         return k
 
-    def chance_constraint(self) -> ProbabilisticLinearPredicate:
+    def chance_constraint(self) -> ProbabilisticLinearPredicate | JointChanceConstraint:
         start = self.tok
         self.expect("P")
         self.expect("[")
-        h, c = self.affine()
-        self.expect("<=")
-        zero = self.tok
-        if self.number("0") != 0.0:
-            raise self.error("the chance constraint must read P[... <= 0]", zero)
+        faces = [self.face()]
+        while self.accept("&"):
+            faces.append(self.face())
         self.expect("]")
         self.expect(">=")
         level_tok = self.tok
@@ -394,9 +401,22 @@ class _Parser:
         if not 0.5 <= level <= 1.0:
             raise self.error(f"probability level must lie in [0.5, 1], got {level_tok.text}", level_tok)
         try:
-            return ProbabilisticLinearPredicate(h, c, self._state_variable(), 1.0 - level)
+            if len(faces) > 1:
+                H = np.array([h for h, _ in faces])
+                c = np.array([c for _, c in faces])
+                return JointChanceConstraint(H, c, self._state_variable(), 1.0 - level)
+            h, c0 = faces[0]
+            return ProbabilisticLinearPredicate(h, c0, self._state_variable(), 1.0 - level)
         except InvalidArgumentError as exc:  # pragma: no cover - guarded above
             raise self.error(str(exc), start) from exc
+
+    def face(self) -> tuple[np.ndarray, float]:
+        h, c = self.affine()
+        self.expect("<=")
+        zero = self.tok
+        if self.number("0") != 0.0:
+            raise self.error("the chance constraint must read P[... <= 0]", zero)
+        return h, c
 
     def affine(self) -> tuple[np.ndarray, float]:
         var = self.variable

@@ -21,7 +21,15 @@ from ..belief import GaussianBelief, to_belief
 from ..dynamical_system import LCS, SwitchedSystem, mk_lbs, mk_lcs, mk_switched_sys
 from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError, ProblemFileError
 from ..execution_target import ExecutionTarget, as_execution_target
-from ..expressions import ProbabilisticLinearPredicate, RealValuedVariable, mk_variable, prob
+from ..expressions import (
+    ConvexRegion,
+    JointChanceConstraint,
+    ProbabilisticLinearPredicate,
+    RealValuedVariable,
+    mk_variable,
+    prob,
+    prob_in,
+)
 from ..formulas import STLAtomicProposition
 from ..sets import Polytope
 from ..syntax import RESERVED_NAMES, FormulaSyntaxError, parse_formula
@@ -366,13 +374,27 @@ class _Builder:
         if not isinstance(constraints, list):
             raise self.err(path + ("constraints",), f"must be an array, got {sc.kind_of(constraints)}")
         preds: list[ProbabilisticLinearPredicate] = []
+        joints: list[JointChanceConstraint] = []
         for i, item in enumerate(constraints):
             cpath = path + ("constraints", i)
             conf = default_conf
             if isinstance(item, dict):
-                item = sc.table(self.ctx, cpath, item, sc.CONSTRAINT_TABLE_KEYS, ("expr",))
+                item = sc.table(self.ctx, cpath, item, sc.CONSTRAINT_TABLE_KEYS)
                 if "confidence" in item:
                     conf = sc.number(self.ctx, cpath + ("confidence",), item["confidence"], 0.5, 1.0)
+                if ("expr" in item) == ("region" in item):
+                    raise self.err(
+                        cpath,
+                        "needs exactly one of expr (one chance constraint per comparison) or region "
+                        "(one joint chance constraint for all of its comparisons)",
+                    )
+                if "region" in item:
+                    joint = self.joint_region(cpath + ("region",), item["region"], conf, x)
+                    if isinstance(joint, JointChanceConstraint):
+                        joints.append(joint)
+                    else:
+                        preds.append(joint)
+                    continue
                 item = item["expr"]
             if not isinstance(item, str):
                 raise self.err(
@@ -404,7 +426,36 @@ class _Builder:
                         f"mode {k} is out of range: the system has modes 0..{num_modes - 1}",
                     )
                 modes.append(k)
-        return STLAtomicProposition(preds, modes, name=name)
+        return STLAtomicProposition(preds, modes, name=name, joints=joints)
+
+    def joint_region(
+        self, path: FieldPath, value: Any, conf: float | None, x: RealValuedVariable
+    ) -> JointChanceConstraint | ProbabilisticLinearPredicate:
+        """``region = [...]``: one chance constraint for the whole region (``prob_in``)."""
+        texts = [value] if isinstance(value, str) else value
+        if not isinstance(texts, list) or not texts:
+            raise self.err(
+                path,
+                "must be a non-empty array of linear comparisons such as "
+                f"['-1 <= x[0] <= 1', '-1 <= x[1] <= 1'], got {sc.kind_of(value)}",
+            )
+        for j, text in enumerate(texts):
+            if not isinstance(text, str):
+                raise self.err(
+                    path + (j,), f"must be a string such as 'x[0] >= -1', got {sc.kind_of(text)}"
+                )
+        if conf is None:
+            raise self.err(
+                path[:-1], "has no confidence: set confidence for the proposition or the constraint"
+            )
+        halfspaces = []
+        for j, text in enumerate(texts):
+            try:
+                halfspaces.extend(linear_predicates(text, x))
+            except ExpressionError as exc:
+                raise self.err(path + (j,) if not isinstance(value, str) else path, f"{exc} in {text!r}") from None
+        # exactly the Python API: prob_in(logical_and(...)) >= confidence
+        return prob_in(ConvexRegion(halfspaces)) >= conf
 
     def solver(self, path: FieldPath, value: Any, base: Mapping[str, Any] | None = None) -> dict[str, Any]:
         """A table of SolverOptions fields (``[solver]``, or a ``solver_options`` table that
