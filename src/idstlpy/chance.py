@@ -90,7 +90,9 @@ def slack(H: np.ndarray, c: np.ndarray, z: np.ndarray, mean: np.ndarray, cov: np
     return -(mean @ H.T + c + std_terms(H, z, cov))
 
 
-def _face_moments(H: np.ndarray, c: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _face_moments(
+    H: np.ndarray, c: np.ndarray, mean: np.ndarray, cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Distance ``d_f = -(h_f' m + c_f)`` and standard deviation ``sqrt(h_f' S h_f)`` per face."""
     d = -(mean @ H.T + c)
     if cov.ndim == 2:
@@ -175,6 +177,29 @@ def joint_slack(
     return np.asarray(np.where(finite, a, lo), dtype=float)
 
 
+def _chebyshev_center(H: np.ndarray, c: np.ndarray) -> np.ndarray | None:
+    """Centre of the largest ball in ``{H x + c <= 0}``; ``None`` if empty, flat or unbounded."""
+    from scipy.optimize import linprog
+
+    n = H.shape[1]
+    norms = np.linalg.norm(H, axis=1)
+    scale = 1.0 + float(np.max(np.abs(c)))
+    cap = 1e6 * scale
+    res = linprog(
+        np.r_[np.zeros(n), -1.0],
+        A_ub=np.hstack([H, norms[:, None]]),
+        b_ub=-c,
+        bounds=[(None, None)] * n + [(None, cap)],
+        method="highs",
+    )
+    if res.status != 0 or res.x is None:
+        return None
+    radius = float(res.x[n])
+    if not np.isfinite(radius) or radius <= 1e-9 * scale or radius >= cap * (1 - 1e-9):
+        return None
+    return np.asarray(res.x[:n], dtype=float)
+
+
 def _analytic_center(H: np.ndarray, c: np.ndarray, start: np.ndarray) -> np.ndarray:
     """The point maximising ``sum_f log(-(h_f' x + c_f))`` (damped Newton from an interior point).
 
@@ -207,7 +232,9 @@ def _analytic_center(H: np.ndarray, c: np.ndarray, start: np.ndarray) -> np.ndar
     return x
 
 
-def allocate_shares(H: np.ndarray, c: np.ndarray, eps: float, cov: np.ndarray, mix: float = 0.5) -> np.ndarray:
+def allocate_shares(
+    H: np.ndarray, c: np.ndarray, eps: float, cov: np.ndarray, mix: float = 0.5
+) -> np.ndarray:
     """Per-face risks for planning a joint chance constraint (they sum to ``eps``).
 
     The allocation that lets the widest belief of the prior's shape meet the region: the
@@ -231,17 +258,14 @@ def allocate_shares(H: np.ndarray, c: np.ndarray, eps: float, cov: np.ndarray, m
     ndarray, shape (F,)
         Non-negative, summing to at most ``eps``.
     """
-    from .sets import Polytope  # sets imports this module
-
     H = np.asarray(H, dtype=float)
     c = np.asarray(c, dtype=float)
     F, n = H.shape
     equal = np.full(F, eps / F)
     if eps <= 0.0 or F == 1:
         return equal
-    poly = Polytope(H, c)
-    center, radius = poly._chebyshev
-    if center is None or not np.isfinite(radius) or radius <= 1e-12 or radius >= 1e6 * (1 - 1e-9):
+    center = _chebyshev_center(H, c)
+    if center is None:
         return equal
     center = _analytic_center(H, c, center)
     S = np.asarray(cov, dtype=float)

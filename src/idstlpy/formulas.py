@@ -906,7 +906,7 @@ def allocate_joint_risk(formula: STLFormula, cov: Any) -> STLFormula:
             if any(k is not c for k, c in zip(kids, f.children, strict=True)):
                 if isinstance(f, STLTemporalFormula):
                     out = type(f)(kids[0], f.a, f.b, kids[1])
-                else:
+                elif isinstance(f, STLAnd | STLOr):
                     out = type(f)(kids)
         memo[key] = out
         return out

@@ -18,8 +18,8 @@ satisfies nothing):
 The margin (robustness) replaces truth values by numbers: for a chance constraint the slack
 ``-(h' mean + c + Phi^-1(1-eps) sd)``, min over conjunctions, max over disjunctions, ``+inf`` /
 ``-inf`` for mode atoms; for a joint chance constraint the largest distance every face can move
-inwards with the constraint still certified. It is ``>= 0`` exactly when the formula holds, and its magnitude is the
-distance of the tightest deciding constraint from its bound.
+inwards with the constraint still certified. It is ``>= 0`` exactly when the formula holds, and
+its magnitude is the distance of the tightest deciding constraint from its bound.
 """
 
 from __future__ import annotations

@@ -344,11 +344,11 @@ class _Parser:
         while True:
             tok = self.tok
             if tok.kind == "name" and tok.text == "P":
-                item = self.chance_constraint()
-                if isinstance(item, JointChanceConstraint):
-                    joints.append(item)
+                chance = self.chance_constraint()
+                if isinstance(chance, JointChanceConstraint):
+                    joints.append(chance)
                 else:
-                    predicates.append(item)
+                    predicates.append(chance)
             else:
                 item = self.mode_item()
                 modes = item if modes is None else modes & item

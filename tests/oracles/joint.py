@@ -28,7 +28,9 @@ def sampled_probability(
     face counts as inside up to rounding (``1e-9`` relative to the region's offsets): a belief
     without variance exactly on its face is inside.
     """
-    pts = rng.multivariate_normal(np.asarray(mean, dtype=float), np.asarray(cov, dtype=float), size=samples, method="eigh")
+    pts = rng.multivariate_normal(
+        np.asarray(mean, dtype=float), np.asarray(cov, dtype=float), size=samples, method="eigh"
+    )
     tol = 1e-9 * (1.0 + float(np.max(np.abs(c))) + float(np.max(np.abs(mean))))
     hits = int(np.count_nonzero(inside(H, c, pts, tol)))
     return (hits / samples, *wilson(hits, samples, 3.9))
@@ -55,7 +57,9 @@ def boole_risk(H: np.ndarray, c: np.ndarray, mean: np.ndarray, cov: np.ndarray) 
 
 def per_face_holds(H: np.ndarray, c: np.ndarray, eps: Any, mean: np.ndarray, cov: np.ndarray) -> bool:
     """Every face meets its own chance constraint at ``eps[f]`` (the planner's reading)."""
-    for h, cf, e in zip(np.asarray(H, dtype=float), np.asarray(c, dtype=float), np.broadcast_to(eps, len(c)), strict=True):
+    for h, cf, e in zip(
+        np.asarray(H, dtype=float), np.asarray(c, dtype=float), np.broadcast_to(eps, len(c)), strict=True
+    ):
         mu = float(h @ mean) + float(cf)
         var = max(float(h @ cov @ h), 0.0)
         if e == 0:

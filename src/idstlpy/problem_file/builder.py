@@ -453,7 +453,8 @@ class _Builder:
             try:
                 halfspaces.extend(linear_predicates(text, x))
             except ExpressionError as exc:
-                raise self.err(path + (j,) if not isinstance(value, str) else path, f"{exc} in {text!r}") from None
+                where = path if isinstance(value, str) else path + (j,)
+                raise self.err(where, f"{exc} in {text!r}") from None
         # exactly the Python API: prob_in(logical_and(...)) >= confidence
         return prob_in(ConvexRegion(halfspaces)) >= conf
 
