@@ -233,13 +233,7 @@ def test_plant_errors_name_the_problem():
 
 def test_nonlinear_plant_with_its_own_noise_is_reproducible():
     """The plant's generator is the run's: the same seed gives the same nonlinear run."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).parents[1] / "examples" / "unicycle.py"
-    spec = importlib.util.spec_from_file_location("unicycle_example", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = _example("unicycle")
     problem = module.linearised_problem()
     system = problem.switched_system
     plan = stl.rollout(system, problem.initial_state, np.zeros(6, dtype=int), np.tile([1.0, 0.3], (6, 1)))
@@ -254,3 +248,29 @@ def test_nonlinear_plant_with_its_own_noise_is_reproducible():
         system, plan, 6, np.zeros(3), None, seed=10, plant=module.unicycle_step, process_noise="none"
     )
     assert not np.array_equal(runs[0][1].get_state(), other[1].get_state())
+
+
+def _example(name):
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parents[1] / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"{name}_example", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_ros2_example_runs_without_ros(capsys):
+    import sys
+
+    module = _example("ros2_node")
+    assert "rclpy" not in sys.modules
+    x = module._fake_loop(steps=10, seed=1)
+    assert x.shape == (2,) and "done" in capsys.readouterr().out
+    problem, system, plan = _listing(4)
+    core = module.ExecutorCore(problem, plan)
+    commands = [core.tick(None)]
+    while commands[-1] is not None:
+        commands.append(core.tick(np.array([0.0, 2.5])))
+    assert len(commands) == 5 and core.finished

@@ -74,7 +74,8 @@ class OnlineExecutor:
 
     Notes
     -----
-    Cost per step without re-plans: about 30 microseconds for the paper's 2-D light-dark system
+    Cost per step without re-plans: a median of about 45 microseconds for the paper's 2-D
+    light-dark system, 27 with a constant sensor noise
     (``benchmarks/executor_step.py``).
     """
 
