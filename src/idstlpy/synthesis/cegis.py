@@ -228,6 +228,8 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 verdict = sampler.rescue(plan, verdict, budget, stats)
             if isinstance(verdict, Refuted):
                 proposer.block(verdict.conflict)
+                if verdict.set_aside:
+                    proposer.set_aside(plan)  # its modes were searched: no proof, not retried
                 stats.refuted += 1
                 stats.counterexamples += 1
                 logger.debug("candidate %d refuted: %s", stats.candidates, verdict.conflict.proof)

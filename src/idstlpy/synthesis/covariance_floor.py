@@ -34,7 +34,7 @@ import numpy as np
 
 from .interfaces import Budget
 
-__all__ = ["CovarianceFloor", "covariance_floor", "floor_step"]
+__all__ = ["CovarianceFloor", "HullSystem", "covariance_floor", "floor_step", "hull_system"]
 
 _REL = 1e-12
 
@@ -188,3 +188,67 @@ def covariance_floor(
         "(C' F^-1 C with F the noise floor); the Riccati maps are monotone"
     )
     return CovarianceFloor(A, W_lo, J_hi, covs, how)
+
+
+@dataclass(frozen=True)
+class HullSystem:
+    """One mode whose inputs are every mode's at once: a relaxation of every mode sequence.
+
+    With a common ``A`` and ``0`` in the control domain ``U``, every step of every mode,
+    ``A x + B_q u`` with ``u in U``, is a step ``A x + sum_r B_r u_r`` with ``u_r in U`` (take
+    ``u_q = u`` and the others zero). With the covariance floor as the covariance schedule
+    (every chance constraint only loosens as the covariance shrinks, ``eps <= 0.5``), a plan LP
+    on this system that is infeasible proves the requirements infeasible for *every* mode
+    sequence.
+
+    Attributes
+    ----------
+    system_modes : list
+        The one hull mode (``A``, ``B = [B_0 .. B_{M-1}]``, shape (n, M m)).
+    control_domain : Polytope
+        ``U^M``, shape (M F, M m).
+    n, m : int
+        State dimension and ``M m``.
+    """
+
+    system_modes: list[Any]
+    control_domain: Any
+    n: int
+    m: int
+
+
+@dataclass(frozen=True)
+class _HullMode:
+    A: np.ndarray
+    B: np.ndarray
+
+
+def hull_system(system: Any, control_domain: Any) -> HullSystem | None:
+    """The hull relaxation of ``system`` (see :class:`HullSystem`), or ``None`` when it is not
+    sound (the modes' ``A`` differ, or ``0`` is outside the control domain).
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    control_domain : Polytope
+
+    Returns
+    -------
+    HullSystem or None
+    """
+    from ..sets import Polytope
+
+    modes = system.system_modes
+    A = np.asarray(modes[0].A, dtype=float)
+    scale = 1.0 + float(np.abs(A).max())
+    if any(np.abs(np.asarray(m.A, dtype=float) - A).max() > _REL * scale for m in modes[1:]):
+        return None
+    H, c = np.asarray(control_domain.H, dtype=float), np.asarray(control_domain.c, dtype=float)
+    if H.shape[0] and float(c.max()) > 0.0:
+        return None  # 0 is not an admissible input: the idle modes' inputs cannot be zero
+    M, m = len(modes), system.m
+    B = np.hstack([np.asarray(mode.B, dtype=float) for mode in modes])
+    HH = np.zeros((M * H.shape[0], M * m))
+    for q in range(M):
+        HH[q * H.shape[0] : (q + 1) * H.shape[0], q * m : (q + 1) * m] = H
+    return HullSystem([_HullMode(A, B)], Polytope(HH, np.tile(c, M)), system.n, M * m)

@@ -118,6 +118,9 @@ class Refuted:
     """A teacher's proof that the candidate cannot be met."""
 
     conflict: Conflict
+    set_aside: bool = False
+    """Also set the candidate's requirement set aside for every mode sequence (not a proof): the
+    teacher searched the modes for it and found none (issue 24)."""
 
 
 @dataclass

@@ -320,6 +320,19 @@ class BMCProposer:
         self.soft.append(clause)
         self._add(clause, soft=True)
 
+    def set_aside(self, plan: DiscretePlan) -> None:
+        """Set ``plan``'s requirement set aside for *every* mode sequence, without a proof.
+
+        For a requirement set whose modes a teacher searched without success (issue 24): the
+        proposer moves on to other requirement sets instead of walking the mode sequences one by
+        one; like :meth:`abandon`, the clause is guarded by the selector, so it never counts
+        toward ``infeasible``.
+        """
+        clause: list[SymLit] = [("p", i, k, False) for (k, i) in plan.requirements()]
+        if clause:
+            self.soft.append(clause)
+            self._add(clause, soft=True)
+
     def guide(self, plan: DiscretePlan, truth: np.ndarray) -> None:
         """Prefer, in the next searches, the labels a teacher's trajectory actually has.
 

@@ -87,6 +87,10 @@ class LPOutcome:
         The covariance schedule the LP used (exact or lower bound).
     why : str
         Why the outcome is ``unknown`` (empty otherwise).
+    excess : float
+        The elastic LP's total violation (normalised rows; ``inf`` when a requirement is
+        impossible on its own, ``nan`` when the elastic phase did not run): the mode search's
+        score.
     """
 
     status: Literal["feasible", "infeasible", "unknown"]
@@ -96,6 +100,7 @@ class LPOutcome:
     conflict: list[tuple[int, int]] = field(default_factory=list)
     covs: np.ndarray | None = None
     why: str = ""
+    excess: float = float("nan")
 
     @property
     def feasible(self) -> bool:
@@ -209,7 +214,9 @@ def solve_plan_lp(
     if control_backoff is not None:
         rows = _backed_off(rows, control_domain, scaling.du, np.asarray(control_backoff)[:K])
     if rows.impossible:
-        return LPOutcome("infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs)
+        return LPOutcome(
+            "infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs, excess=float("inf")
+        )
     limit = float(min(time_limit, 1e9))
     if assume_feasible:
         # The phases' rows are the plan's with t >= 0: a solution of theirs meets the plan.
@@ -228,14 +235,14 @@ def solve_plan_lp(
     excess = float(sol.objective)
     if excess <= FEASIBLE_TOL * max(1, ns):
         if refute_only:
-            return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
+            return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs, excess=excess)
         z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights)
         if z2 is not None:
             means, controls = rows.unscale(z2, mean0)
         return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
     if excess <= REFUTE_TOL:
         why = f"plan LP borderline: total violation {excess:.3g} is within solver tolerances"
-        return LPOutcome("unknown", rows.exact, controls, means, [], rows.covs, why)
+        return LPOutcome("unknown", rows.exact, controls, means, [], rows.covs, why, excess)
     nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
     duals = np.abs(sol.row_duals[nE + nU :]) if sol.row_duals is not None else np.zeros(0)
     involved = sorted(set(rows.face_owner[duals > _DUAL_TOL].tolist())) if duals.size else []
@@ -243,7 +250,7 @@ def solve_plan_lp(
         slack = z[rows.nx + rows.nu : rows.nx + rows.nu + ns]
         involved = [r for r in range(ns) if slack[r] > FEASIBLE_TOL]
     conflict = [reqs[r] for r in involved]
-    return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs)
+    return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs, excess=excess)
 
 
 def _backed_off(rows: PlanRows, control_domain: Any, du: np.ndarray, backoff: np.ndarray) -> PlanRows:
@@ -391,6 +398,9 @@ def _phase(
         return None
     return sol.x[:ncol], float(sol.x[ncol])
 
+
+MODE_SEARCH_LPS = 6
+"""LPs per transition the mode search (:meth:`LPTeacher._search_modes`) may spend on a candidate."""
 
 PREFIX_STEPS = 16
 """Transitions of the first prefix on which :class:`LPTeacher` tries to refute a long plan."""
@@ -580,6 +590,9 @@ class LPTeacher:
         self._smooth = self.objective if self.objective is not None or not closed_loop else "effort"
         self.effort_weights = effort_weights
         self.last: LPOutcome | None = None
+        # Several modes: a refuted candidate's modes are searched before the refutation is
+        # returned (issue 24); the attribute lets tests compare with the bare prefix clauses.
+        self.mode_search = True
         # Without an objective (whose optimum the room would move) and under the MLO guarantee,
         # a plan gets the room its execution needs (:mod:`.room`), as the sampler's plans do.
         self._room = objective is None and not closed_loop
@@ -655,20 +668,178 @@ class LPTeacher:
             P *= 4
         return None
 
+    def _allowed_modes(self, plan: DiscretePlan) -> list[list[int]]:
+        """Per step ``k`` (``0..K``), the modes a plan may arrive with (its required mode atoms')."""
+        num = self.problem.switched_system.num_modes
+        out: list[list[int]] = [[]]
+        for k in range(1, plan.length):
+            allowed = set(range(num))
+            for i in np.nonzero(plan.required[:, k])[0]:
+                modes = self.abs.mode_sets[int(i)]
+                if modes is not None:
+                    allowed &= {int(q) for q in modes}
+            out.append(sorted(allowed))
+        return out
+
+    def _every_mode_refutation(
+        self, plan: DiscretePlan, budget: Budget, stats: SolveStats
+    ) -> LPOutcome | None:
+        """The plan LP of ``plan``'s requirements over every mode sequence, when it is infeasible.
+
+        The LP is the plan LP on the hull relaxation (:func:`~.covariance_floor.hull_system`:
+        every mode's input at once) with the covariance floor over all switching sequences as
+        its covariance schedule (:func:`~.covariance_floor.covariance_floor`); its Farkas
+        certificate refutes the requirements whatever the modes. ``None`` when it is feasible,
+        or when no such relaxation is sound for the problem (different ``A``, 0 not an input).
+        """
+        from .covariance_floor import covariance_floor, hull_system
+
+        problem = self.problem
+        system, init = problem.switched_system, problem.initial_state
+        if "_hull" not in self.__dict__:
+            hull = hull_system(system, problem.control_domain)
+            self._hull = hull
+            self._hull_scaling = (
+                None if hull is None else Scaling(self.scaling.dx, np.tile(self.scaling.du, system.num_modes))
+            )
+            self._floor: np.ndarray | None = None
+        if self._hull is None or self._hull_scaling is None:
+            return None
+        K = plan.num_transitions
+        if self._floor is None or self._floor.shape[0] < K + 1:
+            steps = max(K, 2 * (0 if self._floor is None else self._floor.shape[0]))
+            floor = covariance_floor(system.system_modes, init.cov, steps, budget)
+            if floor is None:
+                self._hull = None
+                return None
+            self._floor = floor.covs
+        flat = DiscretePlan(plan.required, np.zeros(plan.length, dtype=int), plan.length)
+        with stats.clock("time_lp"):
+            out = solve_plan_lp(
+                self._hull,
+                self._hull.control_domain,
+                init.mean,
+                init.cov,
+                self.abs,
+                flat,
+                covs=self._floor[: K + 1],
+                scaling=self._hull_scaling,
+                backend=self.backend,
+                time_limit=max(budget.remaining(), 1e-3),
+                budget=budget,
+                refute_only=True,
+            )
+        stats.lp_calls += 1
+        return out if out.status == "infeasible" else None
+
+    def _search_modes(
+        self, plan: DiscretePlan, first: LPOutcome | None, budget: Budget, stats: SolveStats
+    ) -> DiscretePlan | None:
+        """Modes for ``plan``'s requirements whose plan LP is feasible, or ``None`` (issue 24).
+
+        A local search over the mode sequence, scored by the elastic plan LP's total violation
+        (which sees what each choice does to the means and to the covariance schedule): one
+        step's mode is changed at a time, the steps just before the earliest violated
+        requirement first (a look before the step that needs it), and the first change that
+        lowers the violation is kept. It stops at a feasible sequence, at a local minimum, or
+        after :data:`MODE_SEARCH_LPS` LPs per transition (a work budget, so the same problem
+        gives the same plan). The search is no proof of anything: only the refutation of the
+        proposed modes is (the caller keeps it).
+        """
+        K = plan.num_transitions
+        allowed = self._allowed_modes(plan)
+        if K == 0 or all(len(a) <= 1 for a in allowed[1:]):
+            return None
+        modes = plan.modes.copy()
+        out = first
+        if out is None or not np.isfinite(out.excess):
+            out = self._solve(plan, 0.0, budget, stats, refute_only=True)  # the whole plan's score
+        if out.status == "feasible":
+            return plan
+        if out.status != "infeasible" or not np.isfinite(out.excess):
+            return None
+        score = out.excess
+        lps = 0
+        limit = MODE_SEARCH_LPS * K
+        # Start from the best of the proposed modes and each mode held throughout (where the
+        # requirements allow it): most plans are one mode with a few switches.
+        for q in range(self.problem.switched_system.num_modes):
+            trial = np.array([modes[0]] + [q if q in a else a[0] for a in allowed[1:] if a], dtype=int)
+            if trial.shape != modes.shape or np.array_equal(trial, modes):
+                continue
+            cand = DiscretePlan(plan.required, trial, plan.length)
+            got = self._solve(cand, 0.0, budget, stats, refute_only=True)
+            lps += 1
+            if got.status == "feasible":
+                return cand
+            if got.status == "infeasible" and got.excess < score:
+                modes, out, score = trial, got, got.excess
+        while lps < limit:
+            budget.check("the mode search")
+            k0 = min((k for k, _ in out.conflict), default=K)
+            order = list(range(min(k0, K), 0, -1)) + list(range(min(k0, K) + 1, K + 1))
+            improved = False
+            for j in order:
+                for q in allowed[j]:
+                    if q == modes[j] or lps >= limit:
+                        continue
+                    trial = modes.copy()
+                    trial[j] = q
+                    cand = DiscretePlan(plan.required, trial, plan.length)
+                    got = self._solve(cand, 0.0, budget, stats, refute_only=True)
+                    lps += 1
+                    if got.status == "feasible":
+                        logger.debug("mode search: feasible modes after %d LPs", lps)
+                        return cand
+                    if got.status == "infeasible" and got.excess < score * (1.0 - 1e-6):
+                        modes, out, score, improved = trial, got, got.excess, True
+                        break
+                if improved:
+                    break
+            if not improved:
+                break
+        logger.debug("mode search: no modes after %d LPs (violation %.3g)", lps, score)
+        return None
+
     def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
-        """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`)."""
+        """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`).
+
+        With several modes, a plan LP refuted on the proposed modes is followed by a search of
+        the modes (:meth:`_search_modes`); when it finds none, the refutation of the proposed
+        modes is returned (a proof) and the requirement set is set aside for every other mode
+        sequence (not a proof).
+        """
         problem = self.problem
         system, init = problem.switched_system, problem.initial_state
         margin = execution_margin(system, init, self.abs, plan)
         out = self._prefix_refutation(plan, budget, stats)
+        whole = out is None  # the LP below is the whole plan's (not a prefix's)
         if out is None:
             out = self._solve(plan, margin, budget, stats)
+        set_aside = False
+        if out.status == "infeasible" and system.num_modes > 1 and self.mode_search:
+            every = self._every_mode_refutation(plan, budget, stats)
+            if every is not None:
+                self.last = out
+                proof = (
+                    "Farkas certificate of the plan LP over every mode sequence (every mode's input "
+                    "at once, the covariance floor over all switching sequences)"
+                )
+                return Refuted(Conflict(every.conflict, None, proof))
+            searched = self._search_modes(plan, out if whole else None, budget, stats)
+            if searched is not None:
+                again = self._solve(searched, margin, budget, stats)
+                if again.status != "infeasible":
+                    plan, out = searched, again
+            set_aside = out.status == "infeasible"
         self.last = out
         if out.status == "infeasible":
+            # The proof is about the proposed modes (the prefix up to the conflict's last step).
             last = max((k for k, _ in out.conflict), default=0)
             modes = plan.modes[: last + 1].copy() if system.num_modes > 1 else None
             kind = "exact" if out.exact else "lower-bound covariance"
-            return Refuted(Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})"))
+            conflict = Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})")
+            return Refuted(conflict, set_aside=set_aside)
         if out.status == "unknown":
             return Unknown(out.why, out.means)
         actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
@@ -727,6 +898,10 @@ class LPTeacher:
                     if self.closed_loop
                     else "the plan LP on re-rolled covariances"
                 )
+                if self._room and _noisy(system, init):
+                    # The room its execution needs, as on the exact path (issue 24: this path
+                    # returned plans without it, and without a word).
+                    controls = self._with_room(actions, controls, stats)
                 return Found(actions, controls, how, exact=out.exact)
 
             if self.closed_loop:
