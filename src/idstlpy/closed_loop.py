@@ -26,7 +26,7 @@ from .belief import gain_from, kalman_gain, kalman_update
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from .sets import Polytope
-from .tracking import box_bounds, gain_at, system_gains
+from .tracking import box_bounds, gain_at, system_gains, tracking_input
 from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
@@ -40,6 +40,7 @@ __all__ = [
     "prob_le",
     "propagate",
     "real_modes_for",
+    "step_parts",
     "sqrt_psd",
 ]
 
@@ -90,6 +91,55 @@ def real_modes_for(real_system: Any, system: SwitchedSystem, actions: np.ndarray
             "(give one real mode per planning mode, or a single mode used for all)"
         )
     return modes
+
+
+def step_parts(
+    system: SwitchedSystem,
+    real_modes: Sequence[LCS] | None,
+    gains: Mapping[int, Sequence[np.ndarray]],
+    process_noise: str,
+    q: int,
+    remaining: int,
+) -> tuple[LCS, LCS | None, np.ndarray, np.ndarray | None]:
+    """What the executor uses at a plan step in mode ``q`` with ``remaining`` plan steps left.
+
+    The one home of these choices for the executor's step law (:mod:`idstlpy.executor.law`) and
+    the moment propagation (:func:`propagate`).
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+        The planning model.
+    real_modes : sequence of LCS or None
+        The linear plant's modes (one for all, or one per planning mode); None for a plant
+        given as a step function.
+    gains : mapping
+        Mode -> tracking gains ``K_0 .. K_{h-1}``, each (m, n).
+    process_noise : {"model", "real", "none"}
+    q : int
+        The planning mode.
+    remaining : int
+        Plan steps left (``N - k``).
+
+    Returns
+    -------
+    mode : LCS
+        The planning mode.
+    real : LCS or None
+        The plant's linear mode (None without ``real_modes``).
+    K : ndarray, shape (m, n)
+        The receding-horizon tracking gain (:func:`idstlpy.tracking.gain_at`).
+    W : ndarray of shape (n, r), or None
+        The factor of the process noise added to the true state (None: none).
+    """
+    mode = system.mode(q)
+    real = None if real_modes is None else real_modes[0] if len(real_modes) == 1 else real_modes[q]
+    W = None
+    if process_noise == "model":
+        W = mode.W
+    elif process_noise == "real" and real is not None:
+        W = real.W
+    return mode, real, gain_at(gains[q], remaining), W
 
 
 def gains_for(
@@ -296,9 +346,7 @@ class LoopStep:
         measurement): the tracking correction clipped to the control domain, process noise drawn."""
         n = self.A.shape[0]
         delta, eta = Z[:, :n], Z[:, n : 2 * n]
-        y = self.v - eta @ self.K.T
-        if self.low is not None and self.high is not None:
-            y = np.clip(y, self.low, self.high)
+        y = tracking_input(self.v, self.K, eta, self.low, self.high)
         c = y - self.v
         delta_n = delta @ self.Ar.T + c @ self.Br.T + self.d
         if self.W_root.size:
@@ -531,12 +579,9 @@ def propagate(
     z, S, P = out.mean[0], out.cov[0], P0
     for k in range(N):
         q = int(actions[k])
-        mode = system.mode(q)
-        real = real_modes[0] if len(real_modes) == 1 else real_modes[q]
-        Ks = gains[q]
-        Kt = gain_at(Ks, N_ref - k)
+        mode, real_or_none, Kt, W = step_parts(system, real_modes, gains, process_noise, q, N_ref - k)
+        real = mode if real_or_none is None else real_or_none  # (never None: real_modes is a list)
         A, B, Ar, Br = mode.A, mode.B, real.A, real.B
-        W = mode.W if process_noise == "model" else real.W if process_noise == "real" else None
         Qw = W @ W.T if W is not None and W.shape[1] else Z
         m_k, m_next, v = means[k], means[k + 1], controls[k]
         P_prev = P

@@ -32,6 +32,7 @@ if TYPE_CHECKING:  # dynamical_system builds gains through this module (no runti
 
 __all__ = [
     "gain_at",
+    "tracking_input",
     "system_gains",
     "DEFAULT_LQR",
     "box_bounds",
@@ -303,6 +304,36 @@ def system_gains(
 
     wanted = range(system.num_modes) if modes is None else sorted({int(q) for q in modes})
     return {q: mode_gains(system.mode(q), override(q), default_lqr) for q in wanted}
+
+
+def tracking_input(
+    v: np.ndarray,
+    K: np.ndarray,
+    deviation: np.ndarray,
+    low: np.ndarray | None = None,
+    high: np.ndarray | None = None,
+) -> np.ndarray:
+    """The tracking law ``v - K deviation``, clipped to the box ``[low, high]`` when given.
+
+    Parameters
+    ----------
+    v : ndarray, shape (m,)
+        The plan's input.
+    K : ndarray, shape (m, n)
+        The tracking gain.
+    deviation : ndarray, shape (S, n)
+        Estimated means minus the plan's mean, one row per run (or sample).
+    low, high : ndarray of shape (m,), optional
+        The box of admissible inputs (both or neither).
+
+    Returns
+    -------
+    ndarray, shape (S, m)
+    """
+    u = v - deviation @ K.T
+    if low is not None and high is not None:
+        u = np.clip(u, low, high)
+    return u
 
 
 def gain_at(gains: Sequence[np.ndarray], remaining: int) -> np.ndarray:

@@ -35,9 +35,10 @@ import numpy as np
 
 from .._checks import as_int
 from ..belief import _joseph, kalman_gain, kalman_update, predict
+from ..closed_loop import step_parts
 from ..dynamical_system import LCS
 from ..errors import DimensionError, InvalidArgumentError
-from ..tracking import gain_at
+from ..tracking import tracking_input
 from ..trajectory import ProbabilisticTSTrajectory
 from .spec import ExecutorSpec
 
@@ -116,20 +117,12 @@ class StepLaw:
         bound: list[Step] = []
         for k in range(N):
             q = int(actions[k])
-            mode = system.mode(q)
-            real = None if real_modes is None else real_modes[0] if len(real_modes) == 1 else real_modes[q]
-            W = (
-                mode.W
-                if spec.process_noise == "model"
-                else real.W
-                if spec.process_noise == "real" and real
-                else None
-            )
+            mode, real, K, W = step_parts(system, real_modes, spec.gains, spec.process_noise, q, N_ref - k)
             bound.append(
                 Step(
                     q,
                     mode,
-                    gain_at(spec.gains[q], N_ref - k),
+                    K,
                     means[k],
                     plan_u[k],
                     real,
@@ -144,10 +137,11 @@ class StepLaw:
     def control(self, k: int, means: np.ndarray) -> np.ndarray:
         """The inputs (S, m) applied at step ``k`` by runs whose filter means are ``means`` (S, n)."""
         st = self.steps[k]
-        U = st.input - (means - st.mean) @ st.K.T
-        if self.spec.box is not None or self.spec.control_domain is None:
-            return self.spec.project(U)  # a clip (or nothing) acts on every row at once
-        return np.stack([self.spec.project(u) for u in U])
+        box = self.spec.box
+        if box is not None or self.spec.control_domain is None:  # a clip (or nothing) on every row
+            low, high = box if box is not None else (None, None)
+            return tracking_input(st.input, st.K, means - st.mean, low, high)
+        return np.stack([self.spec.project(u) for u in tracking_input(st.input, st.K, means - st.mean)])
 
     def plant(self, k: int, states: np.ndarray, inputs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The true states (S, n) after step ``k`` from ``states`` (S, n) under ``inputs`` (S, m)."""
