@@ -274,3 +274,24 @@ def test_ros2_example_runs_without_ros(capsys):
     while commands[-1] is not None:
         commands.append(core.tick(np.array([0.0, 2.5])))
     assert len(commands) == 5 and core.finished
+
+
+def test_spec_and_online_executor_pickle():
+    import pickle
+
+    problem, system, plan = _listing(5)
+    spec = ExecutorSpec.make(system, control_domain=problem.control_domain, default_lqr={"horizon": 2})
+    back = pickle.loads(pickle.dumps(spec))
+    assert sorted(back.gains) == sorted(spec.gains)
+    assert all(
+        np.array_equal(a, b) for q in spec.gains for a, b in zip(back.gains[q], spec.gains[q], strict=True)
+    )
+    with pytest.raises(ValueError):
+        back.gains[0][0][0, 0] = 1.0
+    np.testing.assert_array_equal(back.project(np.array([3.0, -3.0])), [1.0, -1.0])
+    ex = OnlineExecutor(spec, plan)
+    first = ex.step()
+    again = pickle.loads(pickle.dumps(ex))
+    y = np.array([0.1, 2.4])
+    a, b = ex.step(y), again.step(y)
+    assert a[0] == b[0] and np.array_equal(a[1], b[1]) and first[0] == 0

@@ -17,7 +17,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, Literal
 
@@ -161,6 +161,20 @@ class ExecutorSpec:
             box=box,
             project=project,
         )
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Picklable (process pools): the read-only mapping and the projector are rebuilt."""
+        state = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "project"}
+        state["gains"] = dict(self.gains)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        for K in (K for Ks in state["gains"].values() for K in Ks):
+            K.flags.writeable = False
+        for name, value in state.items():
+            object.__setattr__(self, name, value)
+        object.__setattr__(self, "gains", MappingProxyType(state["gains"]))
+        object.__setattr__(self, "project", control_projector(state["control_domain"], state["system"].m))
 
     def check_plan_modes(self, actions: np.ndarray) -> None:
         """Raise :class:`DimensionError` when a plan uses a mode the plant or the gains lack."""
