@@ -71,7 +71,7 @@ from scipy.stats import chi2
 from .._checks import as_float, as_int, as_seed_sequence
 from ..belief import GaussianBelief, to_belief
 from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
-from ..executor import PlantStep
+from ..executor import PlantStep, ProcessNoise
 from ..formulas import FALSE, TRUE, STLFormula
 from ..progression import progress
 from ..semantics import robustness
@@ -462,7 +462,7 @@ def execute(
     options: Any = None,
     solver_options: Mapping[str, Any] | None = None,
     clip_controls: bool = True,
-    process_noise: str = "model",
+    process_noise: ProcessNoise = "model",
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
     default_lqr: Mapping[str, Any] | None = None,
     plant: PlantStep | None = None,

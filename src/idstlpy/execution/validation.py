@@ -62,7 +62,7 @@ from .._checks import as_int, as_seed_sequence, as_vector
 from ..chance import slack
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
-from ..executor import PlantStep
+from ..executor import PlantStep, ProcessNoise
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins, robustness
 from ..tracking import system_gains
@@ -795,7 +795,7 @@ def validate(
     *,
     num_of_steps: int | None = None,
     clip_controls: bool = True,
-    process_noise: str = "model",
+    process_noise: ProcessNoise = "model",
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
     default_lqr: Mapping[str, Any] | None = None,
     problem_factory: Callable[[], Any] | None = None,
