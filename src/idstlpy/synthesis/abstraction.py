@@ -174,11 +174,13 @@ class Abstraction:
         return cache[i]
 
     def radius(self, i: int) -> float:
-        """Chebyshev radius of proposition ``i``'s mean region (cached; ``inf`` without faces)."""
+        """Chebyshev radius of proposition ``i``'s mean region (cached; ``inf`` without faces, and
+        for a region holding balls as large as the Chebyshev LP's cap: an unbounded one)."""
         cache = self.__dict__.setdefault("_radii", {})
         if i not in cache:
             r = self.region(i)
-            cache[i] = np.inf if not r.H.shape[0] or r.is_empty() else r.chebyshev_center()[1]
+            radius = np.inf if not r.H.shape[0] or r.is_empty() else r.chebyshev_center()[1]
+            cache[i] = np.inf if radius >= 1e6 * (1 - 1e-9) else radius
         return cache[i]
 
     def out_of_reach(

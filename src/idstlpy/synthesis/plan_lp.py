@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
-from ..belief import kalman_update
+from ..belief import kalman_gain, kalman_update
 from ..chance import std_terms
 from .interfaces import Budget
 from .plan import DiscretePlan
@@ -557,7 +557,9 @@ def covariance_jacobian(
     The covariance depends on the means only through the observation noise ``R(mean_k)`` of
     each update. With the Kalman gain ``K_k`` at the optimum, ``d P_k = K_k dR K_k'`` at step
     ``k``, and a change of the predicted covariance propagates as ``M dP M'`` with
-    ``M = (I - K C) A``. ``dR / d mean`` is a central difference with step ``1e-5 dx``.
+    ``M = (I - K C) A``. ``dR / d mean`` is a central difference with step ``1e-5 dx``. A
+    singular innovation covariance ``C P C' + R`` takes the pseudo-inverse's gain
+    (:func:`idstlpy.belief.kalman_gain`), the limit of the regular case.
 
     Parameters
     ----------
@@ -587,7 +589,9 @@ def covariance_jacobian(
         else:
             C = mode.C
             R = mode.noise_cov(means[k])
-            gain = np.linalg.solve((C @ P @ C.T + R).T, (P @ C.T).T).T
+            # A singular innovation covariance (a noise-free sensor of a direction the belief
+            # already knows) has the pseudo-inverse's gain, the exact limit (belief.gain_from).
+            gain = kalman_gain(C, P, R)
             M = (eye - gain @ C) @ A
         prev = np.einsum("ab,jibc,dc->jiad", M, S[k - 1], M) if k > 1 else np.zeros((0, n, n, n))
         new = np.zeros((1, n, n, n))

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..belief import belief_step, rollout, rollout_arrays
+from ..sets import Polytope
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Refuted, Unknown, Verdict
 from .plan import DiscretePlan, evaluate_bool
@@ -127,6 +128,34 @@ class _Tree:
         return out[::-1]
 
 
+def steering_center(domain: Polytope, tries: int = 8) -> np.ndarray:
+    """The point the sampler's steering pulls inputs toward and shrinks the domain about, shape (m,).
+
+    The Chebyshev centre of a bounded control domain. An unbounded one's Chebyshev LP stops at
+    its radius cap (1e6), far from every input a plan needs (a domain ``u >= 1`` had its centre
+    at ``u = 1e6 + 1``, and the plans' inputs near it): its centre is instead that of the domain
+    cut by a box around its finite bounds (each unbounded side ``2 w`` beyond the finite bound
+    across, or ``[-w, w]`` on a free axis, ``w`` the largest finite bound's magnitude, at least
+    1), widened tenfold until the cut is not empty.
+    """
+    center, radius = domain.chebyshev_center()
+    if radius < 1e6 * (1 - 1e-9):
+        return center
+    low, high = domain.bounding_box()
+    finite = np.abs(np.concatenate([low[np.isfinite(low)], high[np.isfinite(high)]]))
+    w = max(1.0, float(np.max(finite)) if finite.size else 1.0)
+    m = domain.dim
+    for _ in range(tries):
+        lo = np.where(np.isfinite(low), low, np.where(np.isfinite(high), high - 2 * w, -w))
+        hi = np.where(np.isfinite(high), high, np.where(np.isfinite(low), low + 2 * w, w))
+        box = Polytope(np.vstack([np.eye(m), -np.eye(m)]), np.concatenate([-hi, lo]))
+        cut = domain.intersect(box)
+        if not cut.is_empty():
+            return cut.chebyshev_center()[0]
+        w *= 10.0
+    return center
+
+
 class BeliefSampler:
     """Grows belief trees for candidate plans of one problem (state shared across candidates)."""
 
@@ -145,11 +174,12 @@ class BeliefSampler:
         self.rng = np.random.default_rng(0)  # replaced by each run's own stream
         self.formula = problem.stl_formula
         U = problem.control_domain
-        self.u_center = U.chebyshev_center()[0]
+        self.u_center = steering_center(U)
         # Steering uses the control domain shrunk about its centre: inputs on their bounds leave
         # the executor's tracking correction no room and the polish no slack to move the plan.
+        # {c0 + s (v - c0) : H v + c <= 0} = {u : H u + s c - (1 - s) H c0 <= 0}.
         self.UH, self.Uc = U.H, U.c
-        self.Uc_gentle = STEER_SHRINK * U.c + (1.0 - STEER_SHRINK) * (U.H @ self.u_center)
+        self.Uc_gentle = STEER_SHRINK * U.c - (1.0 - STEER_SHRINK) * (U.H @ self.u_center)
         self._gains = [
             self._steering_gains(mode, options.max_num_of_steps) for mode in self.system.system_modes
         ]

@@ -597,12 +597,16 @@ class LPTeacher:
         # a plan gets the room its execution needs (:mod:`.room`), as the sampler's plans do.
         self._room = objective is None and not closed_loop
 
-    def _with_room(self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats) -> np.ndarray:
-        """The LP plan's controls after :func:`.room.give_room` (at most :data:`ROOM_ROUNDS` LPs)."""
+    def _with_room(
+        self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The LP plan's modes and controls after :func:`.room.give_room` (at most
+        :data:`ROOM_ROUNDS` LPs); the plan may come back shorter (the requirements it meets may
+        end earlier), so both are returned."""
         problem = self.problem
         traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
         moved = give_room(problem, self.abs, self.scaling, traj, ROOM_ROUNDS, stats)
-        return np.asarray(moved.get_control(), dtype=float)[: len(actions)]
+        return np.asarray(moved.get_action(), dtype=int), np.asarray(moved.get_control(), dtype=float)
 
     def applies(self, problem: Any) -> bool:
         """The LP is a sound relaxation of every problem."""
@@ -846,7 +850,7 @@ class LPTeacher:
         if out.exact and out.controls is not None and not self.closed_loop:
             controls = out.controls
             if self._room and _noisy(system, init):
-                controls = self._with_room(actions, controls, stats)
+                actions, controls = self._with_room(actions, controls, stats)
             return Found(actions, controls, "the plan LP", exact=True)
         found = self._fixed_point(plan, actions, out, margin, budget, stats)
         if found is not None:
