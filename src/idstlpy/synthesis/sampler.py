@@ -54,6 +54,18 @@ polish (:mod:`.room`) the rest. Half the extensions (and the shortcut) steer gen
 use the whole domain, which tight deadlines need; a patrol (a region required again and again,
 whose round trips must be made at full speed) never steers gently."""
 
+STEER_LOOKAHEAD = 256
+"""The longest input sequence the steering plans (``max_num_of_steps`` when smaller): the
+steering gains take O(h^2) time and memory in the lookahead ``h``."""
+
+TREE_BYTES = 128 * 2**20
+"""Memory a belief tree may fill (nodes of ``8 (n + n^2 + m + 9) + atoms + 1`` bytes) before the
+sampler stops growing it (a work cap: deterministic)."""
+
+MIN_NODES = 250_000
+"""Nodes a tree may always hold (the default budget, 15,000 iterations of at most 15 steps,
+stays below it)."""
+
 logger = logging.getLogger(__name__)
 
 
@@ -180,12 +192,13 @@ class BeliefSampler:
         # {c0 + s (v - c0) : H v + c <= 0} = {u : H u + s c - (1 - s) H c0 <= 0}.
         self.UH, self.Uc = U.H, U.c
         self.Uc_gentle = STEER_SHRINK * U.c - (1.0 - STEER_SHRINK) * (U.H @ self.u_center)
-        self._gains = [
-            self._steering_gains(mode, options.max_num_of_steps) for mode in self.system.system_modes
-        ]
-        self._index = [
-            self._controllability_index(mode, options.max_num_of_steps) for mode in self.system.system_modes
-        ]
+        # The steering looks at most STEER_LOOKAHEAD ahead: the gains cost O(h^2) time and memory
+        # (max_num_of_steps = 10**9 must not allocate them).
+        lookahead = max(1, min(options.max_num_of_steps, STEER_LOOKAHEAD))
+        self._gains = [self._steering_gains(mode, lookahead) for mode in self.system.system_modes]
+        self._index = [self._controllability_index(mode, lookahead) for mode in self.system.system_modes]
+        n, m, a = self.system.n, self.system.m, abstraction.num_atoms
+        self.max_nodes = max(MIN_NODES, TREE_BYTES // (8 * (n + n * n + m + 9) + a + 1))
         self._full_rank = [
             np.linalg.matrix_rank(mode.B) >= self.system.n for mode in self.system.system_modes
         ]
@@ -230,10 +243,14 @@ class BeliefSampler:
 
     @staticmethod
     def _controllability_index(mode: Any, horizon: int) -> int:
-        """Fewest steps in which the mode's inputs can move the mean anywhere (``horizon`` if never)."""
+        """Fewest steps in which the mode's inputs can move the mean anywhere (``horizon`` if never).
+
+        At most ``n`` steps are tried: what ``n`` steps cannot reach, no number can
+        (Cayley-Hamilton).
+        """
         n = mode.A.shape[0]
         blocks = [mode.B]
-        for h in range(1, horizon + 1):
+        for h in range(1, min(horizon, n) + 1):
             if np.linalg.matrix_rank(np.hstack(blocks)) >= n:
                 return h
             blocks.append(mode.A @ blocks[-1])
@@ -504,8 +521,11 @@ class BeliefSampler:
         alive: set[int] = set()  # nodes whose prefix was checked completable
         dropped = 0
         while iters < iterations:
-            if not iters % 32 and time.perf_counter() >= deadline:
+            if capped or (not iters % 32 and time.perf_counter() >= deadline):
                 capped = True
+                break
+            if tree.size >= self.max_nodes:
+                logger.info("sampler: the tree holds %d nodes, its memory cap: no more growth", tree.size)
                 break
             iters += 1
             act = np.nonzero(tree.active[: tree.size])[0]
@@ -557,6 +577,7 @@ class BeliefSampler:
             else:
                 settle = False
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
+            steps = min(steps, H + 1)  # no extension goes past the plan's last step
             if settle:
                 # A hold is not limited to one extension's length: a holder settling at the
                 # centre goes on for the rest of its plan (it stops where the plan breaks).
@@ -567,7 +588,10 @@ class BeliefSampler:
             cur = node
             for j in range(steps):
                 k = int(tree.k[cur]) + 1
-                if k > H:
+                if k > H or tree.size >= self.max_nodes:
+                    break
+                if j and not j % 64 and time.perf_counter() >= deadline:
+                    capped = True
                     break
                 pl = plans[int(tree.plan[cur])]
                 allowed = self._allowed_modes(pl, k)
