@@ -16,6 +16,7 @@ refused on real-valued ones).
 from __future__ import annotations
 
 import itertools
+import weakref
 from collections.abc import Iterable, Iterator, Sequence
 from functools import cached_property
 from typing import Any
@@ -40,6 +41,7 @@ __all__ = [
     "mk_variable",
     "prob",
     "prob_in",
+    "region_variable",
 ]
 
 _ids = itertools.count()
@@ -302,12 +304,42 @@ class RealValuedVariable(LinearExpression):
         self._size = as_int(size, "size", minimum=1)
         self._id = next(_ids)
         self.name = _as_name(name, "x")
+        self._role: str | None = None
         super().__init__(np.eye(self._size), np.zeros(self._size), self)
 
     @property
     def size(self) -> int:
         """Dimension ``n`` of the variable."""
         return self._size
+
+    @property
+    def role(self) -> str | None:
+        """``"state"`` or ``"input"`` once a :class:`~idstlpy.Problem` used the variable (its
+        formula is over the state, its control domain over the input); ``None`` before."""
+        return self._role
+
+    def take_role(self, role: str, argument: str) -> None:
+        """Give the variable its role, or refuse a second one.
+
+        Parameters
+        ----------
+        role : {"state", "input"}
+        argument : str
+            The argument that uses the variable in that role (named in the error).
+
+        Raises
+        ------
+        InvalidArgumentError
+            When a Problem already used the variable in the other role.
+        """
+        if role not in ("state", "input"):
+            raise InvalidArgumentError(f"role must be 'state' or 'input', got {role!r}")
+        if self._role is not None and self._role != role:
+            raise InvalidArgumentError(
+                f"{argument} is written over {self.name}, which a Problem already uses as its "
+                f"{self._role} variable: {_ROLE_USE[role]}"
+            )
+        self._role = role
 
     def __repr__(self) -> str:
         return f"RealValuedVariable(size={self._size}, name={self.name!r})"
@@ -347,6 +379,41 @@ class DiscreteVariable:
 
     def __repr__(self) -> str:
         return f"DiscreteVariable(size={self._size}, name={self.name!r})"
+
+
+_ROLE_USE = {
+    "state": "the formula constrains the state (write it over the state variable, e.g. x[0] <= 5)",
+    "input": "the control domain bounds the input (write it over the input variable, e.g. u[0] <= 1)",
+}
+
+_REGION_VARIABLES: weakref.WeakKeyDictionary[Any, RealValuedVariable] = weakref.WeakKeyDictionary()
+"""The variable each ``.region`` set was written over (:func:`region_variable`)."""
+
+
+def region_variable(region: Any) -> RealValuedVariable | None:
+    """The variable a set made by ``.region`` (of a predicate or a conjunction) was written over.
+
+    Parameters
+    ----------
+    region : Polytope or BeliefCone
+
+    Returns
+    -------
+    RealValuedVariable or None
+        ``None`` for a set built otherwise (e.g. ``Polytope(H, c)``).
+    """
+    try:
+        return _REGION_VARIABLES.get(region)
+    except TypeError:  # not weakly referenceable: not one of ours
+        return None
+
+
+def _remember(region: Any, variable: RealValuedVariable) -> Any:
+    try:
+        _REGION_VARIABLES[region] = variable
+    except TypeError:
+        pass
+    return region
 
 
 def _as_name(name: Any, default: str) -> str:
@@ -421,7 +488,7 @@ class LinearPredicate(ConvexConstraint):
     @property
     def region(self) -> Any:
         """The half-space as a :class:`~idstlpy.sets.Polytope`."""
-        return Polytope(self.h[None, :], np.array([self.c]))
+        return _remember(Polytope(self.h[None, :], np.array([self.c])), self.variable)
 
     def __str__(self) -> str:
         return f"{format_affine(self.h, self.c, self.variable.name)} <= 0"
@@ -915,8 +982,9 @@ class ConvexRegion(ConvexConstraint):
         H = np.array([p.h for p in self.predicates])
         c = np.array([p.c for p in self.predicates])
         if self.is_probabilistic:
-            return make_belief_cone(H, c, [p.eps for p in self.predicates])  # type: ignore[attr-defined]
-        return make_polytope(H, c)
+            cone = make_belief_cone(H, c, [p.eps for p in self.predicates])  # type: ignore[attr-defined]
+            return _remember(cone, self.variable)
+        return _remember(make_polytope(H, c), self.variable)
 
     def __str__(self) -> str:
         return " & ".join(str(p) for p in self.predicates)

@@ -96,6 +96,10 @@ def watch_parent(parent: int, interval: float = PARENT_POLL_SECONDS) -> None:
     threading.Thread(target=_watch, args=(parent, interval), name="idstlpy-watch-parent", daemon=True).start()
 
 
+LOOPBACK = "127.0.0.1"
+"""Where a local Dask cluster listens unless told otherwise (:class:`DaskExecutor`'s ``host``)."""
+
+
 class DaskExecutor(cf.Executor):
     """The ``concurrent.futures`` executor of a Dask ``distributed`` client (``Client.get_executor()``).
 
@@ -111,17 +115,30 @@ class DaskExecutor(cf.Executor):
         Workers of the local cluster (default: the number of CPUs).
     processes : bool
         Local cluster with worker processes (default) or threads in this process.
+    host : str
+        The interface every port of a local cluster listens on: the scheduler, the workers, the
+        nannies and the dashboard. The default, the loopback interface ``"127.0.0.1"``, lets no
+        other machine reach the cluster (its dashboard shows the tasks, logs and profiles).
+        Exposing it is explicit: ``host="0.0.0.0"`` (every interface) or one interface's address.
 
     Notes
     -----
     Workers of a remote cluster need ``idstlpy`` installed; jobs carry the problem text, so no
     shared filesystem is needed. :attr:`dashboard_link` is the address of the Dask dashboard
-    (a local cluster's dashboard listens on a free port).
+    (a local cluster's dashboard listens on a free port of ``host``).
     """
 
     def __init__(
-        self, scheduler: str | None = None, workers: int | None = None, processes: bool = True
+        self,
+        scheduler: str | None = None,
+        workers: int | None = None,
+        processes: bool = True,
+        host: str = LOOPBACK,
     ) -> None:
+        if not isinstance(host, str) or not host.strip():
+            raise InvalidArgumentError(
+                f"host must be an interface address such as {LOOPBACK!r}, got {host!r}"
+            )
         try:
             from distributed import Client, LocalCluster
         except ImportError as exc:
@@ -136,7 +153,9 @@ class DaskExecutor(cf.Executor):
                 n_workers=workers or os.cpu_count() or 1,
                 threads_per_worker=1,
                 processes=processes,
-                dashboard_address=":0",
+                host=host,
+                dashboard_address=f"[{host}]:0" if ":" in host else f"{host}:0",
+                worker_dashboard_address=None,
             )
             self._client = Client(self._cluster)
         self._executor = self._client.get_executor(pure=False)

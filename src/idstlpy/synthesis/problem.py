@@ -9,6 +9,7 @@ from typing import Any
 from ..belief import GaussianBelief
 from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
+from ..expressions import RealValuedVariable, region_variable
 from ..formulas import STLFormula, allocate_joint_risk, as_formula
 from ..sets import Polytope
 from ..trajectory import ProbabilisticTSTrajectory
@@ -40,6 +41,11 @@ class Problem:
         When the state or control dimensions of the parts disagree.
     OutOfRangeError
         When the formula names a mode the system does not have.
+    InvalidArgumentError
+        When the formula is written over the variable the control domain is written over, or
+        over a variable an earlier Problem used as its input (or the control domain over an
+        earlier state variable): variables take their role, ``"state"`` or ``"input"``, in the
+        first Problem that uses them (:attr:`~idstlpy.expressions.RealValuedVariable.role`).
     """
 
     def __init__(
@@ -86,12 +92,14 @@ class Problem:
                     f"proposition {ap.name or ''} names mode {max(ap.modes)}, the system has modes "
                     f"0..{switched_system.num_modes - 1}"
                 )
+        _check_roles(formula, control_domain)
         # Evaluate every noise function once so a bad one is reported now, by name.
         for q, mode in enumerate(switched_system.system_modes):
             if mode.p:
                 R = mode.noise_cov(initial_state.mean)
                 if R.shape != (mode.p, mode.p):
                     raise DimensionError(f"mode {q}: noise covariance has shape {R.shape}")
+        _take_roles(formula, control_domain)
         self.switched_system = switched_system
         self.control_domain = control_domain
         self.initial_state = initial_state
@@ -210,3 +218,38 @@ class Problem:
             f"Problem(n={self.switched_system.n}, m={self.switched_system.m}, "
             f"modes={self.switched_system.num_modes}, formula={self.stl_formula})"
         )
+
+
+def _state_variables(formula: STLFormula) -> dict[int, RealValuedVariable]:
+    """The variables the formula's chance constraints are written over, by identity."""
+    out: dict[int, RealValuedVariable] = {}
+    for ap in formula.atomic_propositions():
+        for p in ap.predicates:
+            out[id(p.variable)] = p.variable
+    return out
+
+
+def _check_roles(formula: STLFormula, control_domain: Polytope) -> None:
+    """Refuse a formula over the input variable and a control domain over the state variable."""
+    states = _state_variables(formula)
+    u = region_variable(control_domain)
+    for x in states.values():
+        if x.role == "input":
+            x.take_role("state", "stl_formula")  # raises, naming the argument
+    if u is not None and u.role == "state":
+        u.take_role("input", "control_domain")  # raises, naming the argument
+    if u is not None and id(u) in states:
+        raise InvalidArgumentError(
+            f"stl_formula and control_domain are both written over {u.name}: the formula "
+            "constrains the state, the control domain the input (two variables, e.g. "
+            "x = mk_variable(n) and u = mk_variable(m, name='u'))"
+        )
+
+
+def _take_roles(formula: STLFormula, control_domain: Polytope) -> None:
+    """Record the roles of a valid Problem's variables (after :func:`_check_roles`)."""
+    for x in _state_variables(formula).values():
+        x.take_role("state", "stl_formula")
+    u = region_variable(control_domain)
+    if u is not None:
+        u.take_role("input", "control_domain")
