@@ -351,6 +351,21 @@ def _random_system(
             lo[0] = -np.inf
             tags.add("unbounded")
         tags.add("flat")
+    if domain == "off_centre":
+        # The domain's centre far from 0 relative to its width, 0 still inside (issue 25's
+        # u in [-0.0427, 1.7953]): shrinking it about the wrong point leaves it.
+        width = rng.uniform(0.5, 2.0, size=m)
+        inside = rng.uniform(0.01, 0.05, size=m) * width
+        sign = np.where(rng.random(m) < 0.5, -1.0, 1.0)
+        lo, hi = np.where(sign > 0, -inside, inside - width), np.where(sign > 0, width - inside, inside)
+        tags.add("off_centre")
+    if domain == "excludes_zero":
+        # Some input must be away from 0 (u_i in [a, b] with 0 < a): idling is not free.
+        which = int(rng.integers(m))
+        a = rng.uniform(0.1, 0.5)
+        b = a + rng.uniform(0.3, 1.0)
+        lo[which], hi[which] = (a, b) if rng.random() < 0.5 else (-b, -a)
+        tags.add("excludes_zero")
     if scale_input:
         lo, hi = lo * s, hi * s
     num_modes = num_modes or int(rng.integers(1, 3))
@@ -536,6 +551,7 @@ def feasible_instance(
     point_prior: bool | None = None,
     process_noise: bool = True,
     max_depth: int = 3,
+    obstacle: bool = False,
 ) -> Instance:
     """A random problem with a plan by construction (see the module docstring).
 
@@ -547,13 +563,18 @@ def feasible_instance(
         Multiply every length by it (default: drawn from :data:`SCALES`, mostly 1).
     noise : {"none", "const", "callable"}, optional
         Force one kind of sensor on every mode.
-    domain : {"box", "unbounded", "flat"}, optional
+    domain : {"box", "unbounded", "flat", "off_centre", "excludes_zero"}, optional
+        The last two only when asked: a box whose centre is far from 0 relative to its width (0
+        inside), and a box one of whose inputs excludes 0.
     num_modes : int, optional
     point_prior : bool, optional
     process_noise : bool
         Allow process noise ``W``.
     max_depth : int
         Deepest operator nesting.
+    obstacle : bool
+        Also avoid a box obstacle the witness avoids, all along the plan: ``G[0,T] (P[x_i <= l_i]
+        or P[x_i >= h_i] or ...)``, a disjunction at every step (:func:`_obstacle`).
     """
     rng = np.random.default_rng(seed)
     s = float(scale) if scale is not None else float(rng.choice(SCALES, p=[0.2, 0.6, 0.2]))
@@ -569,8 +590,11 @@ def feasible_instance(
     q = stl.mk_variable(len(system.modes), dtype=int)
     builder = _FormulaBuilder(rng, trace, x, q, len(system.modes), s)
     formula = builder.build({0}, int(rng.integers(1, max_depth + 1)), top=True)
-    assert sat(formula, 0, trace), "generator bug: the witness does not satisfy the formula"
     tags = set(system.tags)
+    if obstacle:
+        formula = stl.logical_and(formula, stl.always(0, N, _obstacle(rng, trace, x, s)))
+        tags.add("obstacle")
+    assert sat(formula, 0, trace), "generator bug: the witness does not satisfy the formula"
     if not cov0.any():
         tags.add("point_prior")
     if builder.zero_slack:
@@ -596,6 +620,39 @@ def feasible_instance(
     assert np.all(controls >= system.lo) and np.all(controls <= system.hi)
     assert sat(inst.formula, 0, inst.witness_trace)
     return inst
+
+
+def _obstacle(rng: np.random.Generator, trace: Trace, x: Any, s: float) -> Any:
+    """A box obstacle the witness avoids at every step, as the disjunction of its outer faces.
+
+    The box lies across the witness's span (its centre drawn among the span's points, its half
+    widths up to half the span) and is shrunk until, at every step, some face ``P[x_i <= l_i]`` or
+    ``P[x_i >= h_i]`` holds at the drawn level (checked with the brute-force monitor's
+    :func:`~oracles.brute_force.chance_holds`), so the avoidance is a real disjunction: which face
+    holds changes along the path where the box sits in the middle of it.
+    """
+    n = trace.states[0][0].shape[0]
+    means = np.array([m for m, _ in trace.states])
+    low, high = means.min(axis=0), means.max(axis=0)
+    span = np.maximum(high - low, 0.2 * s)
+    level = float(rng.choice([0.5, 0.8, 0.9]))
+    centre = low + rng.random(n) * (high - low) + rng.normal(size=n) * 0.2 * span
+    half = rng.uniform(0.05, 0.5, size=n) * span
+    eye = np.eye(n)
+    for _ in range(60):
+        faces = []
+        for i in range(n):
+            faces.append(_face(x, eye[i], -(centre[i] - half[i]), level))  # x_i <= centre - half
+            faces.append(_face(x, -eye[i], centre[i] + half[i], level))  # x_i >= centre + half
+        if all(any(chance_holds(f.h, f.c, f.eps, m, S) for f in faces) for m, S in trace.states):
+            return stl.logical_or(*[stl.logical_and(f, name=f"wall{j}") for j, f in enumerate(faces)])
+        half *= 0.7
+    # A box too close to the path everywhere: put it beside the path in coordinate 0.
+    gap = 0.5 * span[0]
+    return stl.logical_or(
+        stl.logical_and(_face(x, eye[0], -(high[0] + 10 * gap), level), name="wall0"),
+        stl.logical_and(_face(x, -eye[0], high[0] + 11 * gap, level), name="wall1"),
+    )
 
 
 def active_perception_instance(seed: int, *, scale: float | None = None) -> Instance:

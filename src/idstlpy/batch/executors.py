@@ -21,6 +21,7 @@ import multiprocessing
 import os
 import threading
 import time
+import urllib.parse
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -146,16 +147,21 @@ class DaskExecutor(cf.Executor):
                 "the dask executor needs dask and distributed: pip install 'idstlpy[dask]'"
             ) from exc
         self._cluster: Any = None
+        self._host = host
         if scheduler:
             self._client = Client(scheduler)
         else:
+            # Every HTTP server (the scheduler's dashboard, each worker's status / metrics page)
+            # on a free port of ``host``: without an address a worker's binds every interface.
+            http = f"[{host}]:0" if ":" in host else f"{host}:0"
             self._cluster = LocalCluster(
                 n_workers=workers or os.cpu_count() or 1,
                 threads_per_worker=1,
                 processes=processes,
-                host=host,
-                dashboard_address=f"[{host}]:0" if ":" in host else f"{host}:0",
-                worker_dashboard_address=None,
+                # Threads talk in-process (inproc://, no port); processes over TCP on ``host``.
+                **({"host": host} if processes else {}),
+                dashboard_address=http,
+                worker_dashboard_address=http,
             )
             self._client = Client(self._cluster)
         self._executor = self._client.get_executor(pure=False)
@@ -172,7 +178,15 @@ class DaskExecutor(cf.Executor):
             link = self._client.dashboard_link
         except Exception:  # noqa: BLE001 - no dashboard service
             return None
-        return str(link) if link else None
+        if not link:
+            return None
+        if self._cluster is not None and self._host not in ("0.0.0.0", "::"):
+            # A threads cluster names the machine's address, where nothing listens: the host it is on.
+            parts = urllib.parse.urlsplit(str(link))
+            if parts.port is not None:
+                where = f"[{self._host}]" if ":" in self._host else self._host
+                return urllib.parse.urlunsplit(parts._replace(netloc=f"{where}:{parts.port}"))
+        return str(link)
 
     @property
     def dashboard_needs_bokeh(self) -> bool:
