@@ -110,6 +110,13 @@ def test_generators_cover_every_feature():
         "random",
     ):
         assert seen[tag] >= 10, (tag, seen)
+    for tag in ("modes_differ", "partial_sensor", "window_start", "release"):
+        assert seen[tag] >= 10, (tag, seen)
+    extra: collections.Counter = collections.Counter()
+    for seed in range(20):
+        extra.update(feasible_instance(seed, domain="off_centre", obstacle=True).tags)
+        extra.update(feasible_instance(seed, domain="excludes_zero").tags)
+    assert extra["off_centre"] == extra["excludes_zero"] == extra["obstacle"] == 20, extra
     families: collections.Counter = collections.Counter()
     tags: collections.Counter = collections.Counter()
     for seed in range(120):
@@ -272,6 +279,47 @@ def test_a_formula_about_the_prior_alone_is_decided(holds):
         assert sat(problem.stl_formula, 0, trace)
     else:
         assert result.status == "infeasible", result.reason
+
+
+# -- issue 25's shapes, every objective ------------------------------------------------------------------
+OBJECTIVES = (None, "effort", "time", "margin")
+
+# (the tag the instance must carry, the generator's options): one instance of each shape
+ISSUE25_SHAPES = {
+    "modes_differ": ("modes_differ", dict(num_modes=2)),
+    "process_noise": ("process_noise", dict()),
+    "partial_sensor": ("partial_sensor", dict(noise="const")),
+    "window_start": ("window_start", dict()),
+    "release": ("release", dict()),
+    "obstacle": ("obstacle", dict(obstacle=True)),
+    "off_centre": ("off_centre", dict(domain="off_centre")),
+    "excludes_zero": ("excludes_zero", dict(domain="excludes_zero")),
+    "off_centre_state_dependent": ("off_centre", dict(domain="off_centre", noise="callable")),
+}
+
+
+def _first_with(tag: str, options: dict, start: int = 2500):
+    """The first instance from seed ``start`` on that carries ``tag`` (deterministic)."""
+    for seed in range(start, start + 200):
+        inst = feasible_instance(seed, scale=1.0, max_depth=2, **options)
+        if tag in inst.tags:
+            return inst
+    raise AssertionError(f"no instance with tag {tag!r} from seed {start}")
+
+
+@pytest.mark.parametrize("shape", list(ISSUE25_SHAPES))
+def test_issue25_shapes_under_every_objective(shape):
+    """Feasible by construction, with each shape of issue 25 (two instances), solved under every
+    objective: never ``infeasible``; every ``found`` plan keeps the domain and passes the
+    independent monitor. (All 72 solves were ``found`` when this was written.)"""
+    tag, options = ISSUE25_SHAPES[shape]
+    for start in (2500, 3500):
+        inst = _first_with(tag, options, start)
+        for objective in OBJECTIVES:
+            result = _solve(inst, objective=objective, time_limit=3)
+            assert result.status != "infeasible", f"objective {objective}: {result.reason}\n{inst.describe()}"
+            if result.status == "found":
+                assert_claim_holds(inst, result)
 
 
 # -- infeasible by construction -------------------------------------------------------------------------

@@ -381,7 +381,11 @@ def _random_system(
             elif variant == "other_A":
                 Qr, _ = np.linalg.qr(rng.normal(size=(n, n)))
                 Aq = Qr @ np.diag(rng.uniform(0.7, 1.0, size=n)) @ Qr.T
+            if variant != "same":
+                tags.add("modes_differ")
         C, V, sensor = _noise(rng, n, s, noise)
+        if C is not None and C.shape[0] < n:
+            tags.add("partial_sensor")
         W = _process_noise(rng, n, s, process_noise)
         tags.add(sensor)
         if W.any():
@@ -437,6 +441,7 @@ class _FormulaBuilder:
         self.last = len(trace) - 1
         self.names = _Names()
         self.zero_slack = False
+        self.features: set[str] = set()  # "release", "window_start" (an interval not from 0)
         self.n = trace.states[0][0].shape[0]
 
     def atom(self, S: set[int], *, free: bool = False) -> Any:
@@ -501,6 +506,8 @@ class _FormulaBuilder:
             op = str(rng.choice(ops, p=[0.1, 0.1, 0.2, 0.2, 0.2, 0.2] if top else None))
         hi_S = max(S)
         room = self.last - hi_S
+        if op == "R":
+            self.features.add("release")
         # At the top, conjunctions and disjunctions are of temporal formulas (not of prior facts).
         sub = top and depth > 1
         if op == "and":
@@ -516,6 +523,8 @@ class _FormulaBuilder:
             d = {j: int(rng.integers(a, min(self.last - j, a + 6) + 1)) for j in S}
             extra = int(rng.choice([0, 0, 1, 2, 5, 30]))
             b = max(d.values()) + extra
+            if a:
+                self.features.add("window_start")
             right = self.build({j + d[j] for j in S}, depth - 1)
             if op == "F":
                 return stl.eventually(a, b, right)
@@ -524,11 +533,15 @@ class _FormulaBuilder:
         if op == "G":
             a = int(rng.integers(0, min(room, 3) + 1))
             b = int(rng.integers(a, room + 1))
+            if a:
+                self.features.add("window_start")
             T = {i for j in S for i in range(j + a, j + b + 1)}
             return stl.always(a, b, self.build(T, depth - 1))
         # release: per step, the right side on the whole window, or up to a step where the left holds
         a = int(rng.integers(0, min(room, 3) + 1))
         b = a + int(rng.integers(0, 6))
+        if a:
+            self.features.add("window_start")
         T1: set[int] = set()
         T2: set[int] = set()
         for j in S:
@@ -599,6 +612,7 @@ def feasible_instance(
         tags.add("point_prior")
     if builder.zero_slack:
         tags.add("zero_slack")
+    tags |= builder.features
     if s != 1.0:
         tags.add("scaled")
     inst = Instance(
