@@ -905,7 +905,7 @@ class LPTeacher:
                 if self._room and _noisy(system, init):
                     # The room its execution needs, as on the exact path (issue 24: this path
                     # returned plans without it, and without a word).
-                    controls = self._with_room(actions, controls, stats)
+                    actions, controls = self._with_room(actions, controls, stats)
                 return Found(actions, controls, how, exact=out.exact)
 
             if self.closed_loop:
