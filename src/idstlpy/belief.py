@@ -266,6 +266,76 @@ def _joseph(K: np.ndarray, C: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.nd
     return cov
 
 
+def kalman_update_batch(
+    mode: Any, mean_pred: np.ndarray, P: np.ndarray, Y: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`kalman_update` of ``S`` runs at once, the noise at each run's predicted mean.
+
+    The gain is the closed form of :func:`gain_from` for one or two outputs and a batched solve
+    for more; a run whose innovation covariance is (nearly) singular or not finite gets
+    :func:`gain_from`'s own answer, so every run's update is :func:`kalman_update`'s up to
+    rounding.
+
+    Parameters
+    ----------
+    mode : LCS
+        The mode whose sensor ``C``, ``n(.)`` is used (``mode.noise_cov_batch``).
+    mean_pred : ndarray, shape (S, n)
+        Predicted means.
+    P : ndarray, shape (S, n, n)
+        Predicted covariances.
+    Y : ndarray, shape (S, p), optional
+        Observations; None: the maximum-likelihood observations (means unchanged).
+
+    Returns
+    -------
+    means : ndarray, shape (S, n)
+    covs : ndarray, shape (S, n, n)
+    """
+    if mode.p == 0:
+        return mean_pred, P
+    C = mode.C
+    R = mode.noise_cov_batch(mean_pred)
+    PCt = P @ C.T  # (S, n, p)
+    Sinn = C @ PCt + R  # (S, p, p)
+    p = C.shape[0]
+    with np.errstate(all="ignore"):
+        if p == 1:
+            s = Sinn[:, 0, 0]
+            ok = (s > 0.0) & np.isfinite(s)
+            K = PCt / np.where(ok, s, 1.0)[:, None, None]
+        elif p == 2:
+            a, b, c, d = Sinn[:, 0, 0], Sinn[:, 0, 1], Sinn[:, 1, 0], Sinn[:, 1, 1]
+            det = a * d - b * c
+            ok = (np.abs(det) > 1e-10 * (np.abs(a * d) + np.abs(b * c))) & np.isfinite(det) & (det != 0.0)
+            safe = np.where(ok, det, 1.0)[:, None]
+            g0, g1 = PCt[:, :, 0], PCt[:, :, 1]  # K = PCt [[d, -b], [-c, a]] / det
+            K = np.stack(
+                [(g0 * d[:, None] - g1 * c[:, None]) / safe, (g1 * a[:, None] - g0 * b[:, None]) / safe],
+                axis=2,
+            )
+        else:
+            ok = np.isfinite(Sinn).all(axis=(1, 2))
+            try:
+                K = np.swapaxes(np.linalg.solve(np.swapaxes(Sinn, 1, 2), np.swapaxes(PCt, 1, 2)), 1, 2)
+            except np.linalg.LinAlgError:
+                K = np.full(PCt.shape, np.nan)
+        ok &= np.isfinite(K).all(axis=(1, 2))
+    if not ok.all():
+        K = np.array(K)
+        for i in np.flatnonzero(~ok):
+            K[i] = gain_from(PCt[i], Sinn[i])
+    IKC = np.eye(P.shape[1]) - K @ C
+    KR = K @ R
+    cov = IKC @ P @ np.swapaxes(IKC, 1, 2) + KR @ np.swapaxes(K, 1, 2)
+    cov += np.swapaxes(cov, 1, 2)
+    cov *= 0.5
+    if Y is None:
+        return mean_pred, cov
+    innovation = Y - mean_pred @ C.T
+    return mean_pred + (K @ innovation[:, :, None])[:, :, 0], cov
+
+
 def belief_step(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One MLO belief transition of ``mode`` under input ``u``; returns ``(mean', cov')``.
 

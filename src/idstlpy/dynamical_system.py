@@ -166,6 +166,43 @@ class LCS(DynamicalSystem):
         nx = self.noise(x)
         return nx @ nx.T
 
+    def noise_batch(self, X: Any) -> np.ndarray:
+        """The observation noise matrices ``n(x)`` at a batch of states.
+
+        Constant noise is one matrix broadcast over the batch; a state-dependent noise function
+        is called once for the whole batch when it accepts one (see
+        :class:`POLBSWithNonLinNoise`), else once per state.
+
+        Parameters
+        ----------
+        X : array_like, shape (S, n)
+            The states, one per row.
+
+        Returns
+        -------
+        ndarray, shape (S, p, r)
+            Read-only when broadcast (constant noise).
+        """
+        X = np.asarray(X, dtype=float)
+        nx = self.noise(X[0] if X.shape[0] else np.zeros(self.n))
+        return np.broadcast_to(nx, (X.shape[0], *nx.shape))
+
+    def noise_cov_batch(self, X: Any) -> np.ndarray:
+        """The observation noise covariances ``R(x) = n(x) n(x)'`` at a batch of states.
+
+        Parameters
+        ----------
+        X : array_like, shape (S, n)
+            The states, one per row.
+
+        Returns
+        -------
+        ndarray, shape (S, p, p)
+        """
+        X = np.asarray(X, dtype=float)
+        R = self.noise_cov(X[0] if X.shape[0] else np.zeros(self.n))
+        return np.broadcast_to(R, (X.shape[0], *R.shape))
+
     @property
     def noise_floor(self) -> np.ndarray:
         """A matrix ``F`` (p, p) with ``R(x) >= F`` (Loewner order) for every state ``x``.
@@ -343,6 +380,16 @@ class POLBSWithNonLinNoise(POLBS):
         ``V(x) -> array (p, r)``, the noise factor at state ``x`` (an array of shape (n,)).
     V_floor : float or array_like of shape (p, p), optional
         Declared lower bound on ``R(x)`` (see :func:`mk_lbs`).
+
+    Notes
+    -----
+    Batches of states (:meth:`noise_batch`, used by Monte Carlo executions of many runs at
+    once): a function written for batches, taking states (S, n) and returning (S, p, r), is
+    called once per batch; the first batch checks it against one call per state on three of its
+    rows (equal within 1e-12 relative), and a function that fails this (raises, returns another
+    shape, or other values, like a function of one state such as ``lambda x: (5 - x[0]) *
+    np.identity(2)``) is called once per state from then on. Write ``x[..., 0]`` instead of
+    ``x[0]`` and return ``f[..., None, None] * np.identity(p)`` to make a function take both.
     """
 
     def __init__(
@@ -355,6 +402,8 @@ class POLBSWithNonLinNoise(POLBS):
         self._cols: int | None = None
         self._floor = _as_floor(V_floor, self.p)
         self._has_floor = bool(self._floor.any())
+        # whether V takes a batch of states (S, n) -> (S, p, r): None until tried (noise_batch)
+        self._batch: bool | None = None
 
     @property
     def noise_floor(self) -> np.ndarray:
@@ -405,6 +454,85 @@ class POLBSWithNonLinNoise(POLBS):
     def has_state_dependent_noise(self) -> bool:
         """True: the observation noise is the function ``V`` of the state."""
         return True
+
+    def noise_batch(self, X: Any) -> np.ndarray:
+        """The noise matrices ``n(x)`` at a batch of states, shape (S, p, r).
+
+        One call of the function for the batch when it takes batches (class notes), else one
+        call per state; every value is checked as :meth:`noise` checks it.
+
+        Parameters
+        ----------
+        X : array_like, shape (S, n)
+            The states, one per row.
+
+        Returns
+        -------
+        ndarray, shape (S, p, r)
+        """
+        X = np.asarray(X, dtype=float)
+        S = X.shape[0]
+        if S >= 2 and getattr(self, "_batch", None) is not False:
+            out = self._call_batch(X)
+            if out is not None:
+                return out
+        if S == 0:
+            return np.zeros((0, self.p, self._cols or 0))
+        return np.stack([self.noise(x) for x in X])
+
+    def _call_batch(self, X: np.ndarray) -> np.ndarray | None:
+        """``V(X)`` when the function takes batches (checked on the first batch), else None."""
+        S = X.shape[0]
+        arr: np.ndarray | None
+        try:
+            with np.errstate(all="ignore"):
+                arr = np.asarray(self.V(X), dtype=float)
+        except Exception:  # noqa: BLE001 - a function of one state: call it per state
+            arr = None
+        good = (
+            arr is not None
+            and arr.ndim == 3
+            and arr.shape[:2] == (S, self.p)
+            and (self._cols is None or arr.shape[2] == self._cols)
+            and bool(np.isfinite(arr).all())
+        )
+        if getattr(self, "_batch", None) is None:
+            if good and arr is not None:
+                for i in sorted({0, S // 2, S - 1}):
+                    one = self.noise(X[i])
+                    if one.shape != arr.shape[1:] or not np.allclose(arr[i], one, rtol=1e-12, atol=0.0):
+                        good = False
+                        break
+            self._batch = good
+        if not good or arr is None:
+            return None  # (a batch function returning a bad value: the per-state calls say what)
+        self._cols = arr.shape[2]
+        return arr
+
+    def noise_cov_batch(self, X: Any) -> np.ndarray:
+        """``R(x) = n(x) n(x)'`` at a batch of states, shape (S, p, p), checked as :meth:`noise_cov`.
+
+        Parameters
+        ----------
+        X : array_like, shape (S, n)
+            The states, one per row.
+
+        Returns
+        -------
+        ndarray, shape (S, p, p)
+        """
+        X = np.asarray(X, dtype=float)
+        nx = self.noise_batch(X)
+        with np.errstate(over="ignore", invalid="ignore"):
+            R = nx @ np.swapaxes(nx, 1, 2)
+        bad = ~np.isfinite(R).all(axis=(1, 2))
+        if self._has_floor and X.shape[0]:
+            finite = np.where(np.isfinite(R), R, 0.0)
+            tol = -1e-9 * (1 + np.abs(finite).max(axis=(1, 2)))
+            bad |= np.linalg.eigvalsh(finite - self._floor)[:, 0] < tol
+        if bad.any():
+            self.noise_cov(X[int(np.flatnonzero(bad)[0])])  # raises the error of that state
+        return R
 
     def noise(self, x: Any) -> np.ndarray:
         """The observation noise matrix ``n(x) = V(x)``, checked.

@@ -32,17 +32,22 @@ def light_dark_noise(state: np.ndarray) -> np.ndarray:
 
     A module-level function (not the listing's lambda), so that the problem pickles.
 
+    It also takes a batch of states (S, 2) and returns (S, 2, 2), so Monte Carlo executions of
+    many runs call it once per step (:meth:`~idstlpy.dynamical_system.POLBSWithNonLinNoise.noise_batch`).
+
     Parameters
     ----------
-    state : ndarray, shape (2,)
+    state : ndarray, shape (2,) or (S, 2)
         Where the observation is taken.
 
     Returns
     -------
-    ndarray, shape (2, 2)
+    ndarray, shape (2, 2) or (S, 2, 2)
         The square-root factor of the observation noise covariance.
     """
-    return ((1 / 10) * (5 - state[0]) ** 2 + 0.001) * np.identity(2)
+    state = np.asarray(state, dtype=float)
+    factor = (1 / 10) * (5 - state[..., 0]) ** 2 + 0.001
+    return np.asarray(factor[..., None, None] * np.identity(2))
 
 
 def light_dark(deadline: int = 240, hold: int = 40) -> Problem:

@@ -94,33 +94,51 @@ def atom_margins(
 
 
 def _shift(arr: np.ndarray, d: int) -> np.ndarray:
-    """``arr[k + d]`` for every ``k`` (``-inf`` past the end)."""
+    """``arr[k + d]`` for every ``k`` (``-inf`` past the end); time is axis 0 (a batch may follow)."""
     L = arr.shape[0]
-    out = np.full(L, _NEG)
+    out = np.full(arr.shape, _NEG)
     if d < L:
         out[: L - d] = arr[d:]
     return out
 
 
 def _until(r1: np.ndarray, r2: np.ndarray, a: int, b: int) -> np.ndarray:
+    # best[k] = max over d in [a, b] of min(r2[k+d], min of r1 over [k+a, k+d)), past the end -inf.
+    # In place on the first L - d entries: there shift(r, d) is r[d:]; beyond, the shifted value
+    # is -inf, which leaves best unchanged and makes prefix -inf where it is never read again.
     L = r1.shape[0]
-    best = np.full(L, _NEG)
-    prefix = np.full(L, np.inf)  # min of r1 over [k+a, k+d)
+    shape = np.broadcast_shapes(r1.shape, r2.shape)
+    r1 = np.broadcast_to(r1, shape)
+    r2 = np.broadcast_to(r2, shape)
+    best = np.full(shape, _NEG)
+    prefix = np.full(shape, np.inf)  # min of r1 over [k+a, k+d)
+    tmp = np.empty(shape)
     for d in range(a, min(b, L - 1) + 1):
-        best = np.maximum(best, np.minimum(_shift(r2, d), prefix))
-        prefix = np.minimum(prefix, _shift(r1, d))
+        m = L - d
+        np.minimum(r2[d:], prefix[:m], out=tmp[:m])
+        np.maximum(best[:m], tmp[:m], out=best[:m])
+        np.minimum(prefix[:m], r1[d:], out=prefix[:m])
     return best
 
 
 def _release(r1: np.ndarray, r2: np.ndarray, a: int, b: int) -> np.ndarray:
+    # best[k] = max over d of min(r1[k+d], min of r2 over [k+a, k+d]), or r2 on the whole window.
     L = r1.shape[0]
-    best = np.full(L, _NEG)
-    prefix = np.full(L, np.inf)  # min of r2 over [k+a, k+d]
+    shape = np.broadcast_shapes(r1.shape, r2.shape)
+    r1 = np.broadcast_to(r1, shape)
+    r2 = np.broadcast_to(r2, shape)
+    best = np.full(shape, _NEG)
+    prefix = np.full(shape, np.inf)  # min of r2 over [k+a, k+d]
+    tmp = np.empty(shape)
     for d in range(a, b + 1):
-        prefix = np.minimum(prefix, _shift(r2, d))
-        best = np.maximum(best, np.minimum(_shift(r1, d), prefix))
         if d >= L:
-            break  # every later index is past the end: prefix is -inf from here on
+            prefix[:] = _NEG  # every index is past the end: prefix is -inf from here on
+            break
+        m = L - d
+        np.minimum(prefix[:m], r2[d:], out=prefix[:m])
+        prefix[m:] = _NEG
+        np.minimum(r1[d:], prefix[:m], out=tmp[:m])
+        np.maximum(best[:m], tmp[:m], out=best[:m])
     return np.maximum(best, prefix)
 
 
@@ -133,11 +151,19 @@ def formula_margins(
     ----------
     formula : STLFormula
     atoms : mapping from ``id(ap)`` to the atom's margin array (length,)
-        Boolean traces work too: use ``+inf`` for true and ``-inf`` for false.
+        Boolean traces work too: use ``+inf`` for true and ``-inf`` for false. Arrays of shape
+        (length, S) monitor a batch of ``S`` traces at once (time on axis 0); every atom array
+        then has that shape.
     length : int
         Trace length ``L = N + 1``.
+
+    Returns
+    -------
+    ndarray, shape (length,) or (length, S)
     """
     memo: dict[int, np.ndarray] = {}
+    first = next(iter(atoms.values()), None)
+    shape = (length,) if first is None else (length, *np.shape(first)[1:])
 
     def rec(f: STLFormula) -> np.ndarray:
         key = id(f)
@@ -145,9 +171,9 @@ def formula_margins(
             return memo[key]
         if isinstance(f, STLAtomicProposition):
             if f.is_false:
-                out = np.full(length, _NEG)
+                out = np.full(shape, _NEG)
             elif f.is_true and id(f) not in atoms:
-                out = np.full(length, np.inf)
+                out = np.full(shape, np.inf)
             else:
                 out = np.asarray(atoms[key], dtype=float)
         elif isinstance(f, STLAnd):

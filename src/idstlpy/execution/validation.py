@@ -25,7 +25,24 @@ is a linearisation around the plan, and the comparison shows how far off it is.
 
 Runs are independent: run ``i`` uses child ``i`` of ``numpy.random.SeedSequence(seed).spawn``,
 and results are gathered by index, so the same seed gives the identical report whatever the
-executor and the number of workers.
+executor and the number of workers. Without a fixed true start (the default), run ``i`` starts at
+row ``i`` of one draw of shape (runs, n) from ``default_rng(SeedSequence(seed))`` mapped through
+the prior (:func:`prior_starts`); its noise is the one it has from a fixed start.
+
+Monte Carlo at scale
+--------------------
+A worker executes its runs together (``batched=True``, the default): the executor's one step
+law (:class:`~idstlpy.executor.StepLaw`) advances arrays of all the runs' true states, filter
+means and covariances (shared while the sensor noise is constant, one per run once a
+state-dependent sensor has made them differ), and the monitor evaluates all of them at once
+(:func:`~idstlpy.semantics.formula_margins` over a batch). Every run still draws from its own
+generator, in the order a run alone draws (:class:`_RunStreams`), so each run gets exactly the
+noise of ``simulate(..., seed=default_rng(child_i))``: the report is the one of the serial loop
+(``batched=False``), the margins up to rounding (about 1e-16). A state-dependent noise function
+is called once per step for all runs when it takes a batch of states (``x[..., 0]``; see
+:class:`~idstlpy.dynamical_system.POLBSWithNonLinNoise`), else once per run; the filters'
+updates are batched either way. Progress: ``progress(done, runs)`` after every batch, and an
+INFO log record at most every second (the CLI shows it).
 
 Parallelism and pickling
 ------------------------
@@ -59,12 +76,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .._checks import as_int, as_seed_sequence, as_vector
-from ..chance import slack
+from ..chance import slack, std_terms
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 from ..executor import PlantStep, ProcessNoise
 from ..formulas import STLAtomicProposition, STLFormula
-from ..semantics import atom_margins, robustness
+from ..semantics import atom_margins, formula_margins, robustness
 from ..tracking import system_gains
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
@@ -551,6 +568,8 @@ class _Payload:
     # validate(replan=...): the problem and execute()'s re-plan options (None: simulate only)
     problem: Any = None
     replan: dict[str, Any] | None = None
+    # runs executed together as arrays (the step law over a batch); False: one run at a time
+    batched: bool = True
 
 
 def _propositions(formula: STLFormula) -> list[STLAtomicProposition]:
@@ -612,6 +631,15 @@ def _execute(
         system, formula = payload.system, payload.formula
     L = payload.num_of_steps + 1
     promises = _promises(formula, payload.plan, L)
+    # (a plant step function draws from the generator it is given: one run at a time)
+    if payload.replan is None and payload.batched and payload.sim_options.get("plant") is None:
+        results: list[dict[str, Any]] = []
+        size = _batch_size(payload.num_of_steps, system.n)
+        for lo in range(0, len(seeds), size):
+            part = seeds[lo : lo + size]
+            x0s = None if starts is None else starts[lo : lo + size]
+            results.extend(_execute_batch(payload, system, formula, promises, part, first_index + lo, x0s))
+        return results
     results = []
     for offset, ss in enumerate(seeds):
         x0 = payload.real_initial_state if starts is None else starts[offset]
@@ -659,6 +687,192 @@ def _execute(
             res["trajectories"] = (xi_sim, xi_real)
         results.append(res)
     return results
+
+
+BATCH_RUNS = 4096
+"""Most runs executed together as arrays by one worker; fewer when a run's arrays are large
+(:func:`_batch_size`: about 32 MB of covariances per batch). The results do not depend on it:
+every run draws from its own stream (:class:`_RunStreams`)."""
+
+
+def _batch_size(steps: int, n: int) -> int:
+    """Runs per batch: :data:`BATCH_RUNS`, fewer when ``runs x (steps + 1) x n^2`` exceeds 4e6."""
+    return int(max(16, min(BATCH_RUNS, 4_000_000 // max(1, (steps + 1) * n * n))))
+
+
+class _RunStreams:
+    """A stand-in for the generator of the step law over ``S`` runs: row ``i`` of every draw
+    comes from run ``i``'s own generator ``default_rng(seeds[i])``, in the order the run would
+    draw alone, so a run executed in a batch gets the noise :func:`simulate` gives it.
+
+    The runs' normals are drawn ahead in blocks (one call per run and block); drawing more
+    than a run uses changes nothing, its generator is its own.
+    """
+
+    def __init__(self, seeds: Sequence[np.random.SeedSequence], ahead: int) -> None:
+        self._gens = [np.random.default_rng(ss) for ss in seeds]
+        self._ahead = max(1, int(ahead))
+        self._buf = np.empty((len(self._gens), 0))
+        self._pos = 0
+
+    def standard_normal(self, size: tuple[int, int]) -> np.ndarray:
+        S, r = size
+        if S != len(self._gens):  # pragma: no cover - the law always draws one row per run
+            raise InvalidArgumentError(f"expected a draw for {len(self._gens)} runs, got {S}")
+        if self._pos + r > self._buf.shape[1]:
+            fresh = np.empty((S, max(r, self._ahead)))
+            for i, gen in enumerate(self._gens):
+                gen.standard_normal(out=fresh[i])
+            self._buf = np.hstack([self._buf[:, self._pos :], fresh])
+            self._pos = 0
+        out = self._buf[:, self._pos : self._pos + r]
+        self._pos += r
+        return out
+
+
+def _draws_per_run(law: Any) -> int:
+    """The normals one run draws along the law's steps (process noise, then the sensor's)."""
+    total = 0
+    for st in law.steps:
+        if st.W is not None:
+            total += st.W.shape[1]
+        if st.model.p:
+            total += st.model.noise(st.mean).shape[1]
+    return total
+
+
+def _execute_batch(
+    payload: _Payload,
+    system: Any,
+    formula: STLFormula,
+    promises: list[np.ndarray],
+    seeds: Sequence[np.random.SeedSequence],
+    first_index: int,
+    starts: np.ndarray | None,
+) -> list[dict[str, Any]]:
+    """Execute ``len(seeds)`` runs together with the step law over a batch, then monitor them
+    together; the same records as :func:`_execute`'s one-run-at-a-time loop (up to rounding)."""
+    from ..executor import ExecutorSpec, StepLaw
+
+    plan, N = payload.plan, payload.num_of_steps
+    S, n = len(seeds), system.n
+    opts = payload.sim_options
+    spec = ExecutorSpec.make(
+        system,
+        control_domain=opts["control_domain"],
+        process_noise=opts["process_noise"],
+        lqr_gains=opts["lqr_gains"],
+        real_system=payload.real_system,
+        modes=plan.get_action()[:N].tolist(),
+    )
+    law = StepLaw(spec, plan, N)
+    rng = _RunStreams(seeds, _draws_per_run(law))
+    keep = max(0, min(S, payload.keep - first_index))
+
+    X = np.tile(payload.real_initial_state, (S, 1)) if starts is None else np.array(starts, dtype=float)
+    M = np.tile(plan.get_mean(0), (S, 1))
+    P: np.ndarray = plan.get_cov(0).copy()
+    means = np.empty((S, N + 1, n))
+    states = np.empty((S, N + 1, n))
+    controls = np.empty((S, N, system.m))
+    covs: list[np.ndarray] = [P]
+    observations = np.full((keep, N + 1, law.p_max), np.nan)
+    means[:, 0], states[:, 0] = M, X
+    for k in range(N):
+        U = law.control(k, M)
+        X = law.plant(k, X, U, rng)  # type: ignore[arg-type]
+        Y = law.observe(k, X, rng)  # type: ignore[arg-type]
+        M, P = law.filter(k, M, P, U, Y)
+        means[:, k + 1], states[:, k + 1], controls[:, k] = M, X, U
+        covs.append(P)
+        if Y is not None and keep:
+            observations[:, k + 1, : Y.shape[1]] = Y[:keep]
+        if not (np.isfinite(M).all() and np.isfinite(X).all()):
+            raise InvalidArgumentError(f"the execution diverged at step {k + 1} (non-finite state)")
+    # the filter's covariances: shared by the runs (L, n, n) while the noise is constant
+    shared = all(c.ndim == 2 for c in covs)
+    cov_arr = (
+        np.stack(covs)
+        if shared
+        else np.stack([np.broadcast_to(c, (S, n, n)) for c in covs], axis=1)  # (S, L, n, n)
+    )
+    actions = plan.get_action()[:N]
+    belief = _batch_monitor(formula, promises, means, cov_arr, actions)
+    state = _batch_monitor(formula, promises, states, None, actions)
+    results: list[dict[str, Any]] = []
+    for i in range(S):
+        res: dict[str, Any] = {
+            "belief_margin": float(belief["margin"][i]),
+            "state_margin": float(state["margin"][i]),
+            "belief_props": belief["props"][i].tolist(),
+            "belief_preds": belief["preds"][i].tolist(),
+            "state_props": state["props"][i].tolist(),
+            "state_preds": state["preds"][i].tolist(),
+        }
+        if i < keep:
+            run_covs = cov_arr if shared else cov_arr[i]
+            res["trajectories"] = (
+                ProbabilisticTSTrajectory(means[i], np.array(run_covs), actions, controls[i]),
+                RealTrajectory(states[i], observations[i], actions, controls[i]),
+            )
+        results.append(res)
+    return results
+
+
+def _batch_monitor(
+    formula: STLFormula,
+    promises: list[np.ndarray],
+    means: np.ndarray,
+    covs: np.ndarray | None,
+    actions: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """The monitor over a batch of ``S`` trajectories at once.
+
+    ``means`` (S, L, n); ``covs`` (L, n, n) shared by the runs, (S, L, n, n), or None for the
+    true states (the deterministic reading: zero covariance). Returns ``margin`` (S,) (the
+    robustness at step 0, :func:`~idstlpy.semantics.formula_margins` over the batch), ``props``
+    (S, #propositions) and ``preds`` (S, #predicates): broken at a promised step.
+    """
+    S, L, n = means.shape
+    atoms: dict[int, np.ndarray] = {}
+    faces_of: dict[int, np.ndarray] = {}
+    for ap in formula.atomic_propositions():
+        key = id(ap)
+        if key in atoms:
+            continue
+        if ap.is_false:
+            atoms[key] = np.full((L, S), -np.inf)
+            continue
+        out = np.full((S, L), np.inf)
+        faces = np.zeros((S, L, 0))
+        if ap.predicates:
+            cone = ap.cone
+            if covs is None:
+                std = std_terms(cone.H, cone.z, np.zeros((1, n, n)))  # (1, F)
+            elif covs.ndim == 3:
+                std = std_terms(cone.H, cone.z, covs)  # (L, F)
+            else:
+                std = std_terms(cone.H, cone.z, covs.reshape(S * L, n, n)).reshape(S, L, -1)
+            faces = -(means @ cone.H.T + cone.c + std)  # (S, L, F): chance.slack over the batch
+            if faces.shape[2]:
+                out = faces.min(axis=2)
+        if ap.modes is not None and L > 1:
+            allowed = np.isin(actions, np.fromiter(ap.modes, dtype=int, count=len(ap.modes)))
+            out[:, 1:] = np.where(allowed, out[:, 1:], -np.inf)
+        atoms[key] = out.T
+        faces_of[key] = faces
+    props = np.zeros((S, len(promises)), dtype=bool)
+    preds: list[np.ndarray] = []
+    for j, (ap, promise) in enumerate(zip(_propositions(formula), promises, strict=True)):
+        mask = promise[:L]
+        props[:, j] = np.asarray((atoms[id(ap)].T[:, mask] < 0.0).any(axis=1))
+        preds.append(np.asarray((faces_of[id(ap)][:, mask, :] < 0.0).any(axis=1)))  # (S, F)
+    margin = formula_margins(formula, atoms, L)[0] if L else np.full(S, -np.inf)
+    return {
+        "margin": np.asarray(margin),
+        "props": props,
+        "preds": np.concatenate(preds, axis=1) if preds else np.zeros((S, 0), dtype=bool),
+    }
 
 
 def _run_batch(
@@ -808,6 +1022,7 @@ def validate(
     replan_options: Mapping[str, Any] | None = None,
     execution_target: ExecutionTarget | Sequence[float] | Mapping[str, float] | None = None,
     plant: PlantStep | None = None,
+    batched: bool = True,
 ) -> ValidationReport:
     """Execute a plan many times and measure how often its promise held.
 
@@ -854,7 +1069,8 @@ def validate(
     keep_trajectories : int
         Keep the first this-many executions in :attr:`ValidationReport.executions`.
     progress : callable, optional
-        ``progress(done, runs)`` called in the calling process as batches finish.
+        ``progress(done, runs)`` called in the calling process as batches finish (an INFO log
+        record ``validate: done/runs runs`` is also written at most every second).
     predict : bool
         Also predict the execution (:func:`~idstlpy.execution.prediction.predict_closed_loop`
         with this call's gains, control-domain projection, process noise, real system, true
@@ -885,6 +1101,12 @@ def validate(
         moving the true state instead of ``real_system`` (which must then be None); see
         :func:`~idstlpy.execution.simulation.simulate`. With a process pool it must be picklable
         (a module-level function). Not with ``predict`` (the prediction is of a linear loop).
+
+    batched : bool
+        Execute and monitor the runs of a worker together, as arrays over runs (default; see
+        the module notes); False: one run after the other with :func:`simulate` and the
+        monitor. Both give every run the same noise; the rates are the same and the margins
+        agree up to rounding.
 
     Returns
     -------
@@ -954,8 +1176,19 @@ def validate(
             predict_options,
             None if starts is None else solution.get_cov(0),
         )
+    if not isinstance(batched, bool):
+        raise InvalidTypeError(f"batched must be True or False, got {type(batched).__name__}")
     payload = _Payload(
-        system, problem.stl_formula, None, solution, real_system, real_initial_state, steps, sim_options, keep
+        system,
+        problem.stl_formula,
+        None,
+        solution,
+        real_system,
+        real_initial_state,
+        steps,
+        sim_options,
+        keep,
+        batched=batched,
     )
     if replan_kw is not None:
         payload = dataclasses.replace(payload, problem=problem, replan=replan_kw)
@@ -982,24 +1215,29 @@ def validate(
         for i in range(0, runs, chunk)
     ]
     results: list[dict[str, Any]] = []
+    last_log = [time.perf_counter()]
+
+    def report_progress(done: int) -> None:
+        if progress is not None:
+            progress(done, runs)
+        now = time.perf_counter()
+        if now - last_log[0] >= 1.0 or done == runs:
+            last_log[0] = now
+            logger.info("validate: %d/%d runs (%.1f s)", done, runs, now - t0)
+
     try:
         if pool is None:
             for i, seeds, x0s in batches:
                 results.extend(_execute(payload, seeds, i, x0s))
-                if progress is not None:
-                    progress(len(results), runs)
+                report_progress(len(results))
         else:
             if isinstance(pool, ThreadPoolExecutor) or blob is None:  # threads share the payload
                 futures = [pool.submit(_execute, payload, seeds, i, x0s) for i, seeds, x0s in batches]
             else:
                 futures = [pool.submit(_run_batch, blob, seeds, i, x0s) for i, seeds, x0s in batches]
-            done = 0
             for fut in futures:
-                part = fut.result()
-                results.extend(part)
-                done += len(part)
-                if progress is not None:
-                    progress(done, runs)
+                results.extend(fut.result())
+                report_progress(len(results))
     finally:
         if own_pool is not None:
             own_pool.shutdown()

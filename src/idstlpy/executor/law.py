@@ -21,7 +21,9 @@ Every function takes arrays with a leading run axis: states and means (S, n), in
 observations (S, p). The filter's covariance is one (n, n) matrix shared by every run while the
 noise does not depend on the state (it then does not depend on the observations either), and
 (S, n, n) once a state-dependent sensor has made the runs' covariances differ; a state-dependent
-noise function is called once per run (a user's function of one state cannot take a batch). For
+noise function is called once for all runs when it takes a batch of states, else once per run
+(:meth:`~idstlpy.dynamical_system.POLBSWithNonLinNoise.noise_batch`), and the runs' filters are
+updated together (:func:`~idstlpy.belief.kalman_update_batch`). For
 ``S = 1`` the arithmetic is that of one vector (``x @ A.T`` is ``A @ x`` bit for bit), so one run
 reproduces the serial executor exactly; for ``S > 1`` the runs draw their noises from one
 generator, row by row within each draw.
@@ -34,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._checks import as_int
-from ..belief import _joseph, kalman_gain, kalman_update, predict
+from ..belief import _joseph, kalman_gain, kalman_update, kalman_update_batch, predict
 from ..closed_loop import step_parts
 from ..dynamical_system import LCS
 from ..errors import DimensionError, InvalidArgumentError
@@ -173,6 +175,12 @@ class StepLaw:
             return None
         Y = states @ mode.C.T
         if mode.has_state_dependent_noise:
+            if states.shape[0] > 1:  # one call for the batch when the function takes one
+                nxs = mode.noise_batch(states)
+                if nxs.shape[2]:
+                    draws = rng.standard_normal((states.shape[0], nxs.shape[2]))
+                    Y = Y + (nxs @ draws[:, :, None])[:, :, 0]
+                return Y
             factors = [mode.noise(x) for x in states]
             r = factors[0].shape[1]
             if r:
@@ -209,6 +217,10 @@ class StepLaw:
             return mean_pred + (observations - mean_pred @ mode.C.T) @ L.T, new_cov
         S, n = means.shape
         covs = np.broadcast_to(cov, (S, n, n)) if cov.ndim == 2 else cov
+        if S > 1:  # the runs at once (belief.kalman_update_batch: kalman_update up to rounding)
+            mean_pred = means @ mode.A.T + inputs @ mode.B.T
+            P = mode.A @ covs @ mode.A.T + mode.process_cov
+            return kalman_update_batch(mode, mean_pred, P, observations)
         out_m, out_c = np.empty_like(means), np.empty((S, n, n))
         for i in range(S):
             mp, P = predict(mode, means[i], covs[i], inputs[i])
