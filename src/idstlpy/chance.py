@@ -26,7 +26,15 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-__all__ = ["quantile", "std_terms", "slack", "joint_risk", "joint_slack", "allocate_shares"]
+__all__ = [
+    "quantile",
+    "std_terms",
+    "slack",
+    "joint_risk",
+    "joint_tail_sum",
+    "joint_slack",
+    "allocate_shares",
+]
 
 
 def quantile(eps: Any) -> np.ndarray:
@@ -107,6 +115,25 @@ def _tail(d: np.ndarray, sd: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         out = ndtr(-d / sd)
     return np.where(sd > 0, out, np.where(d >= 0, 0.0, 1.0))
+
+
+def joint_tail_sum(d: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """``sum_f P[N(0, sd_f^2) > d_f]`` over the last axis: Boole's bound from face distances.
+
+    Parameters
+    ----------
+    d : ndarray, shape (..., F)
+        ``-(h_f' m + c_f)`` per face (positive inside).
+    sd : ndarray, shape (..., F)
+        ``sqrt(h_f' S h_f)`` per face (a face without variance counts 0 inside, 1 outside).
+
+    Returns
+    -------
+    ndarray, shape (...)
+    """
+    return np.asarray(
+        np.sum(_tail(np.asarray(d, dtype=float), np.asarray(sd, dtype=float)), axis=-1), dtype=float
+    )
 
 
 def joint_risk(H: np.ndarray, c: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -719,12 +719,9 @@ class JointChanceConstraint(ConvexConstraint):
         return tuple(LinearPredicate(h, float(c), self.variable) for h, c in zip(self.H, self.c, strict=True))
 
     @property
-    def face_constraints(self) -> tuple[ProbabilisticLinearPredicate, ...]:
+    def face_constraints(self) -> tuple[JointFace, ...]:
         """The planner's reading: one chance constraint per face at its share (sufficient)."""
-        return tuple(
-            ProbabilisticLinearPredicate(h, float(c), self.variable, float(e))
-            for h, c, e in zip(self.H, self.c, self.shares, strict=True)
-        )
+        return tuple(JointFace(self, i) for i in range(self.num_faces))
 
     @property
     def region(self) -> Polytope:
@@ -779,6 +776,33 @@ class JointChanceConstraint(ConvexConstraint):
 
     def __hash__(self) -> int:
         return hash(("JointChanceConstraint", self._key()))
+
+
+class JointFace(ProbabilisticLinearPredicate):
+    """Face ``index`` of a joint chance constraint as the planner reads it: ``eps = shares[index]``.
+
+    Parameters
+    ----------
+    joint : JointChanceConstraint
+        The constraint the face belongs to (``.joint``).
+    index : int
+        Which face (``.index``).
+    """
+
+    def __init__(self, joint: JointChanceConstraint, index: int) -> None:
+        super().__init__(joint.H[index], float(joint.c[index]), joint.variable, float(joint.shares[index]))
+        self.joint = joint
+        self.index = int(index)
+
+    def __str__(self) -> str:
+        affine = format_affine(self.h, self.c, self.variable.name)
+        return (
+            f"{affine} <= 0 (face {self.index + 1} of {self.joint.num_faces}, "
+            f"jointly >= {_fmt_num(1 - self.joint.eps)})"
+        )
+
+    def __repr__(self) -> str:
+        return f"JointFace({self}, planned at {_fmt_num(1 - self.eps)})"
 
 
 class _JointProbability:

@@ -88,7 +88,7 @@ from scipy.special import ndtr, owens_t
 
 from .._checks import as_covariance, as_int, as_vector
 from ..belief import GaussianBelief
-from ..chance import std_terms
+from ..chance import joint_tail_sum, std_terms
 from ..closed_loop import (
     ClosedLoopMoments,
     box_bounds,
@@ -689,10 +689,33 @@ def _clopper_pearson_lower(rate: float, trials: int, confidence: float = 0.999) 
     return 0.0 if k == 0 else float(beta.ppf(1.0 - confidence, k, trials - k + 1))
 
 
+def _joint_groups(aps: list[STLAtomicProposition]) -> list[tuple[np.ndarray, float]]:
+    """The face rows (in :func:`_faces` order) of every joint chance constraint, with its ``eps``."""
+    out: list[tuple[np.ndarray, float]] = []
+    row = 0
+    for ap in aps:
+        at = row + ap.num_single
+        for joint in ap.joints:
+            out.append((np.arange(at, at + joint.num_faces), joint.eps))
+            at += joint.num_faces
+        row += ap.cone.num_faces
+    return out
+
+
 def _sample_events(
-    loop: ClosedLoopMoments, faces: _Faces, size: int, rng: np.random.Generator, roots: list[np.ndarray]
+    loop: ClosedLoopMoments,
+    faces: _Faces,
+    size: int,
+    rng: np.random.Generator,
+    roots: list[np.ndarray],
+    groups: list[tuple[np.ndarray, float]] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Face truth on ``size`` trajectories sampled from the model, per reading a bool array (S, L, F)."""
+    """Face truth on ``size`` trajectories sampled from the model, per reading a bool array (S, L, F).
+
+    The faces of a joint chance constraint (``groups``) are judged together, as the monitor and
+    ``validate`` do: on the executed belief by Boole's bound (:func:`idstlpy.chance.joint_risk`),
+    on the true state as the region; each of them holds in a sample iff the joint constraint does.
+    """
     L, D = loop.mean.shape
     nF = faces.H.shape[0]
     ok = {r: np.empty((size, L, nF), dtype=bool) for r in ("state", "belief")}
@@ -711,6 +734,15 @@ def _sample_events(
             Pk = loop.P[k] + z[:, 2 * n :].reshape(size, n, n)
             lhs = z[:, n : 2 * n] @ faces.H.T + const["state"][k] + std_terms(faces.H, faces.z, Pk)
             ok["belief"][:, k] = lhs <= 0
+        for rows, eps in groups or ():
+            n = faces.H.shape[1]
+            Hg = faces.H[rows]
+            P = loop.P[k] + z[:, 2 * n :].reshape(size, n, n) if loop.sensitivity else loop.P[k]
+            d = -(z[:, n : 2 * n] @ Hg.T + const["state"][k][rows])
+            sd = np.sqrt(np.maximum(np.einsum("fi,...ij,fj->...f", Hg, P, Hg), 0.0))
+            held = joint_tail_sum(d, np.broadcast_to(sd, d.shape)) <= eps
+            ok["belief"][:, k, rows] = held[:, None]
+            ok["state"][:, k, rows] = np.all(ok["state"][:, k, rows], axis=1)[:, None]  # the region
     return ok
 
 
@@ -741,7 +773,7 @@ def _sample_rates(
     done = 0
     while done < samples:
         size = min(chunk, samples - done)
-        ok = _sample_events(loop, faces, size, rng, roots)
+        ok = _sample_events(loop, faces, size, rng, roots, _joint_groups(aps))
         for r in readings:
             step_n[r] += np.sum(ok[r], axis=0)
             broken = ~ok[r] & promised  # (S, L, F)

@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .._checks import as_int, as_seed_sequence, as_vector
-from ..chance import slack, std_terms
+from ..chance import joint_slack, slack, std_terms
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 from ..executor import PlantStep, ProcessNoise
@@ -577,11 +577,20 @@ def _propositions(formula: STLFormula) -> list[STLAtomicProposition]:
 
 
 def _face_slacks(ap: STLAtomicProposition, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
-    """Slack of every chance predicate of ``ap`` at every step, shape (L, k) (:func:`chance.slack`)."""
+    """Slack of every chance predicate of ``ap`` at every step, shape (L, k) (:func:`chance.slack`).
+
+    The faces of a joint chance constraint all get its margin (:func:`chance.joint_slack`): each is
+    violated where the joint constraint is, as the monitor judges it.
+    """
     cone = ap.cone
     if cone.num_faces == 0:
         return np.zeros((means.shape[0], 0))
-    return slack(cone.H, cone.c, cone.z, means, covs)
+    out = slack(cone.H, cone.c, cone.z, means, covs)
+    at = ap.num_single
+    for joint in ap.joints:
+        out[:, at : at + joint.num_faces] = joint_slack(joint.H, joint.c, joint.eps, means, covs)[:, None]
+        at += joint.num_faces
+    return out
 
 
 def _promises(formula: STLFormula, plan: ProbabilisticTSTrajectory, L: int) -> list[np.ndarray]:
@@ -819,6 +828,27 @@ def _execute_batch(
     return results
 
 
+def _batch_joint_slacks(
+    ap: STLAtomicProposition, faces: np.ndarray, means: np.ndarray, covs: np.ndarray | None
+) -> np.ndarray:
+    """``faces`` (S, L, F) with the faces of each joint constraint set to its margin (joint_slack)."""
+    S, L, n = means.shape
+    flat = means.reshape(S * L, n)
+    if covs is None:
+        cov: np.ndarray = np.zeros((n, n))
+    elif covs.ndim == 3:
+        cov = np.broadcast_to(covs[None], (S, L, n, n)).reshape(S * L, n, n)
+    else:
+        cov = covs.reshape(S * L, n, n)
+    out = faces.copy()
+    at = ap.num_single
+    for joint in ap.joints:
+        margin = joint_slack(joint.H, joint.c, joint.eps, flat, cov).reshape(S, L)
+        out[:, :, at : at + joint.num_faces] = margin[:, :, None]
+        at += joint.num_faces
+    return out
+
+
 def _batch_monitor(
     formula: STLFormula,
     promises: list[np.ndarray],
@@ -854,6 +884,8 @@ def _batch_monitor(
             else:
                 std = std_terms(cone.H, cone.z, covs.reshape(S * L, n, n)).reshape(S, L, -1)
             faces = -(means @ cone.H.T + cone.c + std)  # (S, L, F): chance.slack over the batch
+            if ap.joints:  # judged as wholes (the monitor's reading), each face given its joint's margin
+                faces = _batch_joint_slacks(ap, faces, means, covs)
             if faces.shape[2]:
                 out = faces.min(axis=2)
         if ap.modes is not None and L > 1:
