@@ -1,0 +1,405 @@
+"""An independent exact optimiser for small one-mode problems: the ground truth of issue 25.
+
+For one mode ``(A, B, W, C, V)`` with a *constant* sensor noise (or none), the belief covariance
+does not depend on the controls, so every chance constraint ``P(h'x + c <= 0) >= 1 - eps`` is the
+deterministic face ``h' mean_k + c + Phi^-1(1 - eps) sqrt(h' cov_k h) <= 0`` of the mean, and the
+mean is affine in the controls: ``mean_k = A^k mean_0 + sum_{j<k} A^(k-1-j) B u_j``. The problem
+of a plan of exactly ``N`` steps is then a MILP, written here from the definitions of
+:mod:`oracles.brute_force` (strong reading on the finite trace of ``L = N + 1`` states: an index
+``>= L`` satisfies nothing) and nothing of idstlpy's synthesis code:
+
+- every (sub-formula, step) pair gets a robustness expression: ``+inf`` / ``-inf`` constants
+  (mode atoms, ``TRUE``/``FALSE``, indices past the end), an affine function of the controls (a
+  chance constraint's slack ``-(h' mean_k + c + z sd_k)``), or a fresh column ``r`` with
+  ``r <= child`` for a conjunction and ``r <= child_i + M_i (1 - b_i)``, ``sum b_i = 1`` for a
+  disjunction (``M_i`` from interval bounds of the children over the control box);
+- until and release are expanded literally into those conjunctions and disjunctions;
+- ``"margin"`` maximises the root (the monitor's robustness), ``"effort"`` minimises
+  ``sum_k sum_j w_j |u_kj|`` with the root ``>= 0``, ``"time"`` asks for the smallest ``N``
+  whose MILP is feasible.
+
+Plans are enumerated by length ``N = 0 .. horizon`` (a plan longer than the formula's horizon
+cannot do better: its prefix of ``horizon`` steps meets the formula the same way, costs no more
+and has the same robustness). Each MILP is solved with :func:`scipy.optimize.milp` (HiGHS), then
+its binaries are fixed and the LP over the controls re-solved (:func:`scipy.optimize.linprog`), so
+the value is an LP vertex's, not within the MILP's tolerances; the plan is re-checked with the
+independent roll-out and the brute-force monitor (loosened by 1e-9 relative).
+
+The control domain must be a box ``lo <= u <= hi`` with finite sides.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import Bounds, LinearConstraint, linprog, milp
+from scipy.stats import norm
+
+from .brute_force import sat
+from .rollout import ModeSpec, loosen, mlo_rollout, mlo_step
+
+__all__ = ["Optimum", "exact_optimum", "covariances"]
+
+INF = math.inf
+
+
+@dataclass
+class Optimum:
+    """The exact optimum of one objective.
+
+    Attributes
+    ----------
+    feasible : bool
+        Whether any plan of at most ``horizon`` steps meets the formula.
+    value : float
+        The optimum (``nan`` when infeasible).
+    steps : int
+        Length ``N`` of an optimal plan (``-1`` when infeasible).
+    controls : ndarray, shape (N, m) or None
+    per_length : dict of int to float
+        The optimum of every plan length that has a plan.
+    """
+
+    feasible: bool
+    value: float
+    steps: int
+    controls: np.ndarray | None
+    per_length: dict[int, float]
+
+
+def covariances(mode: ModeSpec, mean0: np.ndarray, cov0: np.ndarray, N: int) -> list[np.ndarray]:
+    """``cov_0 .. cov_N`` of the MLO filter (independent of the controls here)."""
+    if mode.state_dependent:
+        raise ValueError("the exact optimiser needs a constant sensor noise")
+    m = mode.B.shape[1]
+    mean, cov = np.asarray(mean0, float), np.asarray(cov0, float)
+    out = [cov]
+    for _ in range(N):
+        mean, cov = mlo_step(mode, mean, cov, np.zeros(m))
+        out.append(cov)
+    return out
+
+
+class _Model:
+    """Columns ``u`` (N m), then added robustness columns and binaries; rows collected."""
+
+    def __init__(self, N: int, m: int, lo: np.ndarray, hi: np.ndarray) -> None:
+        self.nu = N * m
+        self.lb = list(np.tile(lo, N))
+        self.ub = list(np.tile(hi, N))
+        self.integer = [0] * self.nu
+        self.rows: list[tuple[dict[int, float], float, float]] = []  # (coefs, lo, hi)
+        self.lo_u, self.hi_u = np.tile(lo, N), np.tile(hi, N)
+
+    def column(self, lb: float, ub: float, integer: bool = False) -> int:
+        self.lb.append(lb)
+        self.ub.append(ub)
+        self.integer.append(1 if integer else 0)
+        return len(self.lb) - 1
+
+    def row(self, coefs: dict[int, float], lo: float, hi: float) -> None:
+        self.rows.append((coefs, lo, hi))
+
+    def affine_range(self, a: np.ndarray, c: float) -> tuple[float, float]:
+        pos, neg = np.maximum(a, 0.0), np.minimum(a, 0.0)
+        return (
+            float(pos @ self.lo_u + neg @ self.hi_u + c),
+            float(pos @ self.hi_u + neg @ self.lo_u + c),
+        )
+
+
+@dataclass
+class _Aff:
+    a: np.ndarray  # coefficients over u
+    c: float
+    lo: float
+    hi: float
+
+
+@dataclass
+class _Var:
+    col: int
+    lo: float
+    hi: float
+
+
+def _le(model: _Model, col: int, child: Any, slack_col: int | None = None, big: float = 0.0) -> None:
+    """Row ``r_col <= child (+ big (1 - b))``."""
+    coefs: dict[int, float] = {col: 1.0}
+    rhs = 0.0
+    if isinstance(child, _Aff):
+        for j in np.flatnonzero(child.a):
+            coefs[int(j)] = coefs.get(int(j), 0.0) - float(child.a[j])
+        rhs = child.c
+    else:
+        coefs[child.col] = coefs.get(child.col, 0.0) - 1.0
+    if slack_col is not None:
+        coefs[slack_col] = big
+        rhs += big
+    model.row(coefs, -INF, rhs)
+
+
+def _and(model: _Model, children: list[Any]) -> Any:
+    kids = [c for c in children if c != INF]
+    if any(c == -INF for c in kids):
+        return -INF
+    if not kids:
+        return INF
+    if len(kids) == 1:
+        return kids[0]
+    lo, hi = min(k.lo for k in kids), min(k.hi for k in kids)
+    col = model.column(lo, hi)
+    for k in kids:
+        _le(model, col, k)
+    return _Var(col, lo, hi)
+
+
+def _or(model: _Model, children: list[Any]) -> Any:
+    kids = [c for c in children if c != -INF]
+    if any(c == INF for c in kids):
+        return INF
+    if not kids:
+        return -INF
+    if len(kids) == 1:
+        return kids[0]
+    lo, hi = min(k.lo for k in kids), max(k.hi for k in kids)
+    col = model.column(lo, hi)
+    picks = []
+    for k in kids:
+        b = model.column(0.0, 1.0, integer=True)
+        picks.append(b)
+        _le(model, col, k, b, hi - k.lo)
+    model.row({b: 1.0 for b in picks}, 1.0, 1.0)
+    return _Var(col, lo, hi)
+
+
+def _build(
+    formula: Any, mode: ModeSpec, mean0: np.ndarray, covs: list[np.ndarray], N: int, model: _Model
+) -> Any:
+    """The root's robustness expression for plans of exactly ``N`` steps."""
+    from idstlpy.formulas import STLAnd, STLAtomicProposition, STLOr, STLRelease, STLUntil
+
+    n, m = mode.A.shape[0], mode.B.shape[1]
+    L = N + 1
+    # mean_k = M[k] u + g[k]
+    M = [np.zeros((n, N * m))]
+    g = [np.asarray(mean0, float)]
+    for k in range(1, L):
+        Mk = mode.A @ M[-1]
+        Mk[:, (k - 1) * m : k * m] += mode.B
+        M.append(Mk)
+        g.append(mode.A @ g[-1])
+    memo: dict[tuple[int, int], Any] = {}
+
+    def atom(f: Any, k: int) -> Any:
+        if f.is_false:
+            return -INF
+        if f.modes is not None and k >= 1 and 0 not in f.modes:
+            return -INF
+        parts = []
+        for p in f.predicates:
+            h = np.asarray(p.h, float).reshape(-1)
+            var = float(h @ covs[k] @ h)
+            if p.eps == 0.0:
+                if var > 0.0:
+                    return -INF
+                z_sd = 0.0
+            else:
+                z_sd = float(norm.ppf(1.0 - p.eps)) * math.sqrt(max(var, 0.0))
+            a = -(h @ M[k])
+            c = -(float(h @ g[k]) + float(p.c) + z_sd)
+            lo, hi = model.affine_range(a, c)
+            parts.append(_Aff(a, c, lo, hi))
+        return _and(model, parts)
+
+    def rec(f: Any, k: int) -> Any:
+        if k >= L:
+            return -INF
+        key = (id(f), k)
+        if key in memo:
+            return memo[key]
+        if isinstance(f, STLAtomicProposition):
+            out = atom(f, k)
+        elif isinstance(f, STLAnd):
+            out = _and(model, [rec(c, k) for c in f.children])
+        elif isinstance(f, STLOr):
+            out = _or(model, [rec(c, k) for c in f.children])
+        elif isinstance(f, STLUntil):
+            options = []
+            for j in range(k + f.a, k + f.b + 1):
+                if j >= L:
+                    break
+                options.append(_and(model, [rec(f.right, j)] + [rec(f.left, i) for i in range(k + f.a, j)]))
+            out = _or(model, options)
+        elif isinstance(f, STLRelease):
+            options = []
+            for j in range(k + f.a, k + f.b + 1):
+                if j >= L:
+                    break
+                options.append(_and(model, [rec(f.left, j)] + [rec(f.right, i) for i in range(k + f.a, j + 1)]))
+            if k + f.b < L:
+                options.append(_and(model, [rec(f.right, i) for i in range(k + f.a, k + f.b + 1)]))
+            out = _or(model, options)
+        else:
+            raise TypeError(f"unknown formula type {type(f).__name__}")
+        memo[key] = out
+        return out
+
+    return rec(formula, 0)
+
+
+def _solve_length(
+    mode: ModeSpec,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    mean0: np.ndarray,
+    covs: list[np.ndarray],
+    formula: Any,
+    N: int,
+    objective: str,
+    weights: np.ndarray,
+) -> tuple[float, np.ndarray] | None:
+    """The optimum over plans of exactly ``N`` steps and its controls, or None (no plan)."""
+    m = mode.B.shape[1]
+    model = _Model(N, m, lo, hi)
+    root = _build(formula, mode, mean0, covs, N, model)
+    if root == -INF:
+        return None
+    r = model.column(-INF, INF)
+    if root != INF:
+        _le(model, r, root)
+        model.ub[r] = root.hi
+    elif objective == "margin":
+        return INF, np.zeros((N, m))
+    nvar0 = len(model.lb)
+    if objective == "effort":
+        model.lb[r] = 0.0
+        acols = [model.column(0.0, INF) for _ in range(model.nu)]
+        for j, a in enumerate(acols):
+            model.row({j: 1.0, a: -1.0}, -INF, 0.0)
+            model.row({j: -1.0, a: -1.0}, -INF, 0.0)
+    elif objective == "time":
+        model.lb[r] = 0.0
+    nvar = len(model.lb)
+    c = np.zeros(nvar)
+    if objective == "margin":
+        c[r] = -1.0
+    elif objective == "effort":
+        c[nvar0:] = np.tile(weights, N)
+    A = np.zeros((len(model.rows), nvar))
+    rlo, rhi = np.empty(len(model.rows)), np.empty(len(model.rows))
+    for i, (coefs, a, b) in enumerate(model.rows):
+        for j, v in coefs.items():
+            A[i, j] += v
+        rlo[i], rhi[i] = a, b
+    lb, ub = np.array(model.lb), np.array(model.ub)
+    integ = np.array(model.integer)
+    cons = [LinearConstraint(A, rlo, rhi)] if len(model.rows) else []
+    res = milp(c, constraints=cons, integrality=integ, bounds=Bounds(lb, ub), options={"mip_rel_gap": 1e-9})
+    if res.x is None:
+        if res.status == 2:  # infeasible
+            return None
+        raise RuntimeError(f"exact optimiser: MILP failed ({res.message})")
+    # Fix the binaries and re-solve the LP: the value is a vertex's.
+    fixed_lb, fixed_ub = lb.copy(), ub.copy()
+    ints = integ == 1
+    fixed_lb[ints] = fixed_ub[ints] = np.round(res.x[ints])
+    A_ub, b_ub = [], []
+    A_eq, b_eq = [], []
+    for i in range(A.shape[0]):
+        if rlo[i] == rhi[i]:
+            A_eq.append(A[i])
+            b_eq.append(rhi[i])
+            continue
+        if np.isfinite(rhi[i]):
+            A_ub.append(A[i])
+            b_ub.append(rhi[i])
+        if np.isfinite(rlo[i]):
+            A_ub.append(-A[i])
+            b_ub.append(-rlo[i])
+    lp = linprog(
+        c,
+        A_ub=np.array(A_ub) if A_ub else None,
+        b_ub=b_ub if A_ub else None,
+        A_eq=np.array(A_eq) if A_eq else None,
+        b_eq=b_eq if A_eq else None,
+        bounds=list(zip(fixed_lb, fixed_ub, strict=True)),
+        method="highs",
+    )
+    x = lp.x if lp.status == 0 else res.x
+    controls = np.asarray(x[: model.nu]).reshape(N, m)
+    if objective == "margin":
+        return float(x[r]), controls
+    if objective == "effort":
+        return float(np.sum(np.abs(controls) @ weights)), controls
+    return float(N), controls
+
+
+def exact_optimum(
+    mode: ModeSpec,
+    lo: Any,
+    hi: Any,
+    mean0: Any,
+    cov0: Any,
+    formula: Any,
+    objective: str,
+    weights: Any = None,
+    max_steps: int | None = None,
+    check: bool = True,
+) -> Optimum:
+    """The exact optimum of ``objective`` over every plan of at most ``horizon`` steps.
+
+    Parameters
+    ----------
+    mode : ModeSpec
+        The one mode (constant sensor noise or none).
+    lo, hi : array_like, shape (m,)
+        The control box (finite).
+    mean0 : array_like, shape (n,)
+    cov0 : array_like, shape (n, n)
+    formula : STLFormula
+    objective : {"effort", "time", "margin"}
+    weights : array_like, shape (m,), optional
+        Effort weights (default ones).
+    max_steps : int, optional
+        Longest plan (default: the formula's horizon).
+    check : bool
+        Re-check the optimal plan with the independent roll-out and monitor.
+
+    Returns
+    -------
+    Optimum
+    """
+    lo, hi = np.asarray(lo, float).reshape(-1), np.asarray(hi, float).reshape(-1)
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        raise ValueError("the exact optimiser needs a bounded control box")
+    mean0 = np.asarray(mean0, float).reshape(-1)
+    cov0 = np.asarray(cov0, float).reshape(mean0.size, mean0.size)
+    m = mode.B.shape[1]
+    w = np.ones(m) if weights is None else np.asarray(weights, float)
+    Nmax = formula.horizon if max_steps is None else int(max_steps)
+    covs = covariances(mode, mean0, cov0, Nmax)
+    per: dict[int, float] = {}
+    best: tuple[float, int, np.ndarray] | None = None
+    for N in range(Nmax + 1):
+        out = _solve_length(mode, lo, hi, mean0, covs, formula, N, objective, w)
+        if out is None:
+            continue
+        value, controls = out
+        per[N] = value
+        if objective == "time":
+            best = (value, N, controls)
+            break
+        if best is None or (value > best[0] if objective == "margin" else value < best[0]):
+            best = (value, N, controls)
+    if best is None:
+        return Optimum(False, float("nan"), -1, None, per)
+    value, N, controls = best
+    if check and np.isfinite(value):
+        trace = mlo_rollout([mode], mean0, cov0, np.zeros(N, dtype=int), controls)
+        if not sat(loosen(formula, trace, 1e-7), 0, trace):
+            raise RuntimeError("exact optimiser: the optimal plan fails the brute-force monitor")
+    return Optimum(True, float(value), N, controls, per)
