@@ -51,6 +51,7 @@ from .proposer import BMCProposer
 from .results import SolveResult, SolveStats, Status
 from .sampler import SamplerTeacher
 from .teacher import (
+    TIGHTEN,
     LPOutcome,
     LPTeacher,
     closed_loop_check,
@@ -323,7 +324,8 @@ def _optimise(
                 optimal = stats.abandoned == 0
                 scope, bound = ("shortest first", value) if optimal else ("", float("nan"))
             else:
-                optimal, scope = True, "discrete plan"
+                # The plan LP's optimum is over the controls of one set of requirements, with the
+                # execution margin kept: no claim about the problem (issue 25).
                 eligible = problem.switched_system.num_modes == 1
                 if eligible:
                     better_run = _global(run, proposer, abstraction, scaling, name, weights)
@@ -364,6 +366,12 @@ def _optimise(
         # The MILP's bound is on its own model, within the solver's tolerances; the verified plan
         # is a bound too, so the reported one is never on the wrong side of the value.
         bound = max(bound, value) if name == "margin" else min(bound, value)
+    if optimal and not (np.isfinite(bound) and abs(value - bound) <= OPTIMALITY_TOL * max(1.0, abs(value))):
+        # A proof is about the MILP's model; the claim is about the returned plan, which may
+        # miss it (re-timed on fewer requirements, repaired for the closed loop): only a plan
+        # within the tolerance of the proven bound is called optimal (issue 25).
+        logger.info("objective %s: value %.12g vs bound %.12g: not claimed optimal", name, value, bound)
+        optimal = False
     margin = robustness(traj, formula) if final is None else final.margin
     result = run.done("found", how, traj, margin, None if final is None else final.predicted)
     result.objective = name
@@ -374,6 +382,11 @@ def _optimise(
     if run.joint:  # optimal (and bounded) at the planned risk allocation only: not claimed
         result.optimal, result.optimal_scope, result.objective_bound = False, "", float("nan")
     return result
+
+
+OPTIMALITY_TOL = 1e-6
+"""``optimal=True`` only when ``|value - bound| <= OPTIMALITY_TOL * max(1, |value|)`` (the
+result's ``gap``), with the bound proven over the result's ``optimal_scope``."""
 
 
 def _global(
@@ -429,34 +442,71 @@ def _retime(
     """Verify a MILP's plan, first re-solved by the plan LP on its witness (exact re-timing).
 
     ``room`` is the least margin (state units) the re-timing leaves inside the required faces.
+    Without an objective (or for ``"time"``, whose value is the length) the re-timing also keeps
+    the execution margin (:func:`~.teacher.execution_margin`). For ``"effort"`` and ``"margin"``
+    it solves the problem as stated (issue 25: the margin kept for execution is not part of the
+    optimum the MILP proves): ``"effort"`` tries the tightenings of :data:`RETIME_TIGHTENINGS` in
+    turn (the first plan the monitor accepts, so the value is the LP's optimum to ~1e-12 of the
+    state's unit instead of 2e-7 of it divided by the input gain), and the MILP's own plan is
+    verified too; the better of the two is returned.
     """
     problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
     init, system = problem.initial_state, problem.switched_system
     actions = np.zeros(controls.shape[0], dtype=int)
     witness = extract_witness(problem.stl_formula, claims, abstraction.index, prefer_late=objective != "time")
+    optimising = objective in ("effort", "margin")
+    found: list[Verified] = []
     if witness is not None:
         required, L = witness
         plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
-        with stats.clock("time_lp"):
-            lp = solve_plan_lp(
-                system,
-                problem.control_domain,
-                init.mean,
-                init.cov,
-                abstraction,
-                plan,
-                max(execution_margin(system, init, abstraction, plan), room),
-                scaling=scaling,
-                backend=get_backend(options.lp_backend),
-                time_limit=max(budget.remaining(), 1e-3),
-                objective=objective if objective in ("effort", "margin") else None,
-                effort_weights=weights,
-                assume_feasible=True,  # the MILP's witness: no elastic phase when it holds
-            )
-        stats.lp_calls += 1
-        if lp.feasible and lp.controls is not None:
-            actions, controls = np.zeros(L - 1, dtype=int), lp.controls
-    return _verify(run, actions, controls, abstraction, scaling)
+        keep = room if optimising else max(execution_margin(system, init, abstraction, plan), room)
+        for tighten in RETIME_TIGHTENINGS if objective == "effort" else (TIGHTEN,):
+            with stats.clock("time_lp"):
+                lp = solve_plan_lp(
+                    system,
+                    problem.control_domain,
+                    init.mean,
+                    init.cov,
+                    abstraction,
+                    plan,
+                    keep,
+                    scaling=scaling,
+                    backend=get_backend(options.lp_backend),
+                    time_limit=max(budget.remaining(), 1e-3),
+                    objective=objective if optimising else None,
+                    effort_weights=weights,
+                    assume_feasible=True,  # the MILP's witness: no elastic phase when it holds
+                    tighten=tighten,
+                )
+            stats.lp_calls += 1
+            if not (lp.feasible and lp.controls is not None):
+                break
+            checked = _verify(run, np.zeros(L - 1, dtype=int), lp.controls, abstraction, scaling)
+            if checked is not None:
+                if not optimising:
+                    return checked
+                found.append(checked)
+                break
+    if optimising or not found:
+        raw = _verify(run, actions, controls, abstraction, scaling)
+        if raw is not None:
+            found.append(raw)
+    if not found:
+        return None
+    if objective is None or objective == "time":
+        return found[0]
+    name = str(objective)
+    values = [objective_value(name, v.traj, problem.stl_formula, weights) for v in found]
+    best = 0
+    for i in range(1, len(found)):
+        if better(name, values[i], values[best]):
+            best = i
+    return found[best]
+
+
+RETIME_TIGHTENINGS = (1e-12, 1e-10, 1e-8, TIGHTEN)
+"""Room (relative to the smallest state unit) the effort re-timing keeps, tried in turn until
+the monitor's exact re-check accepts the plan (:func:`_retime`)."""
 
 
 def _guide(proposer: BMCProposer, abstraction: Abstraction, teacher: LPTeacher, plan: DiscretePlan) -> None:
@@ -486,6 +536,7 @@ def _eager(
     if options.objective in ("effort", "margin"):
         while proposer.grow():  # the optimum over the whole horizon, not the first bound
             pass
+    borderline = False  # some bound's infeasibility rested on a tolerance (time's search)
     while True:
         logger.info(
             "%d candidates tried: the eager MILP takes over at %d steps", stats.candidates, proposer.bound + 1
@@ -511,6 +562,14 @@ def _eager(
         if out.status == "timeout":
             budget.check("the eager MILP")
             return run.done("budget_exhausted", f"the eager MILP stopped: {out.why}; {run.counts()}")
+        if out.status == "borderline":
+            # No proof either way at this bound: at the horizon that is the answer; below it the
+            # search goes on, but no shorter plan is proven absent any more.
+            if proposer.bound >= proposer.H or proposer.bound >= proposer.cap:
+                return run.done("budget_exhausted", f"{out.why}; {run.counts()}")
+            borderline = True
+            proposer.grow()
+            continue
         if out.status == "infeasible":
             if proposer.bound >= proposer.H:
                 return run.done(
@@ -540,7 +599,7 @@ def _eager(
         return None
     whole = proposer.bound >= proposer.H or options.objective == "time"  # shorter plans are all inside
     scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
-    run.milp_proof = (out.proven, scope, out.bound)
+    run.milp_proof = (out.proven and not borderline, scope, out.bound)
     return run.done(
         "found",
         "the eager MILP chose the plan, the LP timed it, the monitor agrees",

@@ -74,8 +74,9 @@ _MAX_BIG_M = 1e7  # in normalised, scaled units: beyond this the model is numeri
 # at least absolute) to the MILP's bound: the MILP's rows hold only within its feasibility
 # tolerance (1e-6 of a scaled row), so its bound can exceed the true optimum by about that much.
 _PROOF_TOL = 1e-6
+_EFFORT_FEAS_TOL = 1e-9  # the rows of the effort MILP hold within this (see solve_milp)
 
-MILPStatus = Literal["found", "infeasible", "timeout", "unsupported"]
+MILPStatus = Literal["found", "infeasible", "borderline", "timeout", "unsupported"]
 
 
 class MILPOutcome:
@@ -83,9 +84,11 @@ class MILPOutcome:
 
     Attributes
     ----------
-    status : {"found", "infeasible", "timeout", "unsupported"}
-        ``infeasible`` is a proof for plans of at most ``bound + 1`` steps; ``unsupported``
-        means the model could not be bounded soundly (unbounded inputs, huge big-M).
+    status : {"found", "infeasible", "borderline", "timeout", "unsupported"}
+        ``infeasible`` is a proof for plans of at most ``bound + 1`` steps; ``borderline``: the
+        model is infeasible only within the solvers' tolerances (no proof either way);
+        ``unsupported`` means the model could not be bounded soundly (unbounded inputs, huge
+        big-M).
     actions : ndarray of int, shape (H,), or None
     controls : ndarray, shape (H, m), or None
     claims : ndarray of bool, shape (n_atoms, H + 1), or None
@@ -274,6 +277,11 @@ def _exclusion_cliques(
         c for c, pair in zip(clauses, pair_of, strict=True) if pair is None or pair[1] not in edges[pair[0]]
     ]
     return rest, cliques
+
+
+def _contains_zero(U: Any) -> bool:
+    """Whether ``u = 0`` lies in the control domain ``{u : H u + c <= 0}`` (exactly)."""
+    return bool(np.all(np.asarray(U.c) <= 0.0))
 
 
 def _support_points(U: Any) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
@@ -632,6 +640,35 @@ def _polish(model: LinearModel, x: np.ndarray, tcol: int, budget: Budget) -> np.
     return out
 
 
+_RECHECK_TOL = 1e-6
+"""How far (normalised rows, in scaled state units) :func:`_recheck` moves every face outward."""
+
+
+def _recheck(
+    model: LinearModel, backend: Backend, budget: Budget, face_rows: Sequence[tuple[int, int]]
+) -> MILPOutcome:
+    """Whether an objective MILP's ``infeasible`` survives its tolerance (issue 25).
+
+    The same model without an objective and with every face moved out by :data:`_RECHECK_TOL`
+    is solved: still infeasible, the answer is a proof (``"infeasible"``); a plan there means
+    the problem is infeasible at most by the solvers' tolerances, and the answer rests on them
+    (``"borderline"``); anything else is ``"timeout"``.
+    """
+    row_hi = model.row_hi.copy()
+    for first, count in face_rows:
+        row_hi[first : first + count] += _RECHECK_TOL
+    loose = replace(model, c=np.zeros_like(model.c), row_hi=row_hi, mip_rel_gap=None)
+    sol = backend.solve(loose, max(budget.remaining(), 1e-3))
+    if sol.status == "infeasible":
+        return MILPOutcome("infeasible", why="the MILP is infeasible, with every face moved out by 1e-6")
+    if sol.x is not None:
+        return MILPOutcome(
+            "borderline",
+            why="the MILP is infeasible only within 1e-6 of the faces (a tolerance decides it)",
+        )
+    return MILPOutcome("timeout", why=f"the re-check of the MILP's infeasibility stopped: {sol.message}")
+
+
 def solve_milp(
     enc: BMCEncoder,
     abstraction: Abstraction,
@@ -687,11 +724,19 @@ def solve_milp(
     nb = enc.num_vars
     nx, nu = H * n, H * m
     nt = 1 if objective == "margin" else 0
-    # With the margin, p = 1 - 2e-6 may relax a face by that much of its big-M: the model is a
-    # relaxation, its bound a bound on every plan, and the plan itself is re-solved exactly
-    # (_polish). Otherwise the face is enforced within the integrality tolerance.
-    int_tol = 0.0 if nt else _INT_TOL
+    # With an objective, p = 1 - 2e-6 may relax a face by that much of its big-M: the model is a
+    # relaxation, its bound a bound on every plan and its infeasibility a proof, and the plan
+    # itself is re-solved exactly (the margin's _polish, the plan LP's re-timing). Without one the
+    # face is enforced within the integrality tolerance (a plan found is a plan; issue 25: with an
+    # objective that over-tightening, 2e-6 of a big-M, refuted a target 2e-6 wide).
+    int_tol = 0.0 if objective is not None else _INT_TOL
     na = nu if objective == "effort" else 0
+    # Effort when the control domain excludes u = 0: a step after the formula is decided costs
+    # input, so the trace length is free and only the steps that exist are priced (issue 25).
+    low_u, high_u = control_domain.bounding_box()
+    idle_costs = na > 0 and not _contains_zero(control_domain)
+    if idle_costs and not (np.all(np.isfinite(low_u)) and np.all(np.isfinite(high_u))):
+        return MILPOutcome("unsupported", why="idle steps cost input and the control domain is unbounded")
     tcol, acol = nb + nx + nu, nb + nx + nu + nt
     nvar = nb + nx + nu + nt + na
 
@@ -735,9 +780,18 @@ def solve_milp(
         pos = csr_matrix((du, (idx, nb + nx + idx)), shape=(na, nvar))
         neg = csr_matrix((-du, (idx, nb + nx + idx)), shape=(na, nvar))
         aux = csr_matrix((-np.ones(na), (idx, acol + idx)), shape=(na, nvar))
-        blocks += [(pos + aux).tocsr(), (neg + aux).tocsr()]
-        lo.append(np.full(2 * na, -np.inf))
-        hi.append(np.zeros(2 * na))
+        if idle_costs:
+            # a_kj >= +-u_kj - M_j (1 - alive_{k+1}): a step that does not exist costs nothing.
+            big_u = np.tile(np.maximum(np.abs(low_u), np.abs(high_u)), H)
+            steps = np.repeat(np.asarray(enc.alive[1 : H + 1]) - 1, m)
+            gate = csr_matrix((big_u, (idx, steps)), shape=(na, nvar))
+            blocks += [(pos + aux + gate).tocsr(), (neg + aux + gate).tocsr()]
+            lo.append(np.full(2 * na, -np.inf))
+            hi.append(np.concatenate([big_u, big_u]))
+        else:
+            blocks += [(pos + aux).tocsr(), (neg + aux).tocsr()]
+            lo.append(np.full(2 * na, -np.inf))
+            hi.append(np.zeros(2 * na))
 
     # Big-M implications p[i, k] -> faces of proposition i at step k (normalised rows). The
     # invariants (propositions the formula requires at every step 0..b) are hard rows instead,
@@ -746,6 +800,7 @@ def solve_milp(
     hard = _hard_steps(enc.formula, abstraction, H)
     fixed_p: list[int] = []
     never_p: list[int] = []
+    face_rows: list[tuple[int, int]] = []  # (first row, count) of the face rows (for _recheck)
     if F.shape[0]:
         budget.check("building the MILP")
         powers = np.empty((H + 1, F.shape[0], n))
@@ -848,6 +903,7 @@ def solve_milp(
             (r_parts, c_parts, v_parts, ub_parts, row),
         ):
             if count:
+                face_rows.append((sum(b.shape[0] for b in blocks), count))
                 blocks.append(
                     coo_matrix(
                         (np.concatenate(vv), (np.concatenate(rr), np.concatenate(cc))), shape=(count, nvar)
@@ -855,6 +911,35 @@ def solve_milp(
                 )
                 lo.append(np.full(count, -np.inf))
                 hi.append(np.concatenate(uu))
+        if nt:
+            # Step 0 has no face rows (the prior is given; pruning fixes what holds there), but a
+            # proposition claimed there bounds the margin by its slack at the prior, as at every
+            # other step: t <= slack_i + (t_cap - slack_i) (1 - p[i, 0]). Without these rows a
+            # formula met at step 0 let the margin reach the cap for free (issue 25: 0.2 at step 0
+            # reported beside a bound of 0.4, which four steps reach).
+            terms0 = std_terms(F, abstraction.z, covs[0])
+            with np.errstate(invalid="ignore"):
+                face0 = -(abstraction.c + terms0) - F @ mean0
+            face0 = np.where(np.isnan(face0), -np.inf, face0)
+            s_rows, s_cols, s_vals, s_hi = [], [], [], []
+            for i in range(abstraction.num_atoms):
+                faces = abstraction.owner == i
+                if not faces.any():
+                    continue
+                slack0 = float(np.min(face0[faces]))
+                col = int(enc.p[i, 0]) - 1
+                if slack0 < 0:
+                    never_p.append(col)
+                elif slack0 < t_cap:
+                    r = len(s_hi)
+                    s_rows += [r, r]
+                    s_cols += [tcol, col]
+                    s_vals += [1.0, t_cap - slack0]
+                    s_hi.append(t_cap)
+            if s_hi:
+                blocks.append(coo_matrix((s_vals, (s_rows, s_cols)), shape=(len(s_hi), nvar)).tocsr())
+                lo.append(np.full(len(s_hi), -np.inf))
+                hi.append(np.asarray(s_hi))
         logger.debug("MILP: %d hard face rows, %d big-M rows", hrow, row)
 
     A_all = vstack(blocks).tocsr()
@@ -869,6 +954,8 @@ def solve_milp(
     cost = np.zeros(nvar)
     if objective == "time":
         cost[alive[1:]] = 1.0  # the trace length is free: count the steps that exist
+    elif idle_costs:
+        lower[alive[0]] = 1.0  # free length: the steps that exist are priced
     else:
         lower[alive] = 1.0  # the trace is the whole bound: a shorter plan extends to it
     if nt:
@@ -909,13 +996,17 @@ def solve_milp(
         # take 0.80-1.20x their CPU time (NarrowPassage T = 200 0.86x; BENCHMARKS.md, Analysis).
         # The margin probes keep it (issue 13's measurements).
         feaspump=objective is not None,
+        # The effort's bound is as close to the true minimum as the rows are held: at the default
+        # 1e-6 a face relaxed by that much moved the bound 1e-4 below it when the input's gain
+        # is 0.01 (issue 25).
+        feas_tol=_EFFORT_FEAS_TOL if objective == "effort" else None,
     )
     if nt:
         status, x, exact, bound, message = _solve_margin(
             model, backend, tcol, t_cap if F.shape[0] else 0.0, t_sound, budget
         )
         if status == "infeasible":
-            return MILPOutcome("infeasible", why="the MILP is infeasible")
+            return _recheck(model, backend, budget, face_rows)
         if x is None:
             logger.info("MILP stopped: %s", message)
             return MILPOutcome("timeout", why=message)
@@ -955,6 +1046,8 @@ def solve_milp(
             out.value, out.bound = float(sol.objective), float(sol.bound)
         return out
     if sol.status == "infeasible":
-        return MILPOutcome("infeasible", why="the MILP is infeasible")
+        if objective is None:
+            return MILPOutcome("infeasible", why="the MILP is infeasible")
+        return _recheck(model, backend, budget, face_rows)
     logger.info("MILP stopped: %s", sol.message)
     return MILPOutcome("timeout", why=sol.message)

@@ -130,6 +130,7 @@ def solve_plan_lp(
     control_backoff: np.ndarray | None = None,
     refute_only: bool = False,
     assume_feasible: bool = False,
+    tighten: float = TIGHTEN,
 ) -> LPOutcome:
     """Find controls that meet every requirement of ``plan`` (see the module docstring).
 
@@ -178,6 +179,9 @@ def solve_plan_lp(
     assume_feasible : bool
         The plan is expected to be feasible (a MILP's witness): the margin and objective phases
         run first, and the elastic phase only when they find nothing (then as without it).
+    tighten : float
+        The least room kept inside the faces, relative to the smallest state unit (default
+        :data:`TIGHTEN`); an objective's exact re-timing asks for less (issue 25).
 
     Returns
     -------
@@ -220,7 +224,7 @@ def solve_plan_lp(
     limit = float(min(time_limit, 1e9))
     if assume_feasible:
         # The phases' rows are the plan's with t >= 0: a solution of theirs meets the plan.
-        z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights)
+        z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights, tighten)
         if z2 is not None:
             means, controls = rows.unscale(z2, mean0)
             return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
@@ -236,7 +240,7 @@ def solve_plan_lp(
     if excess <= FEASIBLE_TOL * max(1, ns):
         if refute_only:
             return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs, excess=excess)
-        z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights)
+        z2 = _optimise(rows, backend, limit, margin, anchor, trust, objective, effort_weights, tighten)
         if z2 is not None:
             means, controls = rows.unscale(z2, mean0)
         return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
@@ -276,6 +280,7 @@ def _optimise(
     trust: float,
     objective: str | None,
     effort_weights: np.ndarray | None,
+    tighten: float = TIGHTEN,
 ) -> np.ndarray | None:
     """The phases after feasibility: the execution margin, then the objective (if any)."""
     if rows.face_H.shape[0] == 0 and objective != "effort":
@@ -288,7 +293,7 @@ def _optimise(
             rows, backend, limit, t_lo=0.0, t_hi=big, coef=rows.face_unit, anchor=anchor, trust=trust
         )
         return None if out is None else out[0]
-    t_max = max(float(margin), TIGHTEN * float(np.min(dx)))
+    t_max = max(float(margin), tighten * float(np.min(dx)))
     first = None
     if rows.face_H.shape[0]:
         first = _phase(
