@@ -251,6 +251,57 @@ def _build(
     return rec(formula, 0)
 
 
+def _lp(c, A, rlo, rhi, lb, ub):
+    """``min c'x`` over the rows and bounds with :func:`linprog` (HiGHS), or None."""
+    A_ub, b_ub, A_eq, b_eq = [], [], [], []
+    for i in range(A.shape[0]):
+        if rlo[i] == rhi[i]:
+            A_eq.append(A[i])
+            b_eq.append(rhi[i])
+            continue
+        if np.isfinite(rhi[i]):
+            A_ub.append(A[i])
+            b_ub.append(rhi[i])
+        if np.isfinite(rlo[i]):
+            A_ub.append(-A[i])
+            b_ub.append(-rlo[i])
+    return linprog(
+        c,
+        A_ub=np.array(A_ub) if A_ub else None,
+        b_ub=b_ub if A_ub else None,
+        A_eq=np.array(A_eq) if A_eq else None,
+        b_eq=b_eq if A_eq else None,
+        bounds=list(zip(lb, ub, strict=True)),
+        method="highs",
+    )
+
+
+def _branch_and_bound(c, A, rlo, rhi, lb, ub, integ, max_nodes: int = 200_000):
+    """A plain depth-first branch and bound over LPs (binaries only): the optimum's x, or None."""
+    best_x, best_val = None, INF
+    stack = [(lb.copy(), ub.copy())]
+    nodes = 0
+    ints = np.flatnonzero(integ == 1)
+    while stack:
+        nodes += 1
+        if nodes > max_nodes:
+            raise RuntimeError("exact optimiser: branch and bound node limit")
+        nlb, nub = stack.pop()
+        res = _lp(c, A, rlo, rhi, nlb, nub)
+        if res.status != 0 or res.fun >= best_val - 1e-12:
+            continue
+        frac = ints[np.abs(res.x[ints] - np.round(res.x[ints])) > 1e-9]
+        if frac.size == 0:
+            best_x, best_val = res.x, float(res.fun)
+            continue
+        j = frac[0]
+        for v in (0.0, 1.0):
+            blb, bub = nlb.copy(), nub.copy()
+            blb[j] = bub[j] = v
+            stack.append((blb, bub))
+    return best_x
+
+
 def _solve_length(
     mode: ModeSpec,
     lo: np.ndarray,
@@ -271,9 +322,11 @@ def _solve_length(
     r = model.column(-INF, INF)
     if root != INF:
         _le(model, r, root)
-        model.ub[r] = root.hi
+        model.lb[r], model.ub[r] = root.lo, root.hi
     elif objective == "margin":
         return INF, np.zeros((N, m))
+    if objective != "margin" and root != INF and root.hi < 0:
+        return None  # the root's robustness is negative for every control in the box
     nvar0 = len(model.lb)
     if objective == "effort":
         model.lb[r] = 0.0
@@ -299,6 +352,17 @@ def _solve_length(
     integ = np.array(model.integer)
     cons = [LinearConstraint(A, rlo, rhi)] if len(model.rows) else []
     res = milp(c, constraints=cons, integrality=integ, bounds=Bounds(lb, ub), options={"mip_rel_gap": 1e-9})
+    if res.x is None and res.status == 4:
+        # HiGHS' presolve fails now and then on these models ("Solve error"); without it, it solves.
+        options = {"mip_rel_gap": 1e-9, "presolve": False}
+        res = milp(c, constraints=cons, integrality=integ, bounds=Bounds(lb, ub), options=options)
+    if res.x is None and res.status == 4:
+        # ... and now and then it fails with or without (a few small margin models): a plain
+        # branch and bound over LPs decides those.
+        x_bb = _branch_and_bound(c, A, rlo, rhi, lb, ub, integ)
+        if x_bb is None:
+            return None
+        res.x, res.status = x_bb, 0
     if res.x is None:
         if res.status == 2:  # infeasible
             return None
@@ -307,28 +371,7 @@ def _solve_length(
     fixed_lb, fixed_ub = lb.copy(), ub.copy()
     ints = integ == 1
     fixed_lb[ints] = fixed_ub[ints] = np.round(res.x[ints])
-    A_ub, b_ub = [], []
-    A_eq, b_eq = [], []
-    for i in range(A.shape[0]):
-        if rlo[i] == rhi[i]:
-            A_eq.append(A[i])
-            b_eq.append(rhi[i])
-            continue
-        if np.isfinite(rhi[i]):
-            A_ub.append(A[i])
-            b_ub.append(rhi[i])
-        if np.isfinite(rlo[i]):
-            A_ub.append(-A[i])
-            b_ub.append(-rlo[i])
-    lp = linprog(
-        c,
-        A_ub=np.array(A_ub) if A_ub else None,
-        b_ub=b_ub if A_ub else None,
-        A_eq=np.array(A_eq) if A_eq else None,
-        b_eq=b_eq if A_eq else None,
-        bounds=list(zip(fixed_lb, fixed_ub, strict=True)),
-        method="highs",
-    )
+    lp = _lp(c, A, rlo, rhi, fixed_lb, fixed_ub)
     x = lp.x if lp.status == 0 else res.x
     controls = np.asarray(x[: model.nu]).reshape(N, m)
     if objective == "margin":
@@ -403,3 +446,131 @@ def exact_optimum(
         if not sat(loosen(formula, trace, 1e-7), 0, trace):
             raise RuntimeError("exact optimiser: the optimal plan fails the brute-force monitor")
     return Optimum(True, float(value), N, controls, per)
+
+
+# ------------------------------------------------------------------------------------------------
+# random small problems (the optimality property test and benchmarks/optimality_check.py)
+
+
+@dataclass
+class SmallProblem:
+    """A random one-mode problem in the exact optimiser's scope, with its plain arrays."""
+
+    problem: Any
+    mode: ModeSpec
+    lo: np.ndarray
+    hi: np.ndarray
+    mean0: np.ndarray
+    cov0: np.ndarray
+    formula: Any
+    weights: np.ndarray
+    noisy: bool
+    describe: str
+
+
+def random_small_problem(seed: int, noisy: bool | None = None) -> SmallProblem:
+    """A random small one-mode problem (1-2 states, horizon <= 12, constant or no sensor noise).
+
+    The formula is built around a random admissible roll-out (targets and corridors centred on
+    its means, widened by the chance constraints' tightening and a random slack, sometimes
+    almost zero), so most instances are feasible; the exact optimiser decides. Domains are
+    boxes: symmetric, off-centre, or excluding ``u = 0``.
+    """
+    import idstlpy as stl
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 3))
+    m = n if rng.random() < 0.7 else 1
+    kind = rng.choice(["integrator", "random"])
+    A = np.eye(n) if kind == "integrator" else np.eye(n) + 0.15 * rng.standard_normal((n, n))
+    B = np.zeros((n, m))
+    for j in range(m):
+        B[j % n, j] = float(rng.choice([0.05, 0.1, 0.25, 0.5, 1.0]))
+    if rng.random() < 0.3:
+        B += 0.1 * rng.standard_normal((n, m))
+    dom = rng.choice(["symmetric", "off_centre", "no_zero"])
+    a = rng.uniform(0.3, 1.5, m)
+    if dom == "symmetric":
+        lo, hi = -a, a
+    elif dom == "off_centre":
+        lo, hi = -a * rng.uniform(0.1, 1.0, m), a
+    else:
+        lo = rng.uniform(0.05, 0.3, m)
+        hi = lo + a
+        flip = rng.random(m) < 0.5
+        lo, hi = np.where(flip, -hi, lo), np.where(flip, -lo, hi)
+    noisy = bool(rng.random() < 0.5) if noisy is None else noisy
+    mean0 = rng.uniform(-1, 1, n)
+    cov0 = np.zeros((n, n))
+    W = np.zeros((n, n))
+    C = V = None
+    if noisy:
+        cov0 = np.diag(rng.uniform(0.0005, 0.02, n))
+        if rng.random() < 0.6:
+            W = float(rng.uniform(0.01, 0.08)) * np.eye(n)
+        if rng.random() < 0.5:
+            C = np.eye(n)
+            V = float(rng.uniform(0.02, 0.3)) * np.eye(n)
+    mode = ModeSpec(A, B, W, C, V)
+    H = int(rng.integers(2, 13))
+    controls = rng.uniform(lo, hi, (H, m))
+    trace = mlo_rollout([mode], mean0, cov0, np.zeros(H, dtype=int), controls)
+    means = np.array([s[0] for s in trace.states])
+    sds = np.array([np.sqrt(np.diag(s[1])) for s in trace.states])
+
+    x = stl.mk_variable(n)
+    u = stl.mk_variable(m, name="u")
+    eps = float(rng.choice([0.05, 0.1, 0.2]))
+    z = float(norm.ppf(1 - eps))
+
+    def box(steps: list[int], name: str, tiny: bool = False) -> Any:
+        centre = means[steps].mean(axis=0)
+        spread = np.abs(means[steps] - centre).max(axis=0) + z * sds[steps].max(axis=0)
+        slack = np.full(n, 1e-6) if tiny else rng.uniform(0.02, 0.4, n)
+        half = spread + slack
+        parts = []
+        for i in range(n):
+            if rng.random() < 0.85 or i == 0:
+                parts += [
+                    stl.prob(x[i] >= float(centre[i] - half[i])) >= 1 - eps,
+                    stl.prob(x[i] <= float(centre[i] + half[i])) >= 1 - eps,
+                ]
+        return stl.logical_and(*parts, name=name)
+
+    shape = rng.choice(["reach", "reach_tiny", "either", "stay_reach", "until", "release", "always"])
+    k = int(rng.integers(1, H + 1))
+    a0 = int(rng.integers(0, k + 1))
+    if shape in ("reach", "reach_tiny"):
+        formula = stl.eventually(a0, H, box([k], "goal", tiny=shape == "reach_tiny"))
+    elif shape == "either":
+        other = means[k] + rng.uniform(-2, 2, n)
+        far = stl.logical_and(
+            *[stl.prob(x[i] >= float(other[i] - 0.2)) >= 1 - eps for i in range(n)],
+            *[stl.prob(x[i] <= float(other[i] + 0.2)) >= 1 - eps for i in range(n)],
+            name="other",
+        )
+        formula = stl.logical_or(stl.eventually(a0, H, box([k], "goal")), stl.eventually(0, H, far))
+    elif shape == "stay_reach":
+        formula = stl.logical_and(
+            stl.always(0, H, box(list(range(H + 1)), "corridor")), stl.eventually(a0, H, box([k], "goal"))
+        )
+    elif shape == "until":
+        formula = stl.until(box(list(range(k)) or [0], "safe"), a0, H, box([k], "goal"))
+    elif shape == "release":
+        formula = stl.release(box([k], "goal"), 0, H, box(list(range(k + 1)), "safe"))
+    else:
+        b0 = int(rng.integers(k, H + 1))
+        formula = stl.always(k, b0, box(list(range(k, b0 + 1)), "hold"))
+    lbs = (
+        stl.mk_lbs(A, B, W)
+        if C is None
+        else stl.mk_lbs(A, B, W, C=C, V=V)
+    )
+    domain = stl.logical_and(*[u[j] >= float(lo[j]) for j in range(m)], *[u[j] <= float(hi[j]) for j in range(m)])
+    problem = stl.Problem(stl.mk_switched_sys([lbs]), domain.region, stl.to_belief(mean0, cov0), formula)
+    weights = np.ones(m) if rng.random() < 0.7 else rng.uniform(0.5, 2.0, m)
+    text = (
+        f"seed {seed}: n={n} m={m} {kind} dom={dom} [{np.round(lo, 3)}, {np.round(hi, 3)}] "
+        f"noisy={noisy} H={formula.horizon} {shape}: {formula}"
+    )
+    return SmallProblem(problem, mode, lo, hi, mean0, cov0, formula, weights, noisy, text)
