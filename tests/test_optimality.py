@@ -29,7 +29,9 @@ def _one_state(a, b, lo, hi, x0, cov0, formula_of, W=0.0):
     mode = stl.mk_lbs(np.array([[a]]), np.array([[b]]), np.array([[W]]))
     domain = stl.logical_and(u[0] >= lo, u[0] <= hi).region
     formula = formula_of(x)
-    problem = stl.Problem(stl.mk_switched_sys([mode]), domain, stl.to_belief([x0], np.array([[cov0]])), formula)
+    problem = stl.Problem(
+        stl.mk_switched_sys([mode]), domain, stl.to_belief([x0], np.array([[cov0]])), formula
+    )
     spec = ModeSpec(np.array([[a]]), np.array([[b]]), np.array([[W]]))
     return problem, spec, formula
 
@@ -71,7 +73,12 @@ def test_effort_is_not_charged_for_the_execution_margin():
 def test_margin_is_not_decided_by_a_zero_step_plan():
     """x' = x + 0.1 u, u in [-0.66, 0.74], x0 = 1.4, F[0,4] (0.8 <= x <= 1.6): 0.4 in four steps."""
     problem, spec, formula = _one_state(
-        1.0, 0.1, -0.66, 0.74, 1.4, 0.0,
+        1.0,
+        0.1,
+        -0.66,
+        0.74,
+        1.4,
+        0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 0.8) >= 0.9, P(x[0] <= 1.6) >= 0.9)),
     )
     optimum = _oracle(spec, -0.66, 0.74, 1.4, 0.0, formula, "margin")
@@ -98,7 +105,12 @@ def test_effort_is_not_inflated_by_the_tightening_over_a_small_gain():
 def test_idle_steps_are_not_charged_when_the_domain_excludes_zero():
     """u in [0.2, 1], x' = x + u, F[0,8] (1.5 <= x <= 1.6): 1.5 in at most seven steps (eight cost 1.6)."""
     problem, spec, formula = _one_state(
-        1.0, 1.0, 0.2, 1.0, 0.0, 0.0,
+        1.0,
+        1.0,
+        0.2,
+        1.0,
+        0.0,
+        0.0,
         lambda x: stl.eventually(0, 8, stl.logical_and(P(x[0] >= 1.5) >= 0.9, P(x[0] <= 1.6) >= 0.9)),
     )
     result = problem.solve_result(seed=0, objective="effort")
@@ -114,7 +126,12 @@ def test_idle_steps_are_not_charged_when_the_domain_excludes_zero():
 def test_a_narrow_target_is_not_declared_infeasible(objective, d):
     """x' = x + u, |u| <= 1, x0 = 0, F[0,4] (0.3 - d <= x <= 0.3 + d): one step does it."""
     problem, spec, formula = _one_state(
-        1.0, 1.0, -1.0, 1.0, 0.0, 0.0,
+        1.0,
+        1.0,
+        -1.0,
+        1.0,
+        0.0,
+        0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 0.3 - d) >= 0.9, P(x[0] <= 0.3 + d) >= 0.9)),
     )
     result = problem.solve_result(seed=0, objective=objective)
@@ -137,14 +154,24 @@ def test_an_infeasibility_within_the_tolerance_is_no_proof():
     """The MILP's infeasible answer is re-checked with every face moved out by 1e-6."""
     # The target 1e-7 beyond reach (x_4 <= 4): infeasible, but only by a tolerance's width.
     problem, _, _ = _one_state(
-        1.0, 1.0, -1.0, 1.0, 0.0, 0.0,
+        1.0,
+        1.0,
+        -1.0,
+        1.0,
+        0.0,
+        0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 4.0 + 1e-7) >= 0.9)),
     )
     result = problem.solve_result(seed=0, objective="effort")
     assert result.status == "budget_exhausted" and "tolerance" in result.reason
     # A margin of 1e-5 beyond reach is a proof.
     far, _, _ = _one_state(
-        1.0, 1.0, -1.0, 1.0, 0.0, 0.0,
+        1.0,
+        1.0,
+        -1.0,
+        1.0,
+        0.0,
+        0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 4.0 + 1e-4) >= 0.9)),
     )
     assert far.solve_result(seed=0, objective="effort").status == "infeasible"

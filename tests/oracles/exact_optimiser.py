@@ -239,7 +239,9 @@ def _build(
             for j in range(k + f.a, k + f.b + 1):
                 if j >= L:
                     break
-                options.append(_and(model, [rec(f.left, j)] + [rec(f.right, i) for i in range(k + f.a, j + 1)]))
+                options.append(
+                    _and(model, [rec(f.left, j)] + [rec(f.right, i) for i in range(k + f.a, j + 1)])
+                )
             if k + f.b < L:
                 options.append(_and(model, [rec(f.right, i) for i in range(k + f.a, k + f.b + 1)]))
             out = _or(model, options)
@@ -561,12 +563,10 @@ def random_small_problem(seed: int, noisy: bool | None = None) -> SmallProblem:
     else:
         b0 = int(rng.integers(k, H + 1))
         formula = stl.always(k, b0, box(list(range(k, b0 + 1)), "hold"))
-    lbs = (
-        stl.mk_lbs(A, B, W)
-        if C is None
-        else stl.mk_lbs(A, B, W, C=C, V=V)
+    lbs = stl.mk_lbs(A, B, W) if C is None else stl.mk_lbs(A, B, W, C=C, V=V)
+    domain = stl.logical_and(
+        *[u[j] >= float(lo[j]) for j in range(m)], *[u[j] <= float(hi[j]) for j in range(m)]
     )
-    domain = stl.logical_and(*[u[j] >= float(lo[j]) for j in range(m)], *[u[j] <= float(hi[j]) for j in range(m)])
     problem = stl.Problem(stl.mk_switched_sys([lbs]), domain.region, stl.to_belief(mean0, cov0), formula)
     weights = np.ones(m) if rng.random() < 0.7 else rng.uniform(0.5, 2.0, m)
     text = (

@@ -24,6 +24,13 @@ finite and moderate (a bounded control domain, or invariants that bound the mean
 the model is not built (``unsupported``) and the lazy loop goes on. Variables are scaled and
 rows normalised as in the plan LP (:mod:`.plan_lp`), so tolerances are relative to the problem.
 
+With an objective the model is a relaxation of the problem (a claimed face holds within the
+integrality tolerance times its big-M, never tighter), so its bound is a bound on every plan, and
+its ``infeasible`` is re-checked with every face moved out by 1e-6 (:func:`_recheck`): a plan
+there makes the answer ``borderline`` (a tolerance decides it), no proof. With ``"effort"`` and a
+control domain that excludes ``u = 0`` the trace length is free and only the steps that exist are
+priced (a step after the formula is decided costs input, which a plan need not spend).
+
 With ``objective="margin"`` (largest robustness) the margin ``t`` is a column added to every face
 row, and three things make the model fast and its answer a proof:
 
@@ -404,9 +411,7 @@ def _common_slack(Hf: np.ndarray, bound: np.ndarray) -> float:
     A = csr_matrix(np.hstack([Hf, np.ones((nf, 1))]))
     c = np.zeros(n + 1)
     c[-1] = -1.0
-    model = LinearModel(
-        c, A, np.full(nf, -np.inf), bound, np.full(n + 1, -np.inf), np.full(n + 1, np.inf)
-    )
+    model = LinearModel(c, A, np.full(nf, -np.inf), bound, np.full(n + 1, -np.inf), np.full(n + 1, np.inf))
     sol = HighsBackend().solve(model, 10.0)
     if sol.status == "optimal" and sol.x is not None:
         # The LP's own tolerance must not make the cap cut the optimum.
@@ -571,8 +576,15 @@ def _solve_margin(
         lb = model.lb.copy()
         lb[tcol] = level
         full = LinearModel(
-            model.c, model.A, model.row_lo, model.row_hi, lb, model.ub, model.integrality,
-            cuts=model.cuts, feas_tol=_LADDER_FEAS_TOL,
+            model.c,
+            model.A,
+            model.row_lo,
+            model.row_hi,
+            lb,
+            model.ub,
+            model.integrality,
+            cuts=model.cuts,
+            feas_tol=_LADDER_FEAS_TOL,
         )
     sol = backend.solve(full, max(budget.remaining(), 1e-3))
     if sol.status == "infeasible" and v is not None:
@@ -837,9 +849,7 @@ def solve_milp(
         # finite bound) a generous heuristic cap stands, and an optimum at it is not proven.
         t_cap, t_sound = 0.0, False
         if nt:
-            t_cap, t_sound = _margin_cap(
-                enc.formula, abstraction, covs, reach_min, box_low, box_high, H
-            )
+            t_cap, t_sound = _margin_cap(enc.formula, abstraction, covs, reach_min, box_low, box_high, H)
             if not t_sound:
                 t_cap = 10.0 * float(np.max(dx)) * float(np.max(np.linalg.norm(F, axis=1)))
         r_parts: list[np.ndarray] = []
@@ -921,7 +931,10 @@ def solve_milp(
             with np.errstate(invalid="ignore"):
                 face0 = -(abstraction.c + terms0) - F @ mean0
             face0 = np.where(np.isnan(face0), -np.inf, face0)
-            s_rows, s_cols, s_vals, s_hi = [], [], [], []
+            s_rows: list[int] = []
+            s_cols: list[int] = []
+            s_vals: list[float] = []
+            s_hi: list[float] = []
             for i in range(abstraction.num_atoms):
                 faces = abstraction.owner == i
                 if not faces.any():
@@ -1028,7 +1041,11 @@ def solve_milp(
         )
         logger.info(
             "MILP margin: %.12g, exact %.12g, bound %.12g, proven %s (%s)",
-            float(x[tcol]), out.value, out.bound, out.proven, message,
+            float(x[tcol]),
+            out.value,
+            out.bound,
+            out.proven,
+            message,
         )
         return out
     if objective is None:

@@ -5,13 +5,16 @@
   transitions decides the formula true by step ``N``;
 - ``"margin"``: the monitor's robustness (higher is better), stlpy's robustness mode for PrSTL.
 
-On the LP and MILP paths the optimum is exact (see :mod:`.teacher` and :mod:`.milp`). On the
-sampler path the plan is refined by sequential convex programming: freeze the exact covariances
-of the current plan, solve the plan LP for the objective with the means kept within a trust
-region, re-roll the exact belief dynamics, keep the result only if the monitor still accepts it,
-the objective improved and the plan keeps the execution room (:mod:`.room`) it had (up to all
-of it); the trust region halves after a round that did not help. The
-rounds are a work budget (``SolverOptions.polish_rounds``), so the result is reproducible.
+On the eager MILP's path (one mode, no state-dependent noise) the optimum is exact over every
+plan within the horizon, for the problem as stated (no execution margin, idle steps free; see
+:mod:`.milp` and ``cegis._retime``), and ``optimal=True`` only within 1e-6 of its proven bound
+(issue 25). On the sampler path the plan is refined by sequential convex programming: freeze
+the exact covariances of the current plan, solve the plan LP for the objective with the means
+kept within a trust region, re-roll the exact belief dynamics, keep the result only if the
+monitor still accepts it, the objective improved and the plan keeps the execution room
+(:mod:`.room`) it had (up to all of it); the trust region halves after a round that did not
+help. The rounds are a work budget (``SolverOptions.polish_rounds``), so the result is
+reproducible.
 """
 
 from __future__ import annotations

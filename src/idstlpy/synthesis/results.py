@@ -172,15 +172,17 @@ class SolveResult:
     objective_value : float
         Its value on the returned plan (``nan`` without a plan or an objective).
     objective_bound : float
-        The best proven bound on the optimum, where known (``nan`` otherwise): a lower bound
-        for effort and time, an upper bound for margin.
+        The best proven bound on the optimum over ``optimal_scope``, where known (``nan``
+        otherwise): a lower bound for effort and time, an upper bound for margin; never on the
+        wrong side of ``objective_value``.
     optimal : bool
-        True when the plan is proven optimal within ``optimal_scope``.
+        True only when the bound is proven and ``gap <= 1e-6``: the value is within
+        ``1e-6 * max(1, |value|)`` of the optimum over ``optimal_scope``.
     optimal_scope : str
-        ``"horizon"`` (every plan within the formula's horizon, from the eager MILP),
-        ``"discrete plan"`` (the best controls for the discrete plan the solver settled on, from
-        the plan LP), ``"shortest first"`` (time: every shorter candidate was refuted by a proof)
-        or ``""``.
+        ``"horizon"`` (every plan within the formula's horizon, from the eager MILP; the problem as
+        stated, no execution margin), ``"plans of at most N steps"`` (the same under
+        ``max_plan_length``), ``"shortest first"`` (time: every shorter candidate was refuted by
+        a proof) or ``""``.
     guarantee : {"mlo", "closed_loop"}
         What ``margin`` and the verification are about: the MLO belief trajectory (the paper's
         semantics) or the true state predicted under the executor (``predicted``).
