@@ -482,9 +482,9 @@ def _retime(
             if not (lp.feasible and lp.controls is not None):
                 break
             checked = _verify(run, np.zeros(L - 1, dtype=int), lp.controls, abstraction, scaling)
+            if not optimising:
+                return checked  # the re-timed plan or nothing, as without an objective
             if checked is not None:
-                if not optimising:
-                    return checked
                 found.append(checked)
                 break
     if optimising or not found:
