@@ -745,8 +745,8 @@ def solve_milp(
     na = nu if objective == "effort" else 0
     # Effort when the control domain excludes u = 0: a step after the formula is decided costs
     # input, so the trace length is free and only the steps that exist are priced (issue 25).
-    low_u, high_u = control_domain.bounding_box()
     idle_costs = na > 0 and not _contains_zero(control_domain)
+    low_u, high_u = control_domain.bounding_box() if idle_costs else (np.zeros(m), np.zeros(m))
     if idle_costs and not (np.all(np.isfinite(low_u)) and np.all(np.isfinite(high_u))):
         return MILPOutcome("unsupported", why="idle steps cost input and the control domain is unbounded")
     tcol, acol = nb + nx + nu, nb + nx + nu + nt
