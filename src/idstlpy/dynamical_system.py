@@ -696,8 +696,9 @@ class SwitchedSystem(DynamicalSystem):
             Steps to execute, at most the plan's number of steps.
         real_initial_state : array_like, shape (n,)
             True initial state.
-        real_system : SwitchedSystem
-            The system that moves the true state.
+        real_system : SwitchedSystem, LCS or None
+            The linear system that moves the true state (None: the model, or the ``plant``
+            step function given in ``options``).
         seed : int or Generator, optional
             Randomness of the disturbances and measurement noises.
         **options
