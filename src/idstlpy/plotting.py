@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import os
+import textwrap
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,6 +103,26 @@ class WorkspaceArtists:
         Entries of the legend that are not drawn on the axes (ellipses, shading, modes).
     dims : tuple of int
         The two state coordinates drawn.
+    region_labels : dict[str, Text]
+        The name of each proposition drawn, written inside its region.
+    region_groups : dict[str, PathPatch]
+        Per disjunction of half-planes (``"left | right | below | above"``), the filled union of
+        its operands (the view minus the obstacle); ``regions`` maps each operand to it too.
+    obstacles : dict[str, Polygon]
+        Per disjunction of half-planes, the hatched set outside every operand (the obstacle).
+    light_constant : float or None
+        The value of a shading that is the same everywhere (then nothing is shaded and no
+        colorbar drawn; the legend gives the value).
+    start, end : Line2D or None
+        Markers of the initial mean and of the plan's last mean.
+    sensing : PathCollection or None
+        The plan's sensing steps (a mode with an output), one marker at the belief each
+        observation updates, in the mode's colour (when the modes are shown).
+    still : list of Annotation
+        ``"n steps in place"`` where the plan's mean stays put for several steps (e.g. a mode
+        with ``B = 0`` that only looks).
+    caption : Text or None
+        What the ellipses, the shading and the regions are, under the axes.
     """
 
     figure: Any
@@ -121,6 +142,15 @@ class WorkspaceArtists:
     legend: Any = None
     legend_proxies: list[Any] = field(default_factory=list)
     dims: tuple[int, int] = (0, 1)
+    region_labels: dict[str, Any] = field(default_factory=dict)
+    region_groups: dict[str, Any] = field(default_factory=dict)
+    obstacles: dict[str, Any] = field(default_factory=dict)
+    light_constant: float | None = None
+    start: Any = None
+    end: Any = None
+    sensing: Any = None
+    still: list[Any] = field(default_factory=list)
+    caption: Any = None
 
 
 @dataclass
@@ -131,8 +161,8 @@ class MonteCarloArtists:
     ----------
     figure, ax : matplotlib Figure and Axes
         Where it was drawn.
-    workspace : WorkspaceArtists
-        Shading, regions and the plan.
+    workspace : WorkspaceArtists or None
+        Shading, regions and the plan (None for a one-state problem).
     executed : list of Line2D
         One line per executed belief.
     real : list of Line2D
@@ -141,15 +171,18 @@ class MonteCarloArtists:
         The title (success rates).
     legend : Legend or None
         The legend.
+    time_series : TimeSeriesArtists or None
+        For a one-state problem: the time series the executions are overlaid on.
     """
 
     figure: Any
     ax: Any
-    workspace: WorkspaceArtists
+    workspace: WorkspaceArtists | None
     executed: list[Any] = field(default_factory=list)
     real: list[Any] = field(default_factory=list)
     title: Any = None
     legend: Any = None
+    time_series: TimeSeriesArtists | None = None
 
 
 @dataclass
@@ -187,6 +220,17 @@ class TimeSeriesArtists:
         :func:`plot_workspace`).
     legend : Legend or None
         The legend of the states' axes.
+    regions : dict[str, Polygon]
+        Per proposition that constrains one drawn state alone, its interval filled across the
+        axes (key: the name; the coordinate's own name ``"goal (x[1])"`` when it constrains
+        several), labelled with the name.
+    runs_executed, runs_real : dict[int, list of Line2D]
+        Per state coordinate, one thin line per execution of ``executions=`` (executed belief
+        means, true states).
+    start, end : dict[int, Line2D]
+        Per state coordinate, the markers of the plan's first and last mean.
+    caption : Text or None
+        What the bands and the thin lines are, under the last axes.
     """
 
     figure: Any
@@ -205,6 +249,12 @@ class TimeSeriesArtists:
     modes: list[Any] = field(default_factory=list)
     mode_bands: list[Any] = field(default_factory=list)
     legend: Any = None
+    regions: dict[str, Any] = field(default_factory=dict)
+    runs_executed: dict[int, list[Any]] = field(default_factory=dict)
+    runs_real: dict[int, list[Any]] = field(default_factory=dict)
+    start: dict[int, Any] = field(default_factory=dict)
+    end: dict[int, Any] = field(default_factory=dict)
+    caption: Any = None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -373,20 +423,62 @@ def clip_halfplanes(H: np.ndarray, c: np.ndarray, low: Any, high: Any) -> np.nda
     return poly if len(poly) >= 3 else np.zeros((0, 2))
 
 
-def _propositions(problem: Any) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
-    """``(j, name, H, c)`` per atomic proposition with chance constraints (``j`` counts them).
+def _number(v: float) -> str:
+    return f"{v:.4g}"
+
+
+def _face_text(h: np.ndarray, cst: float) -> str:
+    """``h x + c <= 0`` as text: ``x[0] <= 2`` for one coordinate, else ``x[0] + 2 x[1] <= 3``."""
+    nz = np.flatnonzero(h)
+    if nz.size == 1:
+        i = int(nz[0])
+        bound = -cst / h[i]
+        return f"x[{i}] {'<=' if h[i] > 0 else '>='} {_number(bound)}"
+    terms = []
+    for k in nz:
+        a = float(h[k])
+        sign = "-" if a < 0 else "+"
+        mag = "" if abs(a) == 1.0 else f"{_number(abs(a))} "
+        terms.append(f"{sign} {mag}x[{int(k)}]")
+    text = " ".join(terms).lstrip("+ ")
+    return f"{text} <= {_number(-cst)}" if nz.size else f"0 <= {_number(-cst)}"
+
+
+def _atom_label(ap: Any, H: np.ndarray, c: np.ndarray) -> str:
+    """A proposition's name, or for an unnamed one its constraints (``x[0] <= 2 & x[1] >= 1``)."""
+    if ap.name:
+        return str(ap.name)
+    faces = [_face_text(h, cst) for h, cst in zip(H, c, strict=True)]
+    text = " & ".join(faces[:2]) + (f" & ... ({len(faces)} faces)" if len(faces) > 2 else "")
+    return text or "true"
+
+
+def _atoms(problem: Any) -> list[tuple[int, str, np.ndarray, np.ndarray, Any]]:
+    """``(j, label, H, c, ap)`` per atomic proposition with chance constraints (``j`` counts them).
 
     ``H x + c <= 0`` is the set its mean must be in at zero covariance; ``j`` picks the style,
-    so a proposition looks the same in every figure.
+    so a proposition looks the same in every figure. The label is the proposition's name, or
+    its constraints when it has none (an inline ``{P[...] >= ...}``).
     """
-    out: list[tuple[int, str, np.ndarray, np.ndarray]] = []
-    for i, ap in enumerate(problem.stl_formula.atomic_propositions()):
+    out: list[tuple[int, str, np.ndarray, np.ndarray, Any]] = []
+    used: set[str] = set()
+    for ap in problem.stl_formula.atomic_propositions():
         if not ap.predicates:
             continue
         region = ap.cone.deterministic_region
         H, c = np.asarray(region.H, dtype=float), np.asarray(region.c, dtype=float)
-        out.append((len(out), ap.name or f"ap{i}", H, c))
+        label = _atom_label(ap, H, c)
+        base, k = label, 2
+        while label in used:  # two distinct propositions with one text: keep both
+            label, k = f"{base} ({k})", k + 1
+        used.add(label)
+        out.append((len(out), label, H, c, ap))
     return out
+
+
+def _propositions(problem: Any) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
+    """``(j, label, H, c)`` per atomic proposition with chance constraints (see :func:`_atoms`)."""
+    return [(j, name, H, c) for j, name, H, c, _ in _atoms(problem)]
 
 
 def _region_style(j: int) -> dict[str, Any]:
@@ -397,10 +489,16 @@ def _proposition_halfplanes(
     problem: Any, dims: Sequence[int]
 ) -> list[tuple[int, str, np.ndarray, np.ndarray]]:
     """Per atomic proposition with chance constraints, its faces on the ``dims`` coordinates."""
+    return [(j, name, H, c) for j, name, H, c, _ in _plane_atoms(problem, dims)]
+
+
+def _plane_atoms(problem: Any, dims: Sequence[int]) -> list[tuple[int, str, np.ndarray, np.ndarray, Any]]:
+    """:func:`_proposition_halfplanes` with each proposition (``ap``) last, and only if all its
+    faces are on the plane for ``ap`` (else None: a cross-section, not the whole set)."""
     d = list(dims)
     others = [i for i in range(problem.switched_system.n) if i not in d]
     out = []
-    for j, name, H, c in _propositions(problem):
+    for j, name, H, c, ap in _atoms(problem):
         on_plane = np.all(H[:, others] == 0.0, axis=1) if others else np.ones(H.shape[0], dtype=bool)
         if not on_plane.all():
             logger.debug(
@@ -410,8 +508,33 @@ def _proposition_halfplanes(
                 tuple(d),
             )
         if on_plane.any():
-            out.append((j, name, H[on_plane][:, d], c[on_plane]))
+            out.append((j, name, H[on_plane][:, d], c[on_plane], ap if on_plane.all() else None))
     return out
+
+
+def _halfplane_groups(
+    problem: Any, atoms: list[tuple[int, str, np.ndarray, np.ndarray, Any]]
+) -> list[list[int]]:
+    """Disjunctions of half-planes: per ``STLOr`` of the formula whose operands are all
+    propositions of one face on the plane (``left | right | below | above``: the complement of an
+    obstacle), the positions in ``atoms`` of its operands. A proposition joins one group at most.
+    """
+    from .formulas import STLAtomicProposition, STLOr
+
+    where = {id(ap): i for i, (_, _, H, _, ap) in enumerate(atoms) if ap is not None and H.shape[0] == 1}
+    groups: list[list[int]] = []
+    taken: set[int] = set()
+    for node in problem.stl_formula.walk():
+        if not isinstance(node, STLOr):
+            continue
+        kids = node.children
+        if not all(isinstance(k, STLAtomicProposition) and id(k) in where for k in kids):
+            continue
+        members = list(dict.fromkeys(where[id(k)] for k in kids))
+        if len(members) >= 2 and not taken.intersection(members):
+            groups.append(members)
+            taken.update(members)
+    return groups
 
 
 def _bounded_box(H: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -524,6 +647,318 @@ def _mode_color(q: int) -> str:
     return MODE_COLORS[int(q) % len(MODE_COLORS)]
 
 
+def _mode_text(problem: Any, q: int) -> str:
+    """What mode ``q`` does: ``"senses"`` or ``"blind"``, and ``"stands still"`` when ``B = 0``."""
+    md = problem.switched_system.mode(int(q))
+    parts = ["senses" if md.p else "blind"]
+    if not np.any(md.B):
+        parts.append("stands still: B = 0")
+    return ", ".join(parts)
+
+
+def _draw_sensing(ax: Any, problem: Any, plan: Any, d: list[int], out: Any, proxies: list[Any]) -> None:
+    """A dot in the mode's colour at the belief each observation of the plan updates."""
+    from matplotlib.lines import Line2D
+
+    modes = problem.switched_system.system_modes
+    actions = plan.get_action()
+    steps = np.array([k for k in range(plan.num_of_steps) if modes[int(actions[k])].p > 0], dtype=int)
+    if not steps.size:
+        return
+    pts = plan.get_mean()[steps + 1][:, d]
+    out.sensing = ax.scatter(
+        pts[:, 0],
+        pts[:, 1],
+        s=30,
+        c=[_mode_color(int(actions[k])) for k in steps],
+        edgecolors="black",
+        linewidths=0.7,
+        zorder=4.6,
+    )
+    proxies.append(
+        Line2D(
+            [],
+            [],
+            ls="none",
+            marker="o",
+            ms=6,
+            mfc="0.8",
+            mec="black",
+            mew=0.7,
+            label=f"sensing step ({steps.size} of {plan.num_of_steps}): the belief it updates",
+        )
+    )
+
+
+def _annotate_still(ax: Any, points: np.ndarray) -> list[Any]:
+    """``"n steps in place"`` where consecutive means (k, 2) do not move (a look with ``B = 0``)."""
+    if len(points) < 3:
+        return []
+    scale = max(1.0, float(np.max(np.abs(points))))
+    still = np.linalg.norm(np.diff(points, axis=0), axis=1) <= 1e-9 * scale
+    notes = []
+    k = 0
+    while k < still.size:
+        if not still[k]:
+            k += 1
+            continue
+        k1 = k
+        while k1 < still.size and still[k1]:
+            k1 += 1
+        if k1 - k >= 2:
+            notes.append(
+                ax.annotate(
+                    f"{k1 - k} steps in place (k = {k}..{k1})",
+                    xy=tuple(points[k]),
+                    xytext=(9, 4),
+                    textcoords="offset points",
+                    fontsize="x-small",
+                    zorder=8,
+                )
+            )
+        k = k1
+    return notes
+
+
+def _fill(color: str, alpha: float = 0.13) -> tuple[float, float, float, float]:
+    from matplotlib.colors import to_rgba
+
+    return to_rgba(color, alpha)
+
+
+def _centroid(verts: np.ndarray) -> np.ndarray:
+    """The area centroid of a simple polygon (v, 2) (its vertex mean when degenerate)."""
+    x, y = verts[:, 0], verts[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = cross.sum() / 2.0
+    if abs(area) <= 1e-12 * max(1.0, float(np.max(np.abs(verts))) ** 2):
+        return verts.mean(axis=0)
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
+
+
+def _label_spot(
+    verts: np.ndarray,
+    avoid: np.ndarray,
+    blockers: list[np.ndarray],
+    lo: np.ndarray,
+    hi: np.ndarray,
+) -> np.ndarray:
+    """Where to write a region's name: inside it, off the drawn trajectories and other labels.
+
+    The centroid when it is clear (5% of the view from every point of ``avoid`` (k, 2) and
+    outside every polygon of ``blockers``), else the clearest of points near the corners and
+    the edges' middles, moved into the region.
+    """
+    from matplotlib.path import Path as MplPath
+
+    span = np.maximum(hi - lo, 1e-12)
+    centre = _centroid(verts)
+    nxt = np.roll(verts, -1, axis=0)
+    cands = [centre]
+    for t in (0.2, 0.35):
+        cands += list(verts + t * (centre - verts))
+        cands += list(0.5 * (verts + nxt) + t * (centre - 0.5 * (verts + nxt)))
+    paths = [MplPath(b) for b in blockers if len(b) >= 3]
+    best, best_score = centre, -np.inf
+    for i, p in enumerate(cands):
+        score = float(np.min(np.linalg.norm((avoid - p) / span, axis=1))) if len(avoid) else 1.0
+        if any(path.contains_point((float(p[0]), float(p[1]))) for path in paths):
+            score -= 10.0  # on another region or the obstacle: only when nothing else is free
+        if i == 0 and score >= 0.05:
+            return p
+        if score > best_score + 1e-9:
+            best, best_score = p, score
+    return best
+
+
+def _region_text(ax: Any, point: np.ndarray, name: str, color: str) -> Any:
+    cx, cy = point
+    return ax.text(
+        cx,
+        cy,
+        name,
+        ha="center",
+        va="center",
+        fontsize="small",
+        color=color,
+        fontweight="bold",
+        zorder=2.6,
+        clip_on=True,
+        bbox={"boxstyle": "round,pad=0.2", "facecolor": "white", "edgecolor": "none", "alpha": 0.65},
+    )
+
+
+def _obstacle_boxes(problem: Any, d: list[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Bounding boxes of the obstacles left out by disjunctions of half-planes (to keep them in view)."""
+    atoms = _plane_atoms(problem, d)
+    out = []
+    for group in _halfplane_groups(problem, atoms):
+        H = np.vstack([atoms[i][2] for i in group])
+        c = np.concatenate([atoms[i][3] for i in group])
+        box = _bounded_box(-H, -c)
+        if box is not None:
+            out.append(box)
+    return out
+
+
+def _draw_regions(
+    ax: Any, problem: Any, d: list[int], lo: np.ndarray, hi: np.ndarray, out: Any
+) -> list[tuple[str, np.ndarray, str]]:
+    """Fill each proposition's region; a disjunction of half-planes as one union, its obstacle hatched.
+
+    Returns the labels to write, ``(name, polygon (v, 2), colour)``, once the trajectories are
+    drawn (:func:`_write_region_labels` keeps them off the trajectories).
+    """
+    from matplotlib.patches import PathPatch, Polygon
+    from matplotlib.path import Path as MplPath
+
+    atoms = _plane_atoms(problem, d)
+    groups = _halfplane_groups(problem, atoms)
+    grouped = {i for g in groups for i in g}
+    labels: list[tuple[str, np.ndarray, str]] = []
+    for i, (j, name, H, c, _) in enumerate(atoms):
+        if i in grouped:
+            continue
+        verts = clip_halfplanes(H, c, lo, hi)
+        if not len(verts):
+            logger.debug("plot_workspace: region %s is empty in view", name)
+            continue
+        style = _region_style(j)
+        poly = Polygon(
+            verts,
+            closed=True,
+            facecolor=_fill(style["color"]),
+            edgecolor=style["color"],
+            linestyle=style["linestyle"],
+            linewidth=1.5,
+            label=name,
+            zorder=2,
+        )
+        ax.add_patch(poly)
+        out.regions[name] = poly
+        labels.append((name, verts, style["color"]))
+    view = np.array([[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+    for group in groups:
+        members = [atoms[i] for i in group]
+        label = " | ".join(m[1] for m in members)
+        color = _region_style(members[0][0])["color"]
+        H = np.vstack([m[2] for m in members])
+        c = np.concatenate([m[3] for m in members])
+        hole = clip_halfplanes(-H, -c, lo, hi)  # outside every operand: the obstacle
+        outer = MplPath(np.vstack([view, view[:1]]), closed=True)
+        if len(hole):
+            ring = hole if _area(hole) < 0 else hole[::-1]  # clockwise: a hole in the view
+            inner = MplPath(np.vstack([ring, ring[:1]]), closed=True)
+            path = MplPath.make_compound_path(outer, inner)
+        else:
+            path = outer
+        union = PathPatch(
+            path, facecolor=_fill(color), edgecolor="none", label=f"{label} (one of them holds)", zorder=1.9
+        )
+        ax.add_patch(union)
+        out.region_groups[label] = union
+        if len(hole):
+            obstacle = Polygon(
+                hole,
+                closed=True,
+                facecolor=_fill("0.3", 0.3),
+                edgecolor=color,
+                hatch="//",
+                linewidth=1.5,
+                label=f"obstacle: not ({label})",
+                zorder=2.1,
+            )
+            ax.add_patch(obstacle)
+            out.obstacles[label] = obstacle
+        for _, name, Hm, cm, _ in members:
+            out.regions[name] = union
+            verts = clip_halfplanes(Hm, cm, lo, hi)
+            if len(verts):
+                labels.append((name, verts, color))
+    return labels
+
+
+def _write_region_labels(
+    ax: Any,
+    labels: list[tuple[str, np.ndarray, str]],
+    avoid: list[np.ndarray],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    out: Any,
+) -> None:
+    """Write each region's name where :func:`_label_spot` finds room (smaller regions first)."""
+    points = np.vstack([a for a in avoid if a.size] or [np.zeros((0, 2))])
+    areas = {name: abs(_area(verts)) for name, verts, _ in labels}
+    obstacles = [np.asarray(o.get_xy()) for o in out.obstacles.values()]
+    placed: list[np.ndarray] = []
+    for name, verts, color in sorted(labels, key=lambda t: areas[t[0]]):
+        smaller = [
+            v
+            for other, v, _ in labels
+            if areas[other] < areas[name]
+            and other != name
+            and out.regions.get(other) is not None
+            and out.regions[other] not in out.region_groups.values()
+        ]
+        spot = _label_spot(
+            verts, np.vstack([points, *placed]) if placed else points, obstacles + smaller, lo, hi
+        )
+        placed.append(spot[None, :])
+        out.region_labels[name] = _region_text(ax, spot, name, color)
+
+
+def _area(verts: np.ndarray) -> float:
+    x, y = verts[:, 0], verts[:, 1]
+    return float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) / 2.0)
+
+
+def _workspace_caption(out: Any, shade: str, every: int | None) -> str:
+    """What the ellipses, the shading and the regions of a workspace figure are."""
+    parts = []
+    if out.plan_ellipses or out.executed_ellipses:
+        who = []
+        if out.plan_ellipses:
+            who.append("planned (blue" + (f", every {every} steps" if every and every > 1 else "") + ")")
+        if out.executed_ellipses:
+            who.append("executed (orange)")
+        parts.append("Ellipses: 95% confidence regions of the belief, " + " and ".join(who) + ".")
+    if out.predicted_ellipses:
+        parts.append("Dashed dark red: 95% of the predicted true state.")
+    if out.light is not None:
+        parts.append(f"Shading: {shade} (see the colorbar).")
+    elif out.light_constant is not None:
+        parts.append(f"No shading: {shade} is {out.light_constant:.3g} everywhere.")
+    if out.regions:
+        parts.append(
+            "Filled regions: where each proposition holds for a belief without uncertainty "
+            "(the mean needs room for its covariance)."
+        )
+    if out.obstacles:
+        parts.append("Hatched: the obstacle, outside every operand of a disjunction.")
+    return " ".join(parts)
+
+
+def _add_caption(out: Any, text: str) -> Any:
+    """``text`` wrapped under the axes (under the colorbar when there is one)."""
+    if not text:
+        return None
+    anchor = out.colorbar.ax if out.colorbar is not None else out.ax
+    offset = -42 if out.colorbar is not None else -34
+    return anchor.annotate(
+        textwrap.fill(text, 95),
+        xy=(0.0, 0.0),
+        xycoords="axes fraction",
+        xytext=(0, offset),
+        textcoords="offset points",
+        ha="left",
+        va="top",
+        fontsize="x-small",
+        color="0.25",
+        annotation_clip=False,
+    )
+
+
 # ----------------------------------------------------------------------------------------------
 # Workspace
 
@@ -547,6 +982,7 @@ def plot_workspace(
     show_modes: bool | None = None,
     light_legend: str | None = None,
     predicted: Any = None,
+    caption: bool = True,
 ) -> WorkspaceArtists:
     """Draw a problem's workspace with a plan and an execution, in two chosen state coordinates.
 
@@ -595,10 +1031,24 @@ def plot_workspace(
         A prediction of the execution (:func:`~idstlpy.execution.prediction.predict_closed_loop`
         or ``validate(..., predict=True).predicted``): its true-state mean (dotted red) and 95%
         ellipses of the true state (dashed red), every ``ellipse_every`` steps.
+    caption : bool
+        Write under the axes what the ellipses, the shading and the regions are.
 
     Returns
     -------
     WorkspaceArtists
+
+    Notes
+    -----
+    Each proposition's region (the means that satisfy its chance constraints at zero
+    covariance) is filled and labelled with its name (an unnamed one with its constraints). The
+    operands of a disjunction of half-planes (an obstacle avoided as ``left | right | below |
+    above``) are filled as one region, their union, and the obstacle they leave out is hatched.
+    The start (initial mean) and the end of the plan are marked; with the modes shown, each
+    sensing step is a dot in its mode's colour, the legend says which modes sense, which are
+    blind and which stand still (``B = 0``), and a mean that stays put for several steps is
+    annotated. A shading that is the same everywhere (constant sensor noise) is not drawn: the
+    legend gives its value instead of a colorbar.
 
     Raises
     ------
@@ -610,7 +1060,7 @@ def plot_workspace(
     """
     from matplotlib.collections import LineCollection
     from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch, Polygon
+    from matplotlib.patches import Patch
 
     _check_problem(problem)
     n = problem.switched_system.n
@@ -630,6 +1080,7 @@ def plot_workspace(
 
     halfplanes = _proposition_halfplanes(problem, d)
     boxes = [b for b in (_bounded_box(H, c) for _, _, H, c in halfplanes) if b is not None]
+    boxes += _obstacle_boxes(problem, d)
     trajs = [t.get_mean()[:, d] for t in (plan, executed) if t is not None]
     if real is not None:
         trajs.append(real.get_state()[:, d])
@@ -646,6 +1097,18 @@ def plot_workspace(
         if vals.shape != (pts.shape[0],):
             raise DimensionError(f"light must map points (k, 2) to values (k,), got shape {vals.shape}")
         label = light_label or "sensing quality (brighter is better)"
+        finite = vals[np.isfinite(vals)]
+        if finite.size and float(np.ptp(finite)) <= 1e-9 * max(float(np.abs(finite).max()), 1e-300):
+            out.light_constant = float(finite[0])
+    if light is not None and out.light_constant is not None:
+        proxies.append(
+            Patch(
+                facecolor="none",
+                edgecolor="none",
+                label=f"{light_legend or label}: {out.light_constant:.3g} everywhere (constant: not shaded)",
+            )
+        )
+    elif light is not None:
         out.light = ax.imshow(
             vals.reshape(X.shape),
             origin="lower",
@@ -657,8 +1120,14 @@ def plot_workspace(
             zorder=0,
             interpolation="bilinear",
         )
+        name = light_legend or label
         proxies.append(
-            Patch(facecolor="0.55", edgecolor="0.3", alpha=0.8, label=f"shading: {light_legend or label}")
+            Patch(
+                facecolor="0.55",
+                edgecolor="0.3",
+                alpha=0.8,
+                label=f"shading: {name}" + (" (colorbar)" if colorbar and light_legend else ""),
+            )
         )
         if colorbar:
             out.colorbar = fig.colorbar(
@@ -666,24 +1135,7 @@ def plot_workspace(
             )
             out.colorbar.set_label(label, fontsize="small")
 
-    for j, name, H, c in halfplanes:
-        verts = clip_halfplanes(H, c, lo, hi)
-        if not len(verts):
-            logger.debug("plot_workspace: region %s is empty in view", name)
-            continue
-        style = _region_style(j)
-        poly = Polygon(
-            verts,
-            closed=True,
-            fill=False,
-            edgecolor=style["color"],
-            linestyle=style["linestyle"],
-            linewidth=1.5,
-            label=name,
-            zorder=2,
-        )
-        ax.add_patch(poly)
-        out.regions[name] = poly
+    region_labels = _draw_regions(ax, problem, d, lo, hi, out)
 
     def every(traj: Any) -> int:
         return ellipse_every or max(1, (traj.num_of_steps + 1) // 25)
@@ -704,8 +1156,16 @@ def plot_workspace(
             ax.add_collection(out.modes)
             for q in sorted(set(actions.tolist())):
                 proxies.append(
-                    Line2D([], [], color=_mode_color(q), lw=4.0, alpha=0.85, label=f"plan: mode {q}")
+                    Line2D(
+                        [],
+                        [],
+                        color=_mode_color(q),
+                        lw=4.0,
+                        alpha=0.85,
+                        label=f"plan: mode {q} ({_mode_text(problem, q)})",
+                    )
                 )
+            _draw_sensing(ax, problem, plan, d, out, proxies)
         (out.plan,) = ax.plot(
             m[:, d[0]],
             m[:, d[1]],
@@ -715,6 +1175,7 @@ def plot_workspace(
             label="plan: mean",
             zorder=4,
         )
+        out.still = _annotate_still(ax, m[:, d])
         for k in range(0, plan.num_of_steps + 1, every(plan)):
             e = _ellipse(m[k, d], plan.get_cov(k)[np.ix_(d, d)], fill=False, ec="tab:blue", lw=0.6, zorder=3)
             ax.add_patch(e)
@@ -777,12 +1238,45 @@ def plot_workspace(
         )
     if predicted is not None:
         _draw_prediction(ax, predicted, d, ellipse_every, out, proxies)
+    start = np.asarray(problem.initial_state.mean, dtype=float)[d]
+    (out.start,) = ax.plot(
+        [start[0]],
+        [start[1]],
+        ls="none",
+        marker="o",
+        ms=9,
+        mfc="white",
+        mec="black",
+        mew=1.5,
+        label="start (initial mean)",
+        zorder=8,
+    )
+    last = plan if plan is not None else executed
+    if last is not None:
+        end = last.get_mean()[-1, d]
+        (out.end,) = ax.plot(
+            [end[0]],
+            [end[1]],
+            ls="none",
+            marker="*",
+            ms=15,
+            mfc="gold",
+            mec="black",
+            mew=1.0,
+            label="end of plan" if plan is not None else "end of execution",
+            zorder=8,
+        )
+    _write_region_labels(ax, region_labels, [*trajs, start[None, :]], lo, hi, out)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_xlabel(f"x[{d[0]}]")
     ax.set_ylabel(f"x[{d[1]}]")
     out.legend_proxies = proxies
     out.legend = _place_legend(ax, proxies, legend)
+    if caption:
+        every_plan = every(plan) if plan is not None else None
+        shade = light_legend or light_label or "sensing quality"
+        out.caption = _add_caption(out, _workspace_caption(out, shade, every_plan))
     return out
 
 
@@ -909,7 +1403,7 @@ def plot_light_dark(
             kwargs.setdefault(
                 "light_label", f"sensor noise std of mode {q} (RMS over outputs; brighter is less noise)"
             )
-            kwargs.setdefault("light_legend", f"sensor noise std of mode {q} (colorbar)")
+            kwargs.setdefault("light_legend", f"sensor noise std of mode {q}")
             kwargs.setdefault("light_cmap", "gray_r")
             kwargs.setdefault("light_norm", "log")
     return plot_workspace(problem, plan, executed, real, ax=ax, light=light, **kwargs)
@@ -931,6 +1425,10 @@ def plot_monte_carlo(
 ) -> MonteCarloArtists:
     """Overlay many executions of a plan; the title gives the success rate(s).
 
+    A problem of one state has no workspace plane: the executions are overlaid on its time
+    series (:func:`plot_time_series` with ``executions=``; a single ``ax`` draws the state
+    alone, without the inputs' and modes' axes).
+
     Parameters
     ----------
     problem : Problem
@@ -942,7 +1440,8 @@ def plot_monte_carlo(
     report : ValidationReport, optional
         Supplies the belief / state success rates and their confidence intervals.
     ax : matplotlib Axes, optional
-        Where to draw (default: a new figure).
+        Where to draw (default: a new figure); for a one-state problem, an Axes or the axes of
+        :func:`plot_time_series`.
     light : callable, optional
         As in :func:`plot_light_dark` (default: the sensor noise of the plan's mode).
     success_rate : float, optional
@@ -963,6 +1462,31 @@ def plot_monte_carlo(
     """
     from matplotlib.lines import Line2D
 
+    _check_problem(problem)
+    if problem.switched_system.n == 1:
+        single = ax is not None and not isinstance(ax, list | tuple | np.ndarray)
+        ts = plot_time_series(
+            problem,
+            plan,
+            axes=[ax] if single else ax,
+            executions=executions,
+            controls=not single,
+            modes=not single,
+            legend=legend,
+        )
+        one = MonteCarloArtists(
+            figure=ts.figure,
+            ax=ts.ax,
+            workspace=None,
+            executed=list(ts.runs_executed.get(0, [])),
+            real=list(ts.runs_real.get(0, [])),
+            legend=ts.legend,
+            time_series=ts,
+        )
+        one.title = ts.ax.set_title(
+            _monte_carlo_title(report, success_rate, len(executions)), fontsize="small"
+        )
+        return one
     if predicted is None and report is not None:
         predicted = getattr(report, "predicted", None)
     if predicted is False:
@@ -989,26 +1513,35 @@ def plot_monte_carlo(
         s = xr.get_state()
         (rline,) = ax.plot(s[:, d[0]], s[:, d[1]], color="tab:red", lw=0.5, alpha=0.35, zorder=6)
         out.real.append(rline)
-    if report is not None:
-        title = (
-            f"{report.runs} runs: belief {100 * report.belief_success_rate:.1f}% "
-            f"[{100 * report.belief_ci[0]:.1f}, {100 * report.belief_ci[1]:.1f}], "
-            f"state {100 * report.state_success_rate:.1f}% "
-            f"[{100 * report.state_ci[0]:.1f}, {100 * report.state_ci[1]:.1f}]"
-        )
-    elif success_rate is not None:
-        title = f"{len(executions)} executions: success {100 * float(success_rate):.1f}%"
-    else:
-        title = f"{len(executions)} executions"
-    out.title = ax.set_title(title, fontsize="small")
+    out.title = ax.set_title(_monte_carlo_title(report, success_rate, len(executions)), fontsize="small")
     proxies = list(ws.legend_proxies)
     if out.executed:
         proxies.append(
             Line2D([], [], color="tab:orange", lw=0.8, label=f"executed beliefs ({len(out.executed)})")
         )
         proxies.append(Line2D([], [], color="tab:red", lw=0.8, label=f"true states ({len(out.real)})"))
+        if ws.caption is not None:
+            text = ws.caption.get_text().replace("\n", " ")
+            text += (
+                f" Thin lines: {len(out.executed)} executions "
+                "(orange: executed belief means, red: true states)."
+            )
+            ws.caption.set_text(textwrap.fill(text, 95))
     out.legend = _place_legend(ax, proxies, legend)
     return out
+
+
+def _monte_carlo_title(report: Any, success_rate: float | None, count: int) -> str:
+    if report is not None:
+        return (
+            f"{report.runs} runs: belief {100 * report.belief_success_rate:.1f}% "
+            f"[{100 * report.belief_ci[0]:.1f}, {100 * report.belief_ci[1]:.1f}], "
+            f"state {100 * report.state_success_rate:.1f}% "
+            f"[{100 * report.state_ci[0]:.1f}, {100 * report.state_ci[1]:.1f}]"
+        )
+    if success_rate is not None:
+        return f"{count} executions: success {100 * float(success_rate):.1f}%"
+    return f"{count} executions"
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1024,6 +1557,40 @@ def _axis_bounds(problem: Any, i: int) -> list[tuple[int, str, float]]:
     return out
 
 
+def _fill_intervals(ax: Any, problem: Any, i: int, out: Any) -> None:
+    """Fill, across the axes of state ``i``, the interval of each proposition on ``x[i]`` alone."""
+    from matplotlib.transforms import blended_transform_factory
+
+    ax.autoscale_view()
+    y0, y1 = ax.get_ylim()
+    for j, name, H, c, _ in _atoms(problem):
+        if not np.all(np.all(np.delete(H, i, axis=1) == 0.0, axis=1) & (H[:, i] != 0.0)):
+            continue  # it constrains other coordinates too: its bounds alone are drawn
+        lower = max([-cst / h for h, cst in zip(H[:, i], c, strict=True) if h < 0], default=-np.inf)
+        upper = min([-cst / h for h, cst in zip(H[:, i], c, strict=True) if h > 0], default=np.inf)
+        lo, hi = max(lower, y0), min(upper, y1)
+        if not lo < hi:
+            continue
+        color = _region_style(j)["color"]
+        span = ax.axhspan(lo, hi, facecolor=_fill(color, 0.1), edgecolor="none", zorder=0.5)
+        key = name if name not in out.regions else f"{name} (x[{i}])"
+        out.regions[key] = span
+        ax.text(
+            0.005,
+            0.5 * (lo + hi),
+            name,
+            transform=blended_transform_factory(ax.transAxes, ax.transData),
+            ha="left",
+            va="center",
+            fontsize="x-small",
+            color=color,
+            fontweight="bold",
+            zorder=2.6,
+            bbox={"boxstyle": "round,pad=0.15", "facecolor": "white", "edgecolor": "none", "alpha": 0.6},
+        )
+    ax.set_ylim(y0, y1)
+
+
 def plot_time_series(
     problem: Any,
     plan: Any,
@@ -1037,6 +1604,8 @@ def plot_time_series(
     modes: bool = True,
     bounds: bool = True,
     legend: LegendPlacement = "outside",
+    executions: Sequence[tuple[Any, Any]] | None = None,
+    caption: bool = True,
 ) -> TimeSeriesArtists:
     """Draw trajectories against the step: each state's mean with a band, the inputs, the modes.
 
@@ -1068,10 +1637,21 @@ def plot_time_series(
         Draw the propositions' bounds on single coordinates (needs ``problem``).
     legend : bool or str
         As in :func:`plot_workspace` (one legend, on the first axes).
+    executions : sequence of (ProbabilisticTSTrajectory, RealTrajectory), optional
+        Many executions overlaid (e.g. ``ValidationReport.executions``): per state, one thin
+        line per executed belief mean (orange) and per true state (red).
+    caption : bool
+        Write under the last axes what the bands and lines are.
 
     Returns
     -------
     TimeSeriesArtists
+
+    Notes
+    -----
+    The plan's first and last means are marked (start: a white circle, end: a gold star), as
+    in :func:`plot_workspace`; the modes' axis names each mode with what it does (``senses``,
+    ``blind``, ``stands still: B = 0``).
 
     Raises
     ------
@@ -1100,6 +1680,13 @@ def plot_time_series(
         _check_traj(executed, "executed", n)
     if real is not None:
         _check_traj(real, "real", n)
+    runs: list[tuple[Any, Any]] = []
+    for i, pair in enumerate(executions or ()):
+        if not isinstance(pair, tuple | list) or len(pair) != 2:
+            raise InvalidArgumentError(f"executions[{i}] must be a pair (executed belief, real trajectory)")
+        _check_traj(pair[0], f"executions[{i}][0]", n)
+        _check_traj(pair[1], f"executions[{i}][1]", n)
+        runs.append((pair[0], pair[1]))
     idx = tuple(range(n)) if states is None else tuple(int(i) for i in states)
     if not idx or any(not 0 <= i < n for i in idx) or len(set(idx)) != len(idx):
         raise DimensionError(f"states must be different coordinates in 0..{n - 1}, got {states!r}")
@@ -1166,6 +1753,53 @@ def plot_time_series(
             (out.executed_means[i],) = ax.plot(
                 ek, em[:, i], color="tab:orange", lw=1.0, label="executed: mean" if row == 0 else None
             )
+        out.runs_executed[i], out.runs_real[i] = [], []
+        for r, (xs, xr) in enumerate(runs):
+            em = xs.get_mean()
+            (line,) = ax.plot(
+                np.arange(em.shape[0]),
+                em[:, i],
+                color="tab:orange",
+                lw=0.6,
+                alpha=0.35,
+                zorder=1.5,
+                label=f"executed beliefs ({len(runs)})" if row == 0 and r == 0 else None,
+            )
+            out.runs_executed[i].append(line)
+            rs = xr.get_state()
+            (line,) = ax.plot(
+                np.arange(rs.shape[0]),
+                rs[:, i],
+                color="tab:red",
+                lw=0.5,
+                alpha=0.35,
+                zorder=1.6,
+                label=f"true states ({len(runs)})" if row == 0 and r == 0 else None,
+            )
+            out.runs_real[i].append(line)
+        (out.start[i],) = ax.plot(
+            [0],
+            [mean[0, i]],
+            ls="none",
+            marker="o",
+            ms=8,
+            mfc="white",
+            mec="black",
+            mew=1.5,
+            zorder=8,
+            label="start (initial mean)" if row == 0 else None,
+        )
+        (out.end[i],) = ax.plot(
+            [plan.num_of_steps],
+            [mean[-1, i]],
+            ls="none",
+            marker="*",
+            ms=13,
+            mfc="gold",
+            mec="black",
+            zorder=8,
+            label="end of plan" if row == 0 else None,
+        )
         if real is not None:
             rs = real.get_state()
             (out.real[i],) = ax.plot(
@@ -1186,6 +1820,7 @@ def plot_time_series(
                 )
                 named.add(name)
                 out.bounds.append(line)
+            _fill_intervals(ax, problem, i, out)
         ax.set_ylabel(f"x[{i}]")
     row = len(idx)
     if draw_u:
@@ -1238,6 +1873,10 @@ def plot_time_series(
                 out.modes.append(line)
         num_modes = problem.switched_system.num_modes if problem is not None else int(q.max()) + 1
         ax.set_yticks(range(num_modes))
+        if problem is not None:
+            ax.set_yticklabels(
+                [f"{m} ({_mode_text(problem, m)})" for m in range(num_modes)], fontsize="small"
+            )
         ax.set_ylim(-0.5, num_modes - 0.5)
         ax.set_ylabel("mode")
     ax_list[-1].set_xlabel("step k")
@@ -1259,6 +1898,33 @@ def plot_time_series(
             )
         else:
             out.legend = _place_legend(first, [], legend)
+    if caption:
+        text = f"Bands: the planned belief's mean \u00b1 {sigma:g} standard deviations per state"
+        if executed is not None:
+            text += " (orange: the executed belief's)"
+        text += "."
+        if runs:
+            text += f" Thin lines: {len(runs)} executions (orange: executed belief means, red: true states)."
+        if out.regions:
+            text += (
+                " Filled bands: where each proposition holds on that state for a belief without "
+                "uncertainty (the mean needs room for its spread); dotted: their bounds."
+            )
+        elif out.bounds:
+            text += " Dotted: the propositions' bounds on single coordinates (at zero covariance)."
+        last = ax_list[-1]
+        out.caption = last.annotate(
+            textwrap.fill(text, 100),
+            xy=(0.0, 0.0),
+            xycoords="axes fraction",
+            xytext=(0, -34),
+            textcoords="offset points",
+            ha="left",
+            va="top",
+            fontsize="x-small",
+            color="0.25",
+            annotation_clip=False,
+        )
     return out
 
 
