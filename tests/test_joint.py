@@ -429,3 +429,62 @@ def test_joint_box_holds_in_execution_where_per_face_does_not():
     summary = report.summary()
     assert "face 1 of 4, jointly >= 0.95" in summary
     assert "0 of" in summary.splitlines()[-1], summary
+
+
+# ------------------------------------------------------------------------------------------------
+# iterative risk allocation after a plan is found
+# ------------------------------------------------------------------------------------------------
+
+
+def test_reallocate_moves_risk_to_the_faces_the_plan_needs():
+    from idstlpy.synthesis.allocation import reallocate
+
+    x = stl.mk_variable(2)
+    j = stl.prob_in(_box(x, [2.8, -3], [3.2, 3])) >= 0.95
+    f = stl.eventually(0, 3, stl.logical_and(j, name="target"))
+    # a plan sitting in the middle of the box: the x faces bind, the y faces are far
+    means = np.array([[0.0, 0.0], [1.5, 0.0], [3.0, 0.0], [3.0, 0.1]])
+    covs = np.stack([0.085**2 * np.eye(2)] * 4)
+    g = reallocate(f, means, covs)
+    assert g == f and g is not f
+    new = [a for a in g.atomic_propositions() if a.name == "target"][0].joints[0]
+    assert new.shares[0] > j.shares[0] and new.shares[2] < j.shares[2]
+    assert float(np.sum(new.shares)) <= j.eps
+    # the plan still meets every face at the new shares where it met them at the old ones
+    old_ok = np.all(slack(j.H, j.c, quantile(j.shares), means, covs) >= 0, axis=1)
+    new_ok = np.all(slack(j.H, j.c, quantile(new.shares), means, covs) >= 0, axis=1)
+    assert np.all(new_ok[old_ok])
+    # nothing to move: all faces active (a belief at the centre of a square) or fixed shares
+    square = stl.prob_in(_box(x, [-1, -1], [1, 1])) >= 0.95
+    f2 = stl.eventually(0, 1, stl.logical_and(square, name="s"))
+    sd = 1 / 2.241
+    assert reallocate(f2, np.zeros((2, 2)), np.stack([sd * sd * np.eye(2)] * 2)) is f2
+    f3 = stl.eventually(0, 3, stl.logical_and(j.with_shares(j.shares), name="target"))
+    assert reallocate(f3, means, covs) is f3
+
+
+def test_solve_keeps_the_better_of_the_two_allocations():
+    """The re-solve is kept only with a larger margin: never worse than the prior's allocation."""
+    x = stl.mk_variable(2)
+    u = stl.mk_variable(2)
+    box = stl.logical_and(x[0] >= 2.8, x[0] <= 3.2, x[1] >= 2.0, x[1] <= 4.0)
+    mode = stl.dynamical_system.mk_lbs(
+        A=np.eye(2), B=0.5 * np.eye(2), W=0.015 * np.eye(2), C=np.eye(2), V=0.3 * np.eye(2)
+    )
+    domain = stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region
+    prior = stl.to_belief(mean=np.zeros(2), cov=0.1 * np.eye(2))
+
+    def problem(j):
+        f = stl.eventually(0, 25, stl.always(0, 2, stl.logical_and(j, name="target")))
+        return stl.Problem(stl.mk_switched_sys([mode]), domain, prior, f)
+
+    auto = problem(stl.prob_in(box) >= 0.95)
+    chosen = [a for a in auto.stl_formula.atomic_propositions() if a.name == "target"][0].joints[0]
+    fixed = problem(chosen.with_shares(chosen.shares))
+    first = fixed.solve_result(rrt_timeout=10, seed=0, guarantee="closed_loop")
+    best = auto.solve_result(rrt_timeout=10, seed=0, guarantee="closed_loop")
+    assert first.status == best.status == "found"
+    assert best.margin >= first.margin
+    assert "re-allocated" in best.reason and best.margin > first.margin
+    again = auto.solve_result(rrt_timeout=10, seed=0, guarantee="closed_loop")
+    assert again.margin == best.margin  # same seed, same plan

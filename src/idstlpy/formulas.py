@@ -71,6 +71,7 @@ __all__ = [
     "format_formula",
     "format_atom",
     "allocate_joint_risk",
+    "map_joints",
 ]
 
 MAX_BOUND = 2**53
@@ -861,6 +862,52 @@ def format_formula(formula: STLFormula) -> str:
     raise InvalidTypeError(f"cannot format {type(formula).__name__}: not a PrSTL formula")
 
 
+def map_joints(formula: STLFormula, fn: Any) -> STLFormula:
+    """The formula with every joint chance constraint ``j`` of a proposition replaced by ``fn(j)``.
+
+    Sub-formulas where nothing changed are shared (and the formula itself is returned when no
+    joint constraint changed); a sub-formula shared in ``formula`` stays shared.
+
+    Parameters
+    ----------
+    formula : STLFormula
+    fn : callable
+        ``JointChanceConstraint -> JointChanceConstraint`` (the same faces and ``eps``: only the
+        planned shares may differ, so the result equals ``formula``).
+
+    Returns
+    -------
+    STLFormula
+    """
+    if not any(ap.joints for ap in formula.atomic_propositions()):
+        return formula
+    memo: dict[int, STLFormula] = {}
+
+    def rec(f: STLFormula) -> STLFormula:
+        key = id(f)
+        if key in memo:
+            return memo[key]
+        out: STLFormula = f
+        if isinstance(f, STLAtomicProposition):
+            if f.joints and f._constant is None:
+                joints = [fn(j) for j in f.joints]
+                if any(a is not b for a, b in zip(joints, f.joints, strict=True)):
+                    out = STLAtomicProposition(
+                        f.predicates[: f.num_single], f.modes, name=f.name, joints=joints
+                    )
+        else:
+            kids = tuple(rec(c) for c in f.children)
+            if any(k is not c for k, c in zip(kids, f.children, strict=True)):
+                if isinstance(f, STLTemporalFormula):
+                    out = type(f)(kids[0], f.a, f.b, kids[1])
+                elif isinstance(f, STLAnd | STLOr):
+                    out = type(f)(kids)
+        memo[key] = out
+        return out
+
+    return rec(formula)
+
+
 def allocate_joint_risk(formula: STLFormula, cov: Any) -> STLFormula:
     """The formula with every joint chance constraint's shares chosen for beliefs shaped like ``cov``.
 
@@ -882,33 +929,11 @@ def allocate_joint_risk(formula: STLFormula, cov: Any) -> STLFormula:
     """
     from .chance import allocate_shares
 
-    if not any(ap.joints for ap in formula.atomic_propositions()):
-        return formula
     cov = np.asarray(cov, dtype=float)
-    memo: dict[int, STLFormula] = {}
 
-    def rec(f: STLFormula) -> STLFormula:
-        key = id(f)
-        if key in memo:
-            return memo[key]
-        out: STLFormula = f
-        if isinstance(f, STLAtomicProposition):
-            if f.joints and f._constant is None:
-                joints = [
-                    j if j.fixed else j.with_shares(allocate_shares(j.H, j.c, j.eps, cov), fixed=False)
-                    for j in f.joints
-                ]
-                out = STLAtomicProposition(
-                    f.predicates[: f.num_single], f.modes, name=f.name, joints=joints
-                )
-        else:
-            kids = tuple(rec(c) for c in f.children)
-            if any(k is not c for k, c in zip(kids, f.children, strict=True)):
-                if isinstance(f, STLTemporalFormula):
-                    out = type(f)(kids[0], f.a, f.b, kids[1])
-                elif isinstance(f, STLAnd | STLOr):
-                    out = type(f)(kids)
-        memo[key] = out
-        return out
+    def fn(j: JointChanceConstraint) -> JointChanceConstraint:
+        if j.fixed:
+            return j
+        return j.with_shares(allocate_shares(j.H, j.c, j.eps, cov), fixed=False)
 
-    return rec(formula)
+    return map_joints(formula, fn)

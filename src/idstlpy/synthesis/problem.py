@@ -105,6 +105,7 @@ class Problem:
         self.initial_state = initial_state
         # Joint chance constraints get the risk allocation that suits this prior (same meaning).
         self.stl_formula = allocate_joint_risk(formula, initial_state.cov)
+        self._joint = any(ap.joints for ap in formula.atomic_propositions())
         self.last_result: SolveResult | None = None
 
     def solve(
@@ -210,6 +211,10 @@ class Problem:
         from .cegis import synthesize
 
         result = synthesize(self, opts, start)
+        if result.status == "found" and getattr(self, "_joint", False):
+            from .allocation import refine_allocation  # joint chance constraints: one IRA round
+
+            result = refine_allocation(self, opts, start, result, synthesize)
         self.last_result = result
         return result
 
