@@ -85,6 +85,8 @@ def test_online_executor_sequence_errors():
         ex.step(None)
     with pytest.raises(DimensionError, match="observation must have shape"):
         ex.step([1.0, 2.0, 3.0])
+    with pytest.raises(InvalidArgumentError, match="observation must be finite"):
+        ex.step([np.nan, 0.0])
     q, _ = ex.step([0.1, 0.0])
     assert q == 1
     with pytest.raises(InvalidArgumentError, match="blind"):
@@ -295,3 +297,10 @@ def test_spec_and_online_executor_pickle():
     y = np.array([0.1, 2.4])
     a, b = ex.step(y), again.step(y)
     assert a[0] == b[0] and np.array_equal(a[1], b[1]) and first[0] == 0
+
+
+def test_a_diverging_execution_is_reported_with_its_step():
+    system = _two_modes()
+    plan = stl.rollout(system, stl.to_belief([1.0, 1.0], np.eye(2)), [0, 0, 0, 0], np.zeros((4, 2)))
+    with np.errstate(all="ignore"), pytest.raises(InvalidArgumentError, match="diverged at step 2"):
+        stl.simulate(system, plan, 4, [1.0, 1.0], None, plant=lambda x, u, q, rng: x * 1e200)

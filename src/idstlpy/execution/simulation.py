@@ -150,11 +150,13 @@ def simulate(
         X = law.plant(k, X, u[None, :], rng)
         Y = law.observe(k, X, rng)
         y = None if Y is None else Y[0]
+        if not (np.isfinite(X).all() and (y is None or np.isfinite(y).all())):
+            raise InvalidArgumentError(f"the execution diverged at step {k + 1} (non-finite state)")
         if y is not None:
             observations[k + 1, : y.shape[0]] = y
         executor.observe(y)
         means[k + 1], covs[k + 1], states[k + 1] = executor.mean, executor.cov, X[0]
-        if not (np.all(np.isfinite(means[k + 1])) and np.all(np.isfinite(X))):
+        if not np.isfinite(means[k + 1]).all():
             raise InvalidArgumentError(f"the execution diverged at step {k + 1} (non-finite state)")
     logger.debug("simulate: %d steps, final error %s", N, states[-1] - means[-1])
     actions = ref.get_action()[:N]

@@ -170,6 +170,12 @@ class OnlineExecutor:
         view.flags.writeable = False
         return view
 
+    def __repr__(self) -> str:
+        return (
+            f"OnlineExecutor(k={self._k}/{self.law.num_of_steps}, pending={self.pending}, "
+            f"mean={np.array2string(self._mean[0], precision=4)})"
+        )
+
     # -- the loop ------------------------------------------------------------------------------
 
     def observe(self, observation: Any) -> None:
@@ -183,7 +189,8 @@ class OnlineExecutor:
         Raises
         ------
         InvalidArgumentError
-            When no input is pending, or the observation is missing (or given for a blind mode).
+            When no input is pending, or the observation is missing (or given for a blind mode),
+            or not finite.
         DimensionError
             When the observation has the wrong shape.
         """
@@ -207,7 +214,8 @@ class OnlineExecutor:
         Raises
         ------
         InvalidArgumentError
-            When the plan is done, or the previous input's observation is pending.
+            When the plan is done, the previous input's observation is pending, or the input is
+            not finite (the belief diverged).
         """
         if self._input is not None:
             raise InvalidArgumentError("command: the observation of the last input is pending (call observe)")
@@ -215,6 +223,8 @@ class OnlineExecutor:
             raise InvalidArgumentError(f"the plan is done: its {self.law.num_of_steps} inputs were issued")
         k = self._k
         U = self.law.control(k, self._mean)
+        if not np.isfinite(U).all():
+            raise InvalidArgumentError(f"the input of step {k} is not finite: the belief diverged")
         self._input = U
         self._k = k + 1
         return self.law.steps[k].mode, U[0].copy()
@@ -269,4 +279,6 @@ class OnlineExecutor:
         y = np.asarray(observation, dtype=float)
         if y.shape != (mode.p,):
             raise DimensionError(f"observation must have shape ({mode.p},), got {y.shape}")
+        if not np.isfinite(y).all():
+            raise InvalidArgumentError(f"observation must be finite, got {y} (a sensor fault?)")
         return y[None, :]

@@ -16,7 +16,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, Literal
@@ -79,7 +79,7 @@ class ExecutorSpec:
         default_lqr: Mapping[str, Any] | None = None,
         real_system: SwitchedSystem | LCS | None = None,
         plant: PlantStep | None = None,
-        modes: Any = None,
+        modes: Iterable[int] | None = None,
     ) -> ExecutorSpec:
         """Validate the executor's settings and resolve the tracking gains once.
 
