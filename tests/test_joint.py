@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from oracles import joint as oracle
 
@@ -488,3 +488,65 @@ def test_solve_keeps_the_better_of_the_two_allocations():
     assert "re-allocated" in best.reason and best.margin > first.margin
     again = auto.solve_result(rrt_timeout=10, seed=0, guarantee="closed_loop")
     assert again.margin == best.margin  # same seed, same plan
+
+
+def test_no_optimality_claimed_with_joint_constraints():
+    x = stl.mk_variable(2)
+    j = stl.prob_in(_box(x, [2.8, -3], [3.2, 3])) >= 0.95
+    r = _blind_problem(j, cov0=0.005).solve_result(rrt_timeout=2, seed=0, objective="effort")
+    assert r.status == "found"
+    assert r.optimal is False and r.optimal_scope == "" and np.isnan(r.objective_bound)
+
+
+@st.composite
+def _joint_problems(draw):
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    x = stl.mk_variable(2)
+    u = stl.mk_variable(2)
+    center = rng.uniform(-3, 3, 2)
+    half = rng.uniform(0.15, 1.0, 2)
+    if draw(st.booleans()):
+        region = _box(x, center - half, center + half)
+    else:  # a random polygon around the centre
+        F = int(rng.integers(3, 7))
+        angles = np.sort(rng.uniform(0, 2 * np.pi, F))
+        normals = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        offsets = rng.uniform(0.15, 1.0, F)
+        region = stl.logical_and(*[normals[f] @ (x - center) <= offsets[f] for f in range(F)])
+    eps = draw(st.sampled_from([0.01, 0.05, 0.1, 0.2]))
+    sensed = draw(st.booleans())
+    W = rng.uniform(0.0, 0.01) * np.eye(2)
+    mode = (
+        stl.dynamical_system.mk_lbs(
+            A=np.eye(2), B=0.5 * np.eye(2), W=W, C=np.eye(2), V=rng.uniform(0.01, 0.3) * np.eye(2)
+        )
+        if sensed
+        else stl.dynamical_system.mk_lbs(A=np.eye(2), B=0.5 * np.eye(2), W=W)
+    )
+    domain = stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region
+    prior = stl.to_belief(mean=np.zeros(2), cov=rng.uniform(0.001, 0.1) * np.eye(2))
+    target = stl.logical_and(stl.prob_in(region) >= 1 - eps, name="target")
+    formula = stl.eventually(0, 15, stl.always(0, 2, target))
+    return stl.Problem(stl.mk_switched_sys([mode]), domain, prior, formula), eps, rng
+
+
+@settings(max_examples=12)
+@given(_joint_problems())
+def test_found_plans_hold_the_region_by_sampling(case):
+    """Solver-level soundness: at every step a found plan claims the joint constraint, the
+    planned belief puts at least 1 - eps of its mass in the region (sampled)."""
+    problem, eps, rng = case
+    result = problem.solve_result(rrt_timeout=2, seed=0, max_candidates=20)
+    assert result.status in ("found", "budget_exhausted")  # never a claimed proof
+    if result.status != "found":
+        return
+    traj = result.trajectory
+    ap = [a for a in problem.stl_formula.atomic_propositions() if a.name == "target"][0]
+    joint = ap.joints[0]
+    claimed = np.flatnonzero(atom_margins(ap, traj.get_mean(), traj.get_cov(), traj.get_action()) >= 0)
+    assert claimed.size
+    for k in claimed[-3:]:
+        p, low, high = oracle.sampled_probability(
+            joint.H, joint.c, traj.get_mean(k), traj.get_cov(k), 50_000, rng
+        )
+        assert high >= 1 - eps, (k, p)
