@@ -97,15 +97,7 @@ class _Run:
         self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
         self.closed_loop = options.guarantee == "closed_loop"
         system = problem.switched_system
-        units = Scaling.compute(
-            system,
-            problem.control_domain,
-            problem.initial_state.mean,
-            problem.initial_state.cov,
-            Abstraction(problem.stl_formula, system.n),
-        )
-        self.input_units = units.du
-        self.input_scale = _input_scale(system, problem.control_domain, units)
+        self._units: Scaling | None = None  # the loop's (use_units), else computed when asked
         # Under closed_loop, MLO proofs carry over only when the filter covariance is the MLO one.
         self.proofs_hold = not self.closed_loop or not any(
             mode.p and mode.has_state_dependent_noise for mode in system.system_modes
@@ -150,6 +142,21 @@ class _Run:
             predicted=predicted,
         )
 
+    def use_units(self, scaling: Scaling) -> None:
+        """The units the final check measures inputs in: the loop's own."""
+        self._units = scaling
+
+    @property
+    def units(self) -> Scaling:
+        """The problem's :class:`~.plan_lp.Scaling` (computed here when the loop gave none)."""
+        if self._units is None:
+            problem = self.problem
+            system = problem.switched_system
+            init = problem.initial_state
+            abstraction = Abstraction(problem.stl_formula, system.n)
+            self._units = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
+        return self._units
+
     def counts(self) -> str:
         s = self.stats
         return f"{s.candidates} candidates: {s.refuted} refuted by proofs, {s.abandoned} abandoned"
@@ -186,6 +193,7 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
     lp_backend = get_backend(options.lp_backend)
     abstraction = Abstraction(formula, system.n)
     scaling = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
+    run.use_units(scaling)
     with stats.clock("time_lp"):
         report = abstraction.prune(
             system,
@@ -637,7 +645,7 @@ def _check(run: _Run, traj: ProbabilisticTSTrajectory | None) -> Verified | None
     problem = run.problem
     formula = problem.stl_formula
     traj = rollout(problem.switched_system, problem.initial_state, traj.get_action(), traj.get_control())
-    why = _outside_domain(problem.control_domain, traj.get_control(), run.input_units)
+    why = _outside_domain(problem.control_domain, traj.get_control(), run.units.du)
     if why:
         logger.warning("a plan was rejected by the final check: %s", why)
         return None
@@ -690,18 +698,19 @@ def _outside_domain(domain: Any, controls: np.ndarray, du: np.ndarray) -> str:
 def _warn_far_inputs(run: _Run, controls: np.ndarray) -> None:
     """Warn when a plan on an unbounded control domain uses inputs far outside the problem's scale.
 
-    Inputs beyond :data:`FAR_INPUTS` times ``run.input_scale`` (:func:`_input_scale`) are legal
+    Inputs beyond :data:`FAR_INPUTS` times the input scale (:func:`_input_scale`) are legal
     but rarely meant (a domain bounded on one side only): a ``UserWarning`` and a logged warning.
     """
-    if controls.shape[0] == 0 or run.input_scale is None:
+    scale = _input_scale(run.problem.switched_system, run.problem.control_domain, run.units)
+    if controls.shape[0] == 0 or scale is None:
         return
-    ratio = np.max(np.abs(controls), axis=0) / run.input_scale
+    ratio = np.max(np.abs(controls), axis=0) / scale
     if not np.any(ratio > FAR_INPUTS):
         return
     j = int(np.argmax(ratio))
     msg = (
         f"the plan uses input u[{j}] = {float(np.max(np.abs(controls[:, j]))):.6g}, "
-        f"{float(ratio[j]):.3g} times the problem's input scale ({float(run.input_scale[j]):.3g}), "
+        f"{float(ratio[j]):.3g} times the problem's input scale ({float(scale[j]):.3g}), "
         "on an unbounded control_domain: bound the control domain if such inputs are not meant"
     )
     logger.warning(msg)

@@ -50,6 +50,7 @@ the objectives' refiner use them.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -504,6 +505,7 @@ def give_room(
     traj: ProbabilisticTSTrajectory,
     rounds: int,
     stats: SolveStats,
+    deadline: float | None = None,
 ) -> ProbabilisticTSTrajectory:
     """Give a plan the room its execution needs, keeping its modes (sequential convex programming).
 
@@ -526,6 +528,9 @@ def give_room(
         Work budget: LP rounds.
     stats : SolveStats
         ``lp_calls`` is counted here.
+    deadline : float, optional
+        ``time.perf_counter()`` value (the solve's time limit) after which no round starts; each
+        round's LP gets the time left. The plan so far is returned: the room is anytime.
 
     Returns
     -------
@@ -556,8 +561,12 @@ def give_room(
             break
         if not np.isfinite(trust) and not exact:
             trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(scaling.dx)))
+        left = 1e9 if deadline is None else deadline - time.perf_counter()
+        if left <= 0:
+            logger.info("room: the time limit stops the rounds; the plan keeps the room it has")
+            break
         stats.lp_calls += 1
-        out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling)
+        out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling, time_limit=left)
         if out is not None:
             moved = rollout(system, init, traj.get_action()[: plan.length - 1], out[0])
             if robustness(moved, formula) >= 0:

@@ -902,7 +902,7 @@ class SamplerTeacher:
         with stats.clock("time_sampling"):
             actions, controls = self.sampler.shortcut(out.actions, out.controls, self.options.shortcut_checks)
         with stats.clock("time_lp"):
-            actions, controls = self._polish(actions, controls, stats)
+            actions, controls = self._polish(actions, controls, stats, budget.deadline)
         return Found(actions, controls, "the belief-space sampler")
 
     def rescue(self, plan: DiscretePlan, refuted: Refuted, budget: Budget, stats: SolveStats) -> Verdict:
@@ -926,7 +926,7 @@ class SamplerTeacher:
         return verdict if isinstance(verdict, Found) else refuted
 
     def _polish(
-        self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats
+        self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats, deadline: float | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """Give a sampled plan the room its execution needs, keeping its modes.
 
@@ -940,10 +940,11 @@ class SamplerTeacher:
         the monitor still accepts it and its room improved (:meth:`.room.Room.better_than`);
         ``trust`` halves after a round that did not help. It stops when the room is complete
         (:attr:`.room.Room.complete`), or after a failed round once every required face has its
-        room. The rounds are a work budget (``2 * max(polish_rounds, 4)``).
+        room. The rounds are a work budget (``2 * max(polish_rounds, 4)``); no round starts after
+        ``deadline`` (the solve's time limit).
         """
         problem = self.problem
         traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
         rounds = 2 * max(self.options.polish_rounds, 4) if self.options.polish_rounds else 0
-        traj = give_room(problem, self.abs, self.scaling, traj, rounds, stats)
+        traj = give_room(problem, self.abs, self.scaling, traj, rounds, stats, deadline)
         return traj.get_action(), traj.get_control()

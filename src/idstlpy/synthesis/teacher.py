@@ -603,14 +603,15 @@ class LPTeacher:
         self._room = objective is None and not closed_loop
 
     def _with_room(
-        self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats
+        self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats, budget: Budget | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         """The LP plan's modes and controls after :func:`.room.give_room` (at most
         :data:`ROOM_ROUNDS` LPs); the plan may come back shorter (the requirements it meets may
         end earlier), so both are returned."""
         problem = self.problem
         traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
-        moved = give_room(problem, self.abs, self.scaling, traj, ROOM_ROUNDS, stats)
+        deadline = None if budget is None else budget.deadline
+        moved = give_room(problem, self.abs, self.scaling, traj, ROOM_ROUNDS, stats, deadline)
         return np.asarray(moved.get_action(), dtype=int), np.asarray(moved.get_control(), dtype=float)
 
     def applies(self, problem: Any) -> bool:
@@ -855,7 +856,7 @@ class LPTeacher:
         if out.exact and out.controls is not None and not self.closed_loop:
             controls = out.controls
             if self._room and _noisy(system, init):
-                actions, controls = self._with_room(actions, controls, stats)
+                actions, controls = self._with_room(actions, controls, stats, budget)
             return Found(actions, controls, "the plan LP", exact=True)
         found = self._fixed_point(plan, actions, out, margin, budget, stats)
         if found is not None:
@@ -910,7 +911,7 @@ class LPTeacher:
                 if self._room and _noisy(system, init):
                     # The room its execution needs, as on the exact path (issue 24: this path
                     # returned plans without it, and without a word).
-                    actions, controls = self._with_room(actions, controls, stats)
+                    actions, controls = self._with_room(actions, controls, stats, budget)
                 return Found(actions, controls, how, exact=out.exact)
 
             if self.closed_loop:
