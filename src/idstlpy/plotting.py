@@ -221,9 +221,9 @@ class TimeSeriesArtists:
     legend : Legend or None
         The legend of the states' axes.
     regions : dict[str, Polygon]
-        Per proposition that constrains one drawn state alone, its interval filled across the
-        axes (key: the name; the coordinate's own name ``"goal (x[1])"`` when it constrains
-        several), labelled with the name.
+        Per box-shaped proposition (every face on one coordinate), its interval on each drawn
+        state it constrains, filled across the axes and labelled with its name (key: the name,
+        ``"goal (x[1])"`` for its second and later states).
     runs_executed, runs_real : dict[int, list of Line2D]
         Per state coordinate, one thin line per execution of ``executions=`` (executed belief
         means, true states).
@@ -1558,16 +1558,17 @@ def _axis_bounds(problem: Any, i: int) -> list[tuple[int, str, float]]:
 
 
 def _fill_intervals(ax: Any, problem: Any, i: int, out: Any) -> None:
-    """Fill, across the axes of state ``i``, the interval of each proposition on ``x[i]`` alone."""
+    """Fill, across the axes of state ``i``, the interval of each box-shaped proposition on ``x[i]``."""
     from matplotlib.transforms import blended_transform_factory
 
     ax.autoscale_view()
     y0, y1 = ax.get_ylim()
     for j, name, H, c, _ in _atoms(problem):
-        if not np.all(np.all(np.delete(H, i, axis=1) == 0.0, axis=1) & (H[:, i] != 0.0)):
-            continue  # it constrains other coordinates too: its bounds alone are drawn
-        lower = max([-cst / h for h, cst in zip(H[:, i], c, strict=True) if h < 0], default=-np.inf)
-        upper = min([-cst / h for h, cst in zip(H[:, i], c, strict=True) if h > 0], default=np.inf)
+        if not np.all(np.count_nonzero(H, axis=1) == 1) or not np.any(H[:, i]):
+            continue  # an oblique face, or nothing on x[i]: its bounds alone are drawn
+        mine = H[:, i] != 0.0  # a box: its interval on x[i] is the projection of its set
+        lower = max([-cst / h for h, cst in zip(H[mine, i], c[mine], strict=True) if h < 0], default=-np.inf)
+        upper = min([-cst / h for h, cst in zip(H[mine, i], c[mine], strict=True) if h > 0], default=np.inf)
         lo, hi = max(lower, y0), min(upper, y1)
         if not lo < hi:
             continue
@@ -1907,8 +1908,8 @@ def plot_time_series(
             text += f" Thin lines: {len(runs)} executions (orange: executed belief means, red: true states)."
         if out.regions:
             text += (
-                " Filled bands: where each proposition holds on that state for a belief without "
-                "uncertainty (the mean needs room for its spread); dotted: their bounds."
+                " Filled bands: each box-shaped proposition's interval on that state, for a belief "
+                "without uncertainty (the mean needs room for its spread); dotted: their bounds."
             )
         elif out.bounds:
             text += " Dotted: the propositions' bounds on single coordinates (at zero covariance)."

@@ -62,10 +62,12 @@ def save_plan_figure(
         The (first) axes' title.
     kind : {"auto", "workspace", "time-series"}
         ``"workspace"``: :func:`idstlpy.plotting.plot_light_dark` in the plane of ``x[0]`` and
-        ``x[1]`` (the sensing quality, the propositions' regions, the planned means and
-        covariance ellipses); ``"time-series"``: :func:`idstlpy.plotting.plot_time_series`
-        (each state's mean with a 2-sigma band, the inputs, the modes); ``"auto"``: the
-        workspace for two or more states, else the time series.
+        ``x[1]`` (the sensor noise where it varies, the propositions' regions filled and named,
+        an obstacle of a disjunction hatched, start and end, the planned means, sensing steps
+        and covariance ellipses, and a caption saying what they are); ``"time-series"``:
+        :func:`idstlpy.plotting.plot_time_series` (each state's mean with a 2-sigma band and the
+        propositions' intervals, the inputs, the modes); ``"auto"``: the workspace for two or
+        more states, else the time series.
 
     Returns
     -------
