@@ -98,6 +98,14 @@ def _rings(patch) -> tuple[np.ndarray, np.ndarray]:
     return rings[0], rings[1]
 
 
+def _span(patch) -> tuple[float, float]:
+    """The (bottom, top) of an ``axhspan`` (a Rectangle, or a Polygon in older matplotlib)."""
+    if hasattr(patch, "get_height"):
+        return patch.get_y(), patch.get_y() + patch.get_height()
+    ys = np.asarray(patch.get_xy())[:, 1]
+    return float(ys.min()), float(ys.max())
+
+
 def _signed_area(v: np.ndarray) -> float:
     return float(np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1]) / 2)
 
@@ -288,3 +296,16 @@ def test_figures_of_the_command_line_show_the_task(tmp_path, reach_avoid, look_d
     for (problem, plan), name in ((reach_avoid, "ra"), (look_drive, "ld")):
         out = save_plan_figure(problem, plan, tmp_path / f"{name}.png", "title")
         assert out.stat().st_size > 10_000
+
+
+def test_time_series_fills_the_intervals_of_box_shaped_propositions(look_drive):
+    problem, plan = look_drive
+    art = plot_time_series(problem, plan)
+    assert set(art.regions) == {"target", "target (x[1])", "left", "below"}
+    assert _span(art.regions["target"]) == pytest.approx((3.5, 4.5))
+    assert _span(art.regions["target (x[1])"]) == pytest.approx((-0.5, 0.5))
+    assert _span(art.regions["below"]) == pytest.approx((art.axes[1].get_ylim()[0], 1.0))
+    assert [t.get_text() for t in art.modes_ax.get_yticklabels()] == [
+        "0 (senses, stands still: B = 0)",
+        "1 (blind)",
+    ]
