@@ -8,6 +8,7 @@ the noise function called per state, and the monitor's shift-based definitions o
 from __future__ import annotations
 
 import functools
+import logging
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -123,9 +124,10 @@ def test_batched_reports_do_not_depend_on_workers_or_batch_size(light_dark_case,
     assert validate(*args, runs=30, seed=2, executor="serial") == serial
 
 
-def test_progress_is_reported(light_dark_case):
+def test_progress_is_reported(light_dark_case, caplog):
     problem, plan = light_dark_case
     seen = []
+    caplog.set_level(logging.INFO, logger="idstlpy")
     validate(
         problem,
         plan,
@@ -138,6 +140,7 @@ def test_progress_is_reported(light_dark_case):
     )
     assert seen and seen[-1] == (20, 20)
     assert all(b[0] > a[0] for a, b in zip(seen, seen[1:], strict=False))
+    assert any("validate: 20/20 runs" in r.getMessage() for r in caplog.records)  # the CLI shows it
     with pytest.raises(InvalidTypeError, match="batched"):
         validate(problem, plan, light_dark_real_system(), runs=2, executor="serial", batched=1)
 
