@@ -247,3 +247,28 @@ def test_until_and_release_are_their_definitions_on_traces_and_batches():
                 np.testing.assert_array_equal(U[:, j], _until_ref(R1[:, j], R2[:, j], a, b))
                 np.testing.assert_array_equal(U[:, j], semantics._until(R1[:, j], R2[:, j], a, b))
                 np.testing.assert_array_equal(Rl[:, j], _release_ref(R1[:, j], R2[:, j], a, b))
+
+
+def test_batched_is_the_serial_loop_with_mode_atoms_and_a_joint_constraint():
+    """Mode predicates (``q == 0``) and a joint chance constraint (the monitor's joint_slack)."""
+    system = load_problem(TWO_MODES).build().problem
+    x = stl.mk_variable(2)
+    u = stl.mk_variable(2, name="u")
+    q = stl.mk_variable(size=1, dtype=int)
+    region = stl.logical_and(x[0] >= 2.0, x[0] <= 6.0, x[1] >= 2.0, x[1] <= 6.0)
+    goal = stl.logical_and(q == 0, stl.prob_in(region) >= 0.8, name="goal")
+    safe = stl.logical_and(stl.prob(x[0] <= 8.0) >= 0.95, stl.prob(x[1] >= -3.0) >= 0.95, name="safe")
+    formula = stl.logical_and(stl.eventually(0, 13, goal), stl.always(0, 13, safe))
+    problem = stl.Problem(
+        switched_system=system.switched_system,
+        control_domain=stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region,
+        initial_state=system.initial_state,
+        stl_formula=formula,
+    )
+    modes = np.array([1, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0])
+    plan = stl.rollout(problem.switched_system, problem.initial_state, modes, np.tile([1.0, 1.0], (13, 1)))
+    args = (problem, plan, None, None)
+    kw = {"runs": 40, "seed": 5, "executor": "serial", "keep_trajectories": 2}
+    batched = validate(*args, **kw)
+    assert_same_reports(batched, validate(*args, **kw, batched=False))
+    assert 0 < batched.belief_successes < 40 or 0 < batched.state_successes < 40  # not a trivial case

@@ -760,7 +760,11 @@ def _execute_batch(
     starts: np.ndarray | None,
 ) -> list[dict[str, Any]]:
     """Execute ``len(seeds)`` runs together with the step law over a batch, then monitor them
-    together; the same records as :func:`_execute`'s one-run-at-a-time loop (up to rounding)."""
+    together; the same records as :func:`_execute`'s one-run-at-a-time loop (up to rounding).
+
+    Arrays are kept time-major, (L, S, ...), so each step writes one contiguous block and the
+    monitor reads contiguous traces.
+    """
     from ..executor import ExecutorSpec, StepLaw
 
     plan, N = payload.plan, payload.num_of_steps
@@ -781,72 +785,54 @@ def _execute_batch(
     X = np.tile(payload.real_initial_state, (S, 1)) if starts is None else np.array(starts, dtype=float)
     M = np.tile(plan.get_mean(0), (S, 1))
     P: np.ndarray = plan.get_cov(0).copy()
-    means = np.empty((S, N + 1, n))
-    states = np.empty((S, N + 1, n))
-    controls = np.empty((S, N, system.m))
+    means = np.empty((N + 1, S, n))
+    states = np.empty((N + 1, S, n))
+    controls = np.empty((N, S, system.m))
     covs: list[np.ndarray] = [P]
-    observations = np.full((keep, N + 1, law.p_max), np.nan)
-    means[:, 0], states[:, 0] = M, X
+    observations = np.full((N + 1, keep, law.p_max), np.nan)
+    means[0], states[0] = M, X
     for k in range(N):
         U = law.control(k, M)
         X = law.plant(k, X, U, rng)  # type: ignore[arg-type]
         Y = law.observe(k, X, rng)  # type: ignore[arg-type]
         M, P = law.filter(k, M, P, U, Y)
-        means[:, k + 1], states[:, k + 1], controls[:, k] = M, X, U
+        means[k + 1], states[k + 1], controls[k] = M, X, U
         covs.append(P)
         if Y is not None and keep:
-            observations[:, k + 1, : Y.shape[1]] = Y[:keep]
+            observations[k + 1, :, : Y.shape[1]] = Y[:keep]
         if not (np.isfinite(M).all() and np.isfinite(X).all()):
             raise InvalidArgumentError(f"the execution diverged at step {k + 1} (non-finite state)")
     # the filter's covariances: shared by the runs (L, n, n) while the noise is constant
     shared = all(c.ndim == 2 for c in covs)
-    cov_arr = (
-        np.stack(covs)
-        if shared
-        else np.stack([np.broadcast_to(c, (S, n, n)) for c in covs], axis=1)  # (S, L, n, n)
-    )
+    cov_arr = np.stack(covs) if shared else np.stack([np.broadcast_to(c, (S, n, n)) for c in covs])
     actions = plan.get_action()[:N]
     belief = _batch_monitor(formula, promises, means, cov_arr, actions)
     state = _batch_monitor(formula, promises, states, None, actions)
+    b_props, b_preds = belief["props"].tolist(), belief["preds"].tolist()
+    s_props, s_preds = state["props"].tolist(), state["preds"].tolist()
+    b_margin, s_margin = belief["margin"].tolist(), state["margin"].tolist()
     results: list[dict[str, Any]] = []
     for i in range(S):
         res: dict[str, Any] = {
-            "belief_margin": float(belief["margin"][i]),
-            "state_margin": float(state["margin"][i]),
-            "belief_props": belief["props"][i].tolist(),
-            "belief_preds": belief["preds"][i].tolist(),
-            "state_props": state["props"][i].tolist(),
-            "state_preds": state["preds"][i].tolist(),
+            "belief_margin": b_margin[i],
+            "state_margin": s_margin[i],
+            "belief_props": b_props[i],
+            "belief_preds": b_preds[i],
+            "state_props": s_props[i],
+            "state_preds": s_preds[i],
         }
         if i < keep:
-            run_covs = cov_arr if shared else cov_arr[i]
+            run_covs = cov_arr if shared else cov_arr[:, i]
             res["trajectories"] = (
-                ProbabilisticTSTrajectory(means[i], np.array(run_covs), actions, controls[i]),
-                RealTrajectory(states[i], observations[i], actions, controls[i]),
+                ProbabilisticTSTrajectory(
+                    means[:, i].copy(), np.array(run_covs), actions, controls[:, i].copy()
+                ),
+                RealTrajectory(
+                    states[:, i].copy(), observations[:, i].copy(), actions, controls[:, i].copy()
+                ),
             )
         results.append(res)
     return results
-
-
-def _batch_joint_slacks(
-    ap: STLAtomicProposition, faces: np.ndarray, means: np.ndarray, covs: np.ndarray | None
-) -> np.ndarray:
-    """``faces`` (S, L, F) with the faces of each joint constraint set to its margin (joint_slack)."""
-    S, L, n = means.shape
-    flat = means.reshape(S * L, n)
-    if covs is None:
-        cov: np.ndarray = np.zeros((n, n))
-    elif covs.ndim == 3:
-        cov = np.broadcast_to(covs[None], (S, L, n, n)).reshape(S * L, n, n)
-    else:
-        cov = covs.reshape(S * L, n, n)
-    out = faces.copy()
-    at = ap.num_single
-    for joint in ap.joints:
-        margin = joint_slack(joint.H, joint.c, joint.eps, flat, cov).reshape(S, L)
-        out[:, :, at : at + joint.num_faces] = margin[:, :, None]
-        at += joint.num_faces
-    return out
 
 
 def _batch_monitor(
@@ -858,12 +844,13 @@ def _batch_monitor(
 ) -> dict[str, np.ndarray]:
     """The monitor over a batch of ``S`` trajectories at once.
 
-    ``means`` (S, L, n); ``covs`` (L, n, n) shared by the runs, (S, L, n, n), or None for the
+    ``means`` (L, S, n); ``covs`` (L, n, n) shared by the runs, (L, S, n, n), or None for the
     true states (the deterministic reading: zero covariance). Returns ``margin`` (S,) (the
     robustness at step 0, :func:`~idstlpy.semantics.formula_margins` over the batch), ``props``
-    (S, #propositions) and ``preds`` (S, #predicates): broken at a promised step.
+    (S, #propositions) and ``preds`` (S, #predicates): broken at a promised step. Each face's
+    slack is :func:`~idstlpy.chance.slack` (``-(h' mean + c + z sd)``) over the batch.
     """
-    S, L, n = means.shape
+    L, S, n = means.shape
     atoms: dict[int, np.ndarray] = {}
     faces_of: dict[int, np.ndarray] = {}
     for ap in formula.atomic_propositions():
@@ -873,35 +860,54 @@ def _batch_monitor(
         if ap.is_false:
             atoms[key] = np.full((L, S), -np.inf)
             continue
-        out = np.full((S, L), np.inf)
-        faces = np.zeros((S, L, 0))
-        if ap.predicates:
-            cone = ap.cone
+        out = np.full((L, S), np.inf)
+        faces = np.zeros((0, L, S))
+        if ap.predicates and getattr(ap, "joints", ()):
+            # joint chance constraints: the monitor's own atom_margins over the flattened batch
+            # (its mode test made void here, applied below), and every face's slack for the counts
+            flat_means = means.reshape(L * S, n)
             if covs is None:
-                std = std_terms(cone.H, cone.z, np.zeros((1, n, n)))  # (1, F)
+                flat_covs = np.zeros((L * S, n, n))
             elif covs.ndim == 3:
-                std = std_terms(cone.H, cone.z, covs)  # (L, F)
+                flat_covs = np.broadcast_to(covs[:, None], (L, S, n, n)).reshape(L * S, n, n)
             else:
-                std = std_terms(cone.H, cone.z, covs.reshape(S * L, n, n)).reshape(S, L, -1)
-            faces = -(means @ cone.H.T + cone.c + std)  # (S, L, F): chance.slack over the batch
-            if ap.joints:  # judged as wholes (the monitor's reading), each face given its joint's margin
-                faces = _batch_joint_slacks(ap, faces, means, covs)
-            if faces.shape[2]:
-                out = faces.min(axis=2)
+                flat_covs = covs.reshape(L * S, n, n)
+            any_mode = min(ap.modes) if ap.modes else 0
+            out = atom_margins(ap, flat_means, flat_covs, np.full(L * S - 1, any_mode)).reshape(L, S)
+            # each face's slack, a joint constraint's faces its margin (as the serial loop counts them)
+            faces = np.moveaxis(_face_slacks(ap, flat_means, flat_covs).reshape(L, S, -1), 2, 0)
+        elif ap.predicates:
+            cone = ap.cone
+            F = cone.H.shape[0]
+            if covs is None:
+                std = std_terms(cone.H, cone.z, np.zeros((1, n, n)))[0]  # (F,)
+            elif covs.ndim == 3:
+                std = std_terms(cone.H, cone.z, covs).T[:, :, None]  # (F, L, 1)
+            else:
+                std = np.moveaxis(std_terms(cone.H, cone.z, covs.reshape(L * S, n, n)).reshape(L, S, F), 2, 0)
+            faces = np.empty((F, L, S))
+            for j in range(F):
+                face = faces[j]
+                np.matmul(means, cone.H[j], out=face)
+                face += cone.c[j]
+                face += std[j]
+                np.negative(face, out=face)
+            if F:
+                out = faces.min(axis=0)
         if ap.modes is not None and L > 1:
             allowed = np.isin(actions, np.fromiter(ap.modes, dtype=int, count=len(ap.modes)))
-            out[:, 1:] = np.where(allowed, out[:, 1:], -np.inf)
-        atoms[key] = out.T
+            out[1:][~allowed] = -np.inf
+        atoms[key] = out
         faces_of[key] = faces
     props = np.zeros((S, len(promises)), dtype=bool)
     preds: list[np.ndarray] = []
     for j, (ap, promise) in enumerate(zip(_propositions(formula), promises, strict=True)):
         mask = promise[:L]
-        props[:, j] = np.asarray((atoms[id(ap)].T[:, mask] < 0.0).any(axis=1))
-        preds.append(np.asarray((faces_of[id(ap)][:, mask, :] < 0.0).any(axis=1)))  # (S, F)
+        props[:, j] = np.asarray((atoms[id(ap)][mask] < 0.0).any(axis=0))
+        preds.append(np.asarray((faces_of[id(ap)][:, mask] < 0.0).any(axis=1)).T)  # (S, F)
     margin = formula_margins(formula, atoms, L)[0] if L else np.full(S, -np.inf)
     return {
-        "margin": np.asarray(margin),
+        "margin": np.asarray(margin, dtype=float),
         "props": props,
         "preds": np.concatenate(preds, axis=1) if preds else np.zeros((S, 0), dtype=bool),
     }
