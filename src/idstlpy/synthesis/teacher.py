@@ -784,27 +784,38 @@ class LPTeacher:
                 return cand
             if got.status == "infeasible" and got.excess < score:
                 modes, out, score = trial, got, got.excess
+
+        def moves(modes: np.ndarray, k0: int):
+            """Single changes (nearest before ``k0`` first), then a switch moved one step."""
+            order = list(range(min(k0, K), 0, -1)) + list(range(min(k0, K) + 1, K + 1))
+            for j in order:
+                for q in allowed[j]:
+                    if q != modes[j]:
+                        trial = modes.copy()
+                        trial[j] = q
+                        yield trial
+            for j in order:
+                if j < K and modes[j] != modes[j + 1]:
+                    if modes[j + 1] in allowed[j] and modes[j] in allowed[j + 1]:
+                        trial = modes.copy()
+                        trial[j], trial[j + 1] = modes[j + 1], modes[j]
+                        yield trial
+
         while lps < limit:
             budget.check("the mode search")
             k0 = min((k for k, _ in out.conflict), default=K)
-            order = list(range(min(k0, K), 0, -1)) + list(range(min(k0, K) + 1, K + 1))
             improved = False
-            for j in order:
-                for q in allowed[j]:
-                    if q == modes[j] or lps >= limit:
-                        continue
-                    trial = modes.copy()
-                    trial[j] = q
-                    cand = DiscretePlan(plan.required, trial, plan.length)
-                    got = self._solve(cand, 0.0, budget, stats, refute_only=True)
-                    lps += 1
-                    if got.status == "feasible":
-                        logger.debug("mode search: feasible modes after %d LPs", lps)
-                        return cand
-                    if got.status == "infeasible" and got.excess < score * (1.0 - 1e-6):
-                        modes, out, score, improved = trial, got, got.excess, True
-                        break
-                if improved:
+            for trial in moves(modes, k0):
+                if lps >= limit:
+                    break
+                cand = DiscretePlan(plan.required, trial, plan.length)
+                got = self._solve(cand, 0.0, budget, stats, refute_only=True)
+                lps += 1
+                if got.status == "feasible":
+                    logger.debug("mode search: feasible modes after %d LPs", lps)
+                    return cand
+                if got.status == "infeasible" and got.excess < score * (1.0 - 1e-6):
+                    modes, out, score, improved = trial, got, got.excess, True
                     break
             if not improved:
                 break
