@@ -324,18 +324,22 @@ def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
     ns = len(rows.requirements)
     ncol = rows.nx + rows.nu
     R = rows.face_H.shape[0]
-    slack = (
-        csr_matrix((-np.ones(R), (np.arange(R), rows.face_owner)), shape=(R, ns))
-        if R
-        else csr_matrix((0, ns))
+    # [A_eq 0; A_U 0; face_H S] with S[r, owner[r]] = -1, built as CSR arrays directly (the
+    # sparse stacking cost more than the LP on the mode search's small models).
+    top = vstack([rows.A_eq, rows.A_U]).tocsr()
+    face = csr_matrix(rows.face_H)
+    ends = face.indptr[1:]
+    data = np.insert(face.data, ends, -1.0)
+    index = np.insert(face.indices, ends, ncol + np.asarray(rows.face_owner, dtype=face.indices.dtype))
+    indptr = face.indptr + np.arange(R + 1)
+    A = csr_matrix(
+        (
+            np.concatenate([top.data, data]),
+            np.concatenate([top.indices, index]),
+            np.concatenate([top.indptr, top.nnz + indptr[1:]]),
+        ),
+        shape=(top.shape[0] + R, ncol + ns),
     )
-    A = vstack(
-        [
-            hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], ns))]),
-            hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], ns))]),
-            hstack([rows.face_H, slack]),
-        ]
-    ).tocsr()
     lo = np.concatenate([rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)])
     hi = np.concatenate([rows.b_eq, rows.b_U, -rows.face_off])
     c = np.concatenate([np.zeros(ncol), np.ones(ns)])
@@ -749,18 +753,21 @@ class LPTeacher:
 
         A local search over the mode sequence, scored by the elastic plan LP's total violation
         (which sees what each choice does to the means and to the covariance schedule): one
-        step's mode is changed at a time, the steps just before the earliest violated
-        requirement first (a look before the step that needs it), and the first change that
-        lowers the violation is kept. It stops at a feasible sequence, at a local minimum, or
-        after :data:`MODE_SEARCH_LPS` LPs per transition (a work budget, so the same problem
-        gives the same plan). The search is no proof of anything: only the refutation of the
-        proposed modes is (the caller keeps it).
+        step's mode is changed at a time (the steps just before the earliest violated
+        requirement first: a look before the step that needs it), or a switch is moved by one
+        step, and the first change that lowers the violation is kept. It starts from the best
+        of the proposed modes and each mode held throughout (most plans are one mode with a few
+        switches); from a local minimum it restarts once from the last search's best modes
+        fitted to this length (the next candidate is often one step longer). It stops at a
+        feasible sequence or after :data:`MODE_SEARCH_LPS` LPs per transition (a work budget,
+        so the same problem gives the same plan). The search is no proof of anything: only the
+        refutation of the proposed modes is (the caller keeps it).
         """
         K = plan.num_transitions
         allowed = self._allowed_modes(plan)
         if K == 0 or all(len(a) <= 1 for a in allowed[1:]):
             return None
-        modes = plan.modes.copy()
+        proposed = plan.modes.copy()
         out = first
         if out is None or not np.isfinite(out.excess):
             out = self._solve(plan, 0.0, budget, stats, refute_only=True)  # the whole plan's score
@@ -768,22 +775,18 @@ class LPTeacher:
             return plan
         if out.status != "infeasible" or not np.isfinite(out.excess):
             return None
-        score = out.excess
         lps = 0
         limit = MODE_SEARCH_LPS * K
-        # Start from the best of the proposed modes and each mode held throughout (where the
-        # requirements allow it): most plans are one mode with a few switches.
-        for q in range(self.problem.switched_system.num_modes):
-            trial = np.array([modes[0]] + [q if q in a else a[0] for a in allowed[1:] if a], dtype=int)
-            if trial.shape != modes.shape or np.array_equal(trial, modes):
-                continue
+        found: DiscretePlan | None = None
+
+        def score(trial: np.ndarray) -> LPOutcome:
+            nonlocal lps, found
             cand = DiscretePlan(plan.required, trial, plan.length)
             got = self._solve(cand, 0.0, budget, stats, refute_only=True)
             lps += 1
             if got.status == "feasible":
-                return cand
-            if got.status == "infeasible" and got.excess < score:
-                modes, out, score = trial, got, got.excess
+                found = cand
+            return got
 
         def moves(modes: np.ndarray, k0: int):
             """Single changes (nearest before ``k0`` first), then a switch moved one step."""
@@ -801,25 +804,58 @@ class LPTeacher:
                         trial[j], trial[j + 1] = modes[j + 1], modes[j]
                         yield trial
 
-        while lps < limit:
-            budget.check("the mode search")
-            k0 = min((k for k, _ in out.conflict), default=K)
-            improved = False
-            for trial in moves(modes, k0):
-                if lps >= limit:
+        def descend(modes: np.ndarray, out: LPOutcome) -> tuple[np.ndarray, float]:
+            """First-improvement descent from ``modes``; its local minimum (or a feasible plan)."""
+            best = out.excess
+            while lps < limit and found is None:
+                budget.check("the mode search")
+                k0 = min((k for k, _ in out.conflict), default=K)
+                improved = False
+                for trial in moves(modes, k0):
+                    if lps >= limit:
+                        break
+                    got = score(trial)
+                    if found is not None:
+                        return trial, 0.0
+                    if got.status == "infeasible" and got.excess < best * (1.0 - 1e-6):
+                        modes, out, best, improved = trial, got, got.excess, True
+                        break
+                if not improved:
                     break
-                cand = DiscretePlan(plan.required, trial, plan.length)
-                got = self._solve(cand, 0.0, budget, stats, refute_only=True)
-                lps += 1
-                if got.status == "feasible":
-                    logger.debug("mode search: feasible modes after %d LPs", lps)
-                    return cand
-                if got.status == "infeasible" and got.excess < score * (1.0 - 1e-6):
-                    modes, out, score, improved = trial, got, got.excess, True
-                    break
-            if not improved:
-                break
-        logger.debug("mode search: no modes after %d LPs (violation %.3g)", lps, score)
+            return modes, best
+
+        # The first start: the best of the proposed modes and each mode held throughout.
+        modes, best = proposed, out.excess
+        for q in range(self.problem.switched_system.num_modes):
+            trial = np.array([proposed[0]] + [q if q in a else a[0] for a in allowed[1:]], dtype=int)
+            if np.array_equal(trial, proposed) or any(not a for a in allowed[1:]):
+                continue
+            got = score(trial)
+            if found is not None:
+                self._best_modes = trial
+                return found
+            if got.status == "infeasible" and got.excess < best:
+                modes, out, best = trial, got, got.excess
+        modes, best = descend(modes, out)
+        prev = self.__dict__.get("_best_modes")
+        if found is None and prev is not None and prev.shape[0] > 1:
+            # The restart: the last search's best modes, cut or extended (last mode held).
+            tail = np.full(max(0, plan.length - prev.shape[0]), prev[-1])
+            fitted = np.concatenate([prev[: plan.length], tail]).astype(int)
+            fitted[0] = proposed[0]
+            fits = all(int(fitted[k]) in allowed[k] for k in range(1, plan.length))
+            if fits and not np.array_equal(fitted, modes) and lps < limit:
+                got = score(fitted)
+                if found is None and got.status == "infeasible":
+                    other, other_best = descend(fitted, got)
+                    if other_best < best:
+                        modes, best = other, other_best
+        if found is not None:
+            logger.debug("mode search: feasible modes after %d LPs", lps)
+            self._best_modes = found.modes.copy()
+            return found
+        logger.debug("mode search: no modes after %d LPs (violation %.3g)", lps, best)
+        self._best_modes = modes
         return None
 
     def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
