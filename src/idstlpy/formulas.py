@@ -72,6 +72,7 @@ __all__ = [
     "format_atom",
     "allocate_joint_risk",
     "map_joints",
+    "map_atoms",
 ]
 
 MAX_BOUND = 2**53
@@ -862,25 +863,22 @@ def format_formula(formula: STLFormula) -> str:
     raise InvalidTypeError(f"cannot format {type(formula).__name__}: not a PrSTL formula")
 
 
-def map_joints(formula: STLFormula, fn: Any) -> STLFormula:
-    """The formula with every joint chance constraint ``j`` of a proposition replaced by ``fn(j)``.
+def map_atoms(formula: STLFormula, fn: Any) -> STLFormula:
+    """The formula with every non-constant atomic proposition ``ap`` replaced by ``fn(ap)``.
 
-    Sub-formulas where nothing changed are shared (and the formula itself is returned when no
-    joint constraint changed); a sub-formula shared in ``formula`` stays shared.
+    Sub-formulas where nothing changed are shared (the formula itself is returned when ``fn``
+    changed nothing); a sub-formula shared in ``formula`` stays shared.
 
     Parameters
     ----------
     formula : STLFormula
     fn : callable
-        ``JointChanceConstraint -> JointChanceConstraint`` (the same faces and ``eps``: only the
-        planned shares may differ, so the result equals ``formula``).
+        ``STLAtomicProposition -> STLAtomicProposition`` (return ``ap`` itself to keep it).
 
     Returns
     -------
     STLFormula
     """
-    if not any(ap.joints for ap in formula.atomic_propositions()):
-        return formula
     memo: dict[int, STLFormula] = {}
 
     def rec(f: STLFormula) -> STLFormula:
@@ -889,12 +887,8 @@ def map_joints(formula: STLFormula, fn: Any) -> STLFormula:
             return memo[key]
         out: STLFormula = f
         if isinstance(f, STLAtomicProposition):
-            if f.joints and f._constant is None:
-                joints = [fn(j) for j in f.joints]
-                if any(a is not b for a, b in zip(joints, f.joints, strict=True)):
-                    out = STLAtomicProposition(
-                        f.predicates[: f.num_single], f.modes, name=f.name, joints=joints
-                    )
+            if f._constant is None:
+                out = fn(f)
         else:
             kids = tuple(rec(c) for c in f.children)
             if any(k is not c for k, c in zip(kids, f.children, strict=True)):
@@ -906,6 +900,35 @@ def map_joints(formula: STLFormula, fn: Any) -> STLFormula:
         return out
 
     return rec(formula)
+
+
+def map_joints(formula: STLFormula, fn: Any) -> STLFormula:
+    """The formula with every joint chance constraint ``j`` of a proposition replaced by ``fn(j)``.
+
+    Parameters
+    ----------
+    formula : STLFormula
+    fn : callable
+        ``JointChanceConstraint -> JointChanceConstraint`` (the same faces and ``eps``: only the
+        planned shares may differ, so the result equals ``formula``).
+
+    Returns
+    -------
+    STLFormula
+        ``formula`` itself when no joint constraint changed (see :func:`map_atoms`).
+    """
+    if not any(ap.joints for ap in formula.atomic_propositions()):
+        return formula
+
+    def atom(ap: STLAtomicProposition) -> STLAtomicProposition:
+        if not ap.joints:
+            return ap
+        joints = [fn(j) for j in ap.joints]
+        if all(a is b for a, b in zip(joints, ap.joints, strict=True)):
+            return ap
+        return STLAtomicProposition(ap.predicates[: ap.num_single], ap.modes, name=ap.name, joints=joints)
+
+    return map_atoms(formula, atom)
 
 
 def allocate_joint_risk(formula: STLFormula, cov: Any) -> STLFormula:

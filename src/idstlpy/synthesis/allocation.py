@@ -11,11 +11,19 @@ active ones get more), so a re-solve can only do better: it is made once, with w
 the solve's time cap, and its plan is kept when it is found with a larger monitor margin.
 
 This is a deterministic function of the first result: the same seed gives the same plan.
+
+Refutations under one allocation prove nothing about the others, so the CEGIS loop turns an
+``infeasible`` into ``budget_exhausted`` (:data:`NO_PROOF`). :func:`prove_infeasible` then tries
+the *necessary relaxation*: every joint constraint replaced by its faces, each alone at the
+joint confidence (``P[x in region] >= 1 - eps`` implies ``P[h_f' x + c_f <= 0] >= 1 - eps`` for
+every face, and every PrSTL operator is monotone in its propositions). If the relaxed problem is
+proven infeasible, so is the original one, and the result says ``infeasible``.
 """
 
 from __future__ import annotations
 
 import copy
+import dataclasses
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -23,12 +31,18 @@ from typing import Any
 import numpy as np
 
 from ..chance import joint_tail_sum, quantile, slack
-from ..expressions import JointChanceConstraint
-from ..formulas import STLFormula, map_joints
+from ..expressions import JointChanceConstraint, ProbabilisticLinearPredicate
+from ..formulas import STLAtomicProposition, STLFormula, map_atoms, map_joints
 from .options import SolverOptions
 from .results import SolveResult
 
-__all__ = ["reallocate", "refine_allocation"]
+__all__ = ["NO_PROOF", "after_solve", "prove_infeasible", "reallocate", "refine_allocation", "relax_joints"]
+
+NO_PROOF = (
+    " at the planned risk allocation of the joint chance constraints; other allocations were not "
+    "refuted, so this is no proof"
+)
+"""What the CEGIS loop appends to the reason of an ``infeasible`` it downgrades."""
 
 logger = logging.getLogger(__name__)
 
@@ -137,3 +151,101 @@ def refine_allocation(
         )
         return second
     return result
+
+
+def relax_joints(formula: STLFormula) -> STLFormula:
+    """The necessary relaxation: each joint constraint's faces, each alone at its confidence.
+
+    Parameters
+    ----------
+    formula : STLFormula
+
+    Returns
+    -------
+    STLFormula
+        Without joint constraints; implied by ``formula`` on every trajectory.
+    """
+
+    def atom(ap: STLAtomicProposition) -> STLAtomicProposition:
+        if not ap.joints:
+            return ap
+        faces = [
+            ProbabilisticLinearPredicate(h, float(c), j.variable, j.eps)
+            for j in ap.joints
+            for h, c in zip(j.H, j.c, strict=True)
+        ]
+        return STLAtomicProposition([*ap.predicates[: ap.num_single], *faces], ap.modes, name=ap.name)
+
+    return map_atoms(formula, atom)
+
+
+def prove_infeasible(
+    problem: Any,
+    options: SolverOptions,
+    start: float,
+    result: SolveResult,
+    solve: Callable[[Any, SolverOptions, float], SolveResult],
+) -> SolveResult:
+    """Turn a downgraded ``infeasible`` into a proof when the necessary relaxation is infeasible.
+
+    Parameters
+    ----------
+    problem : Problem
+    options : SolverOptions
+    start : float
+        ``time.perf_counter()`` at the first line of the solve (the relaxed solve gets what is left
+        of the time cap).
+    result : SolveResult
+        The first result: acted on only when it is a ``budget_exhausted`` the CEGIS loop
+        downgraded from ``infeasible`` (its reason ends with :data:`NO_PROOF`).
+    solve : callable
+        ``solve(problem, options, start) -> SolveResult`` (the CEGIS loop).
+
+    Returns
+    -------
+    SolveResult
+        ``infeasible`` (the relaxed solve's proof and statistics, the original formula) or
+        ``result``.
+    """
+    if result.status != "budget_exhausted" or not result.reason.endswith(NO_PROOF):
+        return result
+    relaxed = copy.copy(problem)
+    relaxed.stl_formula = relax_joints(problem.stl_formula)
+    second = solve(relaxed, options, start)
+    if second.status != "infeasible":
+        return result
+    logger.info("joint chance constraints: the necessary relaxation is infeasible, a proof")
+    return dataclasses.replace(
+        second,
+        formula=result.formula,
+        reason=(
+            f"{second.reason} (proven on the necessary relaxation: every face of each joint "
+            "chance constraint alone at its confidence)"
+        ),
+    )
+
+
+def after_solve(
+    problem: Any,
+    options: SolverOptions,
+    start: float,
+    result: SolveResult,
+    solve: Callable[[Any, SolverOptions, float], SolveResult],
+) -> SolveResult:
+    """What a solve with joint chance constraints does after the CEGIS loop.
+
+    A found plan gets one round of risk re-allocation (:func:`refine_allocation`); a downgraded
+    ``infeasible`` is tried on the necessary relaxation (:func:`prove_infeasible`).
+
+    Parameters
+    ----------
+    problem, options, start, result, solve
+        As in :func:`refine_allocation`.
+
+    Returns
+    -------
+    SolveResult
+    """
+    if result.status == "found":
+        return refine_allocation(problem, options, start, result, solve)
+    return prove_infeasible(problem, options, start, result, solve)

@@ -41,6 +41,7 @@ from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
+from .allocation import NO_PROOF
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp, switch_to_eager
 from .objectives import better, objective_value, refine
@@ -124,10 +125,7 @@ class _Run:
             )
         if status == "infeasible" and self.joint:
             status = "budget_exhausted"
-            reason += (
-                " at the planned risk allocation of the joint chance constraints; other "
-                "allocations were not refuted, so this is no proof"
-            )
+            reason += NO_PROOF  # allocation.prove_infeasible may prove it on the relaxation
         if status != "found" and "time_limit" in stats.caps_hit:
             reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)

@@ -211,10 +211,10 @@ class Problem:
         from .cegis import synthesize
 
         result = synthesize(self, opts, start)
-        if result.status == "found" and getattr(self, "_joint", False):
-            from .allocation import refine_allocation  # joint chance constraints: one IRA round
+        if getattr(self, "_joint", False):
+            from .allocation import after_solve  # joint chance constraints (allocation.py)
 
-            result = refine_allocation(self, opts, start, result, synthesize)
+            result = after_solve(self, opts, start, result, synthesize)
         self.last_result = result
         return result
 
