@@ -251,3 +251,35 @@ def test_make_demo_does_not_install_the_test_toolchain(tmp_path: Path) -> None:
     assert "idstlpy demo light-dark" in demo
     test = _make_dry_run(tmp_path, make, "test")
     assert "[test]" in test
+
+
+def test_version_option_names_the_version_and_the_commit(capsys: pytest.CaptureFixture[str]) -> None:
+    from idstlpy.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out.strip()
+    commit = git_commit()
+    assert out == f"idstlpy {__version__}" + (f" (commit {commit[:12]})" if commit else "")
+
+
+def test_batch_records_carry_the_version_and_the_commit(tmp_path: Path) -> None:
+    from idstlpy.batch.jobs import Job, run_job
+
+    record = run_job(Job("solve", example_text("reach-avoid"), "reach_avoid.toml"))
+    assert record["status"] == "found"
+    assert record["software"] == software_info()
+    assert record["software"]["idstlpy"] == __version__
+    assert record["software"]["commit"] == git_commit()
+    # a saved plan validated later: the record names the code that validated it
+    saved = dict(record)
+    saved["software"] = {**record["software"], "idstlpy": "0.0.1", "commit": SHA}
+    job = Job("validate", example_text("reach-avoid"), "reach_avoid.toml", {"validation.runs": 4}, plan=saved)
+    checked = run_job(job)
+    assert checked["status"] == "found" and checked["plan_source"] == "saved"
+    assert checked["software"] == software_info()
+    # SolveResult.save writes the same field, load_result reads it back
+    result = SolveResult.from_dict(record)
+    assert result.software == software_info()
+    assert load_result(result.save(tmp_path / "r.json")) == result

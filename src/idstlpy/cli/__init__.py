@@ -92,7 +92,11 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="exit status: 0 ok, 1 no plan, 2 usage or input error, 3 a job failed, "
         "4 validated below the execution target (docs/cli.md)",
     )
-    parser.add_argument("--version", action="version", version=f"idstlpy {__version__}")
+    from .._version import software_info
+
+    commit = software_info()["commit"]  # the checkout's commit, read from .git (None: a wheel)
+    version = f"idstlpy {__version__}" + (f" (commit {commit[:12]})" if commit else "")
+    parser.add_argument("--version", action="version", version=version)
     _add_global_options(parser, top=True)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in _COMMAND_MODULES:
