@@ -41,6 +41,7 @@ from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
+from .advice import budget_advice
 from .allocation import NO_PROOF
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp, switch_to_eager
@@ -94,6 +95,8 @@ class _Run:
         self.options = options
         self.budget = Budget(options.total_time_cap, start)
         self.stats = SolveStats()
+        # Candidates the sampler gave up on: the part of `abandoned` a budget option can change.
+        self.sampler_abandoned = 0
         self.formula = problem.stl_formula
         self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
         self.closed_loop = options.guarantee == "closed_loop"
@@ -126,6 +129,9 @@ class _Run:
         if status == "infeasible" and self.joint:
             status = "budget_exhausted"
             reason += NO_PROOF  # allocation.prove_infeasible may prove it on the relaxation
+        if status == "budget_exhausted":
+            advice = budget_advice(reason, stats, self.options, self.formula.horizon, self.sampler_abandoned)
+            reason += f"; {advice}" if advice else ""
         if status != "found" and "time_limit" in stats.caps_hit:
             reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
@@ -292,6 +298,8 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 why = verdict.why if verdict is not None else "no teacher applies"
             proposer.abandon(plan)
             stats.abandoned += 1
+            if isinstance(verdict, Unknown) and verdict.why.startswith("sampler"):
+                run.sampler_abandoned += 1
             logger.info("candidate %d abandoned: %s", stats.candidates, why)
     finally:
         stats.sat_calls = proposer.sat_calls

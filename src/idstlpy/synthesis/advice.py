@@ -1,0 +1,82 @@
+"""What to raise after ``budget_exhausted``: the budget that decided, and a value to try.
+
+A ``budget_exhausted`` result is not a statement about the problem: some budget ended the search.
+Its reason should let a user act without reading the solver: which budget decided, how much of
+each was spent, and the option to raise (with a concrete value). The advice is read off the
+solve's counters and options, never guessed from the wording of the reason.
+"""
+
+from __future__ import annotations
+
+from .options import SolverOptions
+from .results import SolveStats
+
+__all__ = ["budget_advice"]
+
+
+def _g(value: float) -> str:
+    return f"{value:.3g}"
+
+
+def budget_advice(
+    reason: str,
+    stats: SolveStats,
+    options: SolverOptions,
+    horizon: int | None = None,
+    sampler_abandoned: int = 0,
+) -> str:
+    """One sentence naming what to raise after a ``budget_exhausted`` answer.
+
+    Parameters
+    ----------
+    reason : str
+        The solve's reason so far (says which budget stopped the loop).
+    stats : SolveStats
+        The solve's counters (candidates, abandoned, caps hit, sampler iterations).
+    options : SolverOptions
+        The options the solve ran with (their values scale the suggestions).
+    horizon : int, optional
+        The formula's horizon, the most ``max_plan_length`` ever needs.
+    sampler_abandoned : int
+        Candidates the belief sampler gave up on (its work budget or its wall-clock cap); the
+        other abandoned candidates failed for reasons no budget changes.
+
+    Returns
+    -------
+    str
+        ``"to search further: ..."``, or ``""`` when no budget option would change the answer
+        (for instance, a refutation that holds only for one risk allocation).
+    """
+    tips: list[str] = []
+    if "max_candidates" in reason and options.max_candidates is not None:
+        tips.append(
+            f"raise max_candidates (it was {options.max_candidates}; try {4 * options.max_candidates})"
+        )
+    if "max_plan_length" in reason:
+        longer = 4 * options.max_plan_length
+        if horizon is not None and horizon > 0:
+            longer = min(longer, int(horizon) + 1)
+        tips.append(f"raise max_plan_length (it was {options.max_plan_length}; try {longer})")
+    if sampler_abandoned:
+        per = options.iterations_per_candidate
+        if "rrt_timeout" in stats.caps_hit:
+            tips.append(
+                f"{sampler_abandoned} of {stats.candidates} candidates were abandoned when the "
+                f"sampler's wall-clock cap rrt_timeout={_g(options.rrt_timeout)} s ended their "
+                f"search: raise rrt_timeout (try {_g(4 * options.rrt_timeout)})"
+            )
+        else:
+            tips.append(
+                f"{sampler_abandoned} of {stats.candidates} candidates were abandoned by the "
+                f"sampler after its work budget of {per} iterations each: raise "
+                f"sampler_iterations (try {4 * per}) or rrt_timeout (it scales the default)"
+            )
+    # Work budgets first: they decide the search; the wall clock only caps it.
+    if "time_limit" in stats.caps_hit:
+        tips.append(
+            f"raise time_limit (it was {_g(options.total_time_cap)} s; try "
+            f"time_limit={_g(4 * options.total_time_cap)})"
+        )
+    if not tips:
+        return ""
+    return "to search further: " + "; ".join(tips)

@@ -1,0 +1,70 @@
+"""``budget_exhausted`` names the budget that decided and what to raise, with a value to try."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import idstlpy as stl
+
+
+def _line(n_goal: float, lit: bool = False) -> stl.Problem:
+    x = stl.mk_variable(1, float)
+    u = stl.mk_variable(1, float)
+    if lit:
+        mode = stl.mk_lbs(
+            A=[[1.0]], B=[[1.0]], W=[[0.0]], C=[[1.0]], V=lambda s: np.array([[0.1 + 0.1 * s[0] ** 2]])
+        )
+    else:
+        mode = stl.mk_lbs(A=[[1.0]], B=[[1.0]], W=[[0.0]])
+    return stl.Problem(
+        switched_system=stl.mk_switched_sys([mode]),
+        control_domain=stl.logical_and(u[0] >= -1.0, u[0] <= 1.0).region,
+        initial_state=stl.to_belief(mean=np.zeros(1), cov=0.01 * np.eye(1)),
+        stl_formula=stl.eventually(
+            0,
+            20,
+            stl.logical_and(
+                stl.prob(x[0] >= n_goal) >= 0.9, stl.prob(x[0] <= n_goal + 1) >= 0.9, name="goal"
+            ),
+        ),
+    )
+
+
+def test_max_candidates_names_the_option_and_a_value():
+    result = _line(10.0).solve_result(max_candidates=1, lazy_candidates=5, seed=0)
+    assert result.status == "budget_exhausted"
+    assert "raise max_candidates (it was 1; try 4)" in result.reason
+
+
+def test_max_plan_length_names_the_option_and_a_value_within_the_horizon():
+    result = _line(10.0).solve_result(max_plan_length=5, seed=0)
+    assert result.status == "budget_exhausted", result.reason
+    assert "raise max_plan_length (it was 5; try 20)" in result.reason
+
+
+def test_sampler_budget_names_sampler_iterations():
+    from idstlpy.scenarios import light_dark
+
+    result = light_dark().solve_result(sampler_iterations=1, max_candidates=4, seed=0)
+    assert result.status == "budget_exhausted", result.reason
+    assert result.stats.abandoned >= 1
+    assert "raise sampler_iterations (try 4)" in result.reason
+
+
+def test_no_advice_when_the_answer_is_a_proof_or_a_plan():
+    found = _line(3.0).solve_result(seed=0)
+    assert found.status == "found"
+    assert "to search further" not in found.reason
+    x = stl.mk_variable(1, float)
+    out_of_reach = _line(30.0).solve_result(seed=0)  # 30 steps needed, horizon 20: a proof
+    assert out_of_reach.status == "infeasible"
+    assert "to search further" not in out_of_reach.reason
+    assert x.size == 1
+
+
+@pytest.mark.parametrize("limit", [1e-6])
+def test_time_limit_names_time_limit(limit):
+    result = _line(10.0, lit=True).solve_result(time_limit=limit, seed=0)
+    assert result.status == "budget_exhausted"
+    assert "raise time_limit" in result.reason
