@@ -748,7 +748,8 @@ def _label_spot(
 
     The centroid when it is clear (5% of the view from every point of ``avoid`` (k, 2) and
     outside every polygon of ``blockers``), else the clearest of points near the corners and
-    the edges' middles, moved into the region.
+    the edges' middles, moved into the region; when none of those is 3% of the view clear (a
+    small region the plan crosses), just above or below the region.
     """
     from matplotlib.path import Path as MplPath
 
@@ -760,15 +761,29 @@ def _label_spot(
         cands += list(verts + t * (centre - verts))
         cands += list(0.5 * (verts + nxt) + t * (centre - 0.5 * (verts + nxt)))
     paths = [MplPath(b) for b in blockers if len(b) >= 3]
-    best, best_score = centre, -np.inf
-    for i, p in enumerate(cands):
+
+    def clearance(p: np.ndarray) -> float:
         score = float(np.min(np.linalg.norm((avoid - p) / span, axis=1))) if len(avoid) else 1.0
         if any(path.contains_point((float(p[0]), float(p[1]))) for path in paths):
             score -= 10.0  # on another region or the obstacle: only when nothing else is free
+        return score
+
+    best, best_score = centre, -np.inf
+    for i, p in enumerate(cands):
+        score = clearance(p)
         if i == 0 and score >= 0.05:
             return p
         if score > best_score + 1e-9:
             best, best_score = p, score
+    if best_score < 0.03:
+        gap = 0.04 * span[1]
+        for p in (
+            np.array([centre[0], verts[:, 1].max() + gap]),
+            np.array([centre[0], verts[:, 1].min() - gap]),
+        ):
+            inside = lo[1] + gap <= p[1] <= hi[1] - gap
+            if inside and (score := clearance(p)) > best_score + 0.01:
+                best, best_score = p, score
     return best
 
 
@@ -783,7 +798,7 @@ def _region_text(ax: Any, point: np.ndarray, name: str, color: str) -> Any:
         fontsize="small",
         color=color,
         fontweight="bold",
-        zorder=2.6,
+        zorder=7.5,
         clip_on=True,
         bbox={"boxstyle": "round,pad=0.2", "facecolor": "white", "edgecolor": "none", "alpha": 0.65},
     )
@@ -888,7 +903,11 @@ def _write_region_labels(
     out: Any,
 ) -> None:
     """Write each region's name where :func:`_label_spot` finds room (smaller regions first)."""
-    points = np.vstack([a for a in avoid if a.size] or [np.zeros((0, 2))])
+    dense = []
+    for a in avoid:  # the trajectories' segments too, not only their points
+        if len(a) >= 2:
+            dense += [a[:-1] + t * (a[1:] - a[:-1]) for t in (0.25, 0.5, 0.75)]
+    points = np.vstack([a for a in [*avoid, *dense] if a.size] or [np.zeros((0, 2))])
     areas = {name: abs(_area(verts)) for name, verts, _ in labels}
     obstacles = [np.asarray(o.get_xy()) for o in out.obstacles.values()]
     placed: list[np.ndarray] = []
