@@ -68,3 +68,40 @@ def test_time_limit_names_time_limit(limit):
     result = _line(10.0, lit=True).solve_result(time_limit=limit, seed=0)
     assert result.status == "budget_exhausted"
     assert "raise time_limit" in result.reason
+
+
+def test_budget_exhausted_carries_the_closest_partial_plan(tmp_path):
+    from idstlpy.scenarios import light_dark
+
+    problem = light_dark()
+    result = problem.solve_result(sampler_iterations=20, max_candidates=3, seed=0)
+    assert result.status == "budget_exhausted", result.reason
+    closest = result.closest
+    assert isinstance(closest, stl.ProbabilisticTSTrajectory)
+    assert closest.num_of_steps >= 1
+    # It is what the search got to, not a plan: the formula does not hold on it.
+    assert not stl.satisfies(closest, problem.stl_formula)
+    # The MLO roll-out of its own actions and controls (an independent re-roll).
+    again = stl.rollout(
+        problem.switched_system, problem.initial_state, closest.get_action(), closest.get_control()
+    )
+    np.testing.assert_array_equal(again.get_mean(), closest.get_mean())
+    assert stl.load_result(result.save(tmp_path / "r.json")) == result
+    assert result.plan is None
+
+
+def test_found_results_carry_no_closest():
+    assert _line(3.0).solve_result(seed=0).closest is None
+
+
+def test_the_closest_partial_plan_is_plottable():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from idstlpy.plotting import plot_workspace
+    from idstlpy.scenarios import light_dark
+
+    problem = light_dark()
+    result = problem.solve_result(sampler_iterations=20, max_candidates=3, seed=0)
+    artists = plot_workspace(problem, plan=result.closest)
+    assert artists is not None

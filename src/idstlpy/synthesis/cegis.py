@@ -97,6 +97,9 @@ class _Run:
         self.stats = SolveStats()
         # Candidates the sampler gave up on: the part of `abandoned` a budget option can change.
         self.sampler_abandoned = 0
+        # The closest partial plan a teacher reported (actions, controls, progress), for a
+        # budget_exhausted result to show what the search got to.
+        self.closest: tuple[np.ndarray, np.ndarray, float] | None = None
         self.formula = problem.stl_formula
         self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
         self.closed_loop = options.guarantee == "closed_loop"
@@ -135,6 +138,10 @@ class _Run:
         if status != "found" and "time_limit" in stats.caps_hit:
             reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
+        closest = None
+        if status == "budget_exhausted" and self.closest is not None:
+            acts, ctrls, _ = self.closest
+            closest = rollout(self.problem.switched_system, self.problem.initial_state, acts, ctrls)
         return SolveResult(
             status,
             traj,
@@ -144,6 +151,7 @@ class _Run:
             str(self.formula),
             guarantee=self.options.guarantee,
             predicted=predicted,
+            closest=closest,
         )
 
     def use_units(self, scaling: Scaling) -> None:
@@ -300,6 +308,9 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
             stats.abandoned += 1
             if isinstance(verdict, Unknown) and verdict.why.startswith("sampler"):
                 run.sampler_abandoned += 1
+            if isinstance(verdict, Unknown) and verdict.closest is not None:
+                if run.closest is None or verdict.closest[2] > run.closest[2]:
+                    run.closest = verdict.closest
             logger.info("candidate %d abandoned: %s", stats.candidates, why)
     finally:
         stats.sat_calls = proposer.sat_calls

@@ -129,6 +129,8 @@ class Unknown:
 
     why: str
     hint_means: np.ndarray | None = field(default=None, repr=False)
+    # What the teacher got closest to: (actions (k,), controls (k, m), progress); not a plan.
+    closest: tuple[np.ndarray, np.ndarray, float] | None = field(default=None, repr=False)
 
 
 Verdict = Found | Refuted | Unknown

@@ -189,6 +189,10 @@ class SolveResult:
     predicted : ProbabilisticTSTrajectory or None
         With ``guarantee="closed_loop"``: the predicted true-state distribution (means
         (N + 1, n), covariances (N + 1, n, n)) on which the monitor verified the formula.
+    closest : ProbabilisticTSTrajectory or None
+        With ``budget_exhausted``: the partial plan the search got closest with (the MLO belief
+        along the prefix that met most of a candidate's required events, then went deepest),
+        for plotting and diagnosis. It does **not** satisfy the formula. ``None`` otherwise.
     software : dict
         Which code made the result: ``{"idstlpy": version, "commit": git commit or None,
         "python", "numpy", "platform"}`` (by default the running code's; a loaded result keeps
@@ -215,6 +219,7 @@ class SolveResult:
     guarantee: str = "mlo"
     predicted: ProbabilisticTSTrajectory | None = None
     software: dict[str, str | None] = field(default_factory=software_info)
+    closest: ProbabilisticTSTrajectory | None = None
 
     @property
     def plan(self) -> ProbabilisticTSTrajectory | None:
@@ -283,6 +288,7 @@ class SolveResult:
             "plan": None if traj is None else _trajectory_to_dict(traj),
             "predicted": None if self.predicted is None else _trajectory_to_dict(self.predicted),
             "software": dict(self.software),
+            "closest": None if self.closest is None else _trajectory_to_dict(self.closest),
         }
 
     @classmethod
@@ -344,6 +350,7 @@ class SolveResult:
             guarantee,
             None if pred is None else _trajectory_from_dict(pred),
             _software_from(data.get("software")),
+            closest=None if data.get("closest") is None else _trajectory_from_dict(data["closest"]),
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:

@@ -78,6 +78,9 @@ class SamplerOutcome:
     nodes: int
     iterations: int
     capped: bool
+    # On failure, the node the search got closest with (most of the plan's events met, then the
+    # deepest): its actions (k,), controls (k, m) and its progress; not a plan that satisfies.
+    closest: tuple[np.ndarray, np.ndarray, float] | None = None
 
 
 class _Tree:
@@ -659,7 +662,22 @@ class BeliefSampler:
                 int(tree.k[: tree.size].max()),
                 len(plans),
             )
-        return SamplerOutcome(None, None, tree.size, iters, capped)
+        return SamplerOutcome(None, None, tree.size, iters, capped, self._closest(tree))
+
+    @staticmethod
+    def _closest(tree: _Tree) -> tuple[np.ndarray, np.ndarray, float] | None:
+        """The node with the most plan events met (then the deepest), as actions and controls."""
+        size = tree.size
+        if size <= 1:
+            return None
+        stage, k = tree.stage[:size], tree.k[:size]
+        best = int(np.lexsort((k, stage))[-1])
+        path = tree.path(best)
+        if len(path) <= 1:
+            return None
+        # Progress: events met first, steps realised to break ties (a total order over nodes).
+        progress = float(stage[best]) + float(k[best]) / (1.0 + float(k.max()))
+        return tree.action[path[1:]].copy(), tree.control[path[1:]].copy(), progress
 
     def _next_goal(self, tree: _Tree, node: int, events: tuple[np.ndarray, np.ndarray]) -> int | None:
         """The region ``node`` should make for: the first event of its plan after its step whose
@@ -898,7 +916,7 @@ class SamplerTeacher:
                 if out.capped
                 else f"sampler: no plan within its budget of {budget_iters} iterations"
             )
-            return Unknown(why)
+            return Unknown(why, closest=out.closest)
         with stats.clock("time_sampling"):
             actions, controls = self.sampler.shortcut(out.actions, out.controls, self.options.shortcut_checks)
         with stats.clock("time_lp"):
