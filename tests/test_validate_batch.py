@@ -272,3 +272,12 @@ def test_batched_is_the_serial_loop_with_mode_atoms_and_a_joint_constraint():
     batched = validate(*args, **kw)
     assert_same_reports(batched, validate(*args, **kw, batched=False))
     assert 0 < batched.belief_successes < 40 or 0 < batched.state_successes < 40  # not a trivial case
+
+
+def test_montecarlo_benchmark_runs_small(capsys):
+    from benchmarks import montecarlo
+
+    assert montecarlo.main(["--runs", "24", "--serial-runs", "12", "--repeats", "1"]) == 0
+    out = capsys.readouterr().out
+    rows = [line for line in out.splitlines() if line.startswith("| listing") or line.startswith("| constant")]
+    assert len(rows) == 3 and all(row.endswith("| yes |") for row in rows)
