@@ -880,6 +880,9 @@ def mk_lbs(
         Observation noise factor ``n(x)`` (the noise covariance is ``n(x) n(x)'``); constant
         gives :class:`POLBSWithLinNoise`, a function gives :class:`POLBSWithNonLinNoise` (its
         values are checked at every evaluation). ``None`` with ``C`` means a noise-free sensor.
+        A function that also takes a batch of states (S, n) -> (S, p, r) (write ``x[..., 0]``)
+        is called once per step for all the runs of a Monte Carlo validation, else once per run
+        (see :class:`POLBSWithNonLinNoise`).
     V_floor : float or array_like of shape (p, p), optional
         For a callable ``V``: a declared lower bound on ``R(x) = n(x) n(x)'`` over every state (a
         number ``s`` means ``s^2 I``). It lets the solver prove that a confidence is out of reach
