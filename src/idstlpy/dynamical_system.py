@@ -13,6 +13,7 @@ a :class:`POLBS` adds the output ``C`` with a constant noise matrix
 from __future__ import annotations
 
 import inspect
+import warnings
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -484,8 +485,9 @@ class POLBSWithNonLinNoise(POLBS):
         """``V(X)`` when the function takes batches (checked on the first batch), else None."""
         S = X.shape[0]
         arr: np.ndarray | None
-        try:
-            with np.errstate(all="ignore"):
+        try:  # (a function of one state may warn or fail on a batch: quietly, it is only a probe)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
                 arr = np.asarray(self.V(X), dtype=float)
         except Exception:  # noqa: BLE001 - a function of one state: call it per state
             arr = None
