@@ -32,7 +32,9 @@ test: $(TEST_STAMP)
 	$(BIN)/python -m pytest
 
 lint: $(TEST_STAMP)
-	$(BIN)/ruff check src tests benchmarks examples
+	$(BIN)/ruff check src tests benchmarks examples tools
+	$(BIN)/mypy src
+	$(BIN)/python tools/structure_report.py
 
 bench: $(TEST_STAMP)
 	$(PIP) -e '.[bench]'
