@@ -580,7 +580,6 @@ class BeliefSampler:
             else:
                 settle = False
             steps = int(rng.integers(opt.min_num_of_steps, opt.max_num_of_steps + 1))
-            steps = min(steps, H + 1)  # no extension goes past the plan's last step
             if settle:
                 # A hold is not limited to one extension's length: a holder settling at the
                 # centre goes on for the rest of its plan (it stops where the plan breaks).
