@@ -276,6 +276,20 @@ def test_steering_gains_do_not_grow_with_max_num_of_steps():
     assert all(1 <= i <= STEER_LOOKAHEAD for i in sampler._index)
 
 
+def test_belief_trees_stop_at_their_memory_cap(monkeypatch):
+    """A counter: with the cap set to 100 nodes, no candidate's tree grows beyond it."""
+    from idstlpy.synthesis import sampler
+
+    monkeypatch.setattr(sampler, "MIN_NODES", 100)
+    monkeypatch.setattr(sampler, "TREE_BYTES", 0)
+    problem, specs = _listing("state_dependent")
+    result = problem.solve_result(seed=0, max_num_of_steps=10**9, sampler_iterations=10**6, time_limit=10)
+    assert result.stats.sampler_iterations > 0
+    assert result.stats.nodes <= 100 * max(1, result.stats.candidates)
+    if result.status == "found":
+        assert_plan_keeps_its_promises(problem, specs, result)
+
+
 def test_huge_max_num_of_steps_honours_the_time_limit():
     """Issue 25: no answer within 90 s on a small time limit. Generous slack: 2 s asked, 60 s allowed."""
     problem, specs = _listing("state_dependent")
