@@ -418,6 +418,14 @@ ROOM_ROUNDS = 8
 """LP rounds the plan LP's plans get toward their execution room (a work budget)."""
 
 
+def _prefix_conflict(plan: DiscretePlan, out: LPOutcome, num_modes: int) -> Conflict:
+    """The plan LP's conflict with the plan's modes up to its last step (several modes)."""
+    last = max((k for k, _ in out.conflict), default=0)
+    modes = plan.modes[: last + 1].copy() if num_modes > 1 else None
+    kind = "exact" if out.exact else "lower-bound covariance"
+    return Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})")
+
+
 def _noisy(system: Any, init: Any) -> bool:
     """Whether a plan will meet noise: an uncertain start, process noise or a sensor."""
     return bool(np.any(init.cov != 0)) or any(
@@ -874,7 +882,9 @@ class LPTeacher:
         if out is None:
             out = self._solve(plan, margin, budget, stats)
         set_aside = False
+        proposed: tuple[DiscretePlan, LPOutcome] | None = None  # refuted, then modes searched
         if out.status == "infeasible" and system.num_modes > 1 and self.mode_search:
+            proposed = (plan, out)
             every = self._every_mode_refutation(plan, budget, stats)
             if every is not None:
                 self.last = out
@@ -891,12 +901,22 @@ class LPTeacher:
             set_aside = out.status == "infeasible"
         self.last = out
         if out.status == "infeasible":
-            # The proof is about the proposed modes (the prefix up to the conflict's last step).
-            last = max((k for k, _ in out.conflict), default=0)
-            modes = plan.modes[: last + 1].copy() if system.num_modes > 1 else None
-            kind = "exact" if out.exact else "lower-bound covariance"
-            conflict = Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})")
-            return Refuted(conflict, set_aside=set_aside)
+            return Refuted(_prefix_conflict(plan, out, system.num_modes), set_aside=set_aside)
+        verdict = self._decide(plan, out, margin, budget, stats)
+        if isinstance(verdict, Unknown) and proposed is not None and self.exact(problem):
+            # The searched modes met the LP but not the monitor's promise (e.g. the predicted
+            # closed loop): the proposed modes' refutation stands (a proof) and the requirement
+            # set is set aside, instead of the proposer offering it again with other modes (the
+            # search would find the same ones). No sampler serves a problem the LP is exact for.
+            return Refuted(_prefix_conflict(*proposed, system.num_modes), set_aside=True)
+        return verdict
+
+    def _decide(
+        self, plan: DiscretePlan, out: LPOutcome, margin: float, budget: Budget, stats: SolveStats
+    ) -> Verdict:
+        """The verdict on a plan whose LP is feasible (or unknown): its controls, or why not."""
+        problem = self.problem
+        system, init = problem.switched_system, problem.initial_state
         if out.status == "unknown":
             return Unknown(out.why, out.means)
         actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
