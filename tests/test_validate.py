@@ -7,7 +7,7 @@ import json
 import logging
 import pickle
 import sys
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -59,8 +59,10 @@ def test_same_seed_same_report_for_any_executor(light_dark_case):
     serial = validate(*args, runs=12, seed=5, executor="serial")
     with ThreadPoolExecutor(2) as pool:
         threaded = validate(*args, runs=12, seed=5, executor=pool)
-    processes = validate(*args, runs=12, seed=5)  # default: process pool (cloudpickle or factory)
-    assert serial == threaded == processes
+    with ProcessPoolExecutor(2) as procs:  # (cloudpickle or factory)
+        processes = validate(*args, runs=12, seed=5, executor=procs)
+    default = validate(*args, runs=12, seed=5)  # few batched runs: in-process
+    assert serial == threaded == processes == default
     other = validate(*args, runs=12, seed=6, executor="serial")
     assert other.belief_margins != serial.belief_margins
     assert isinstance(serial, ValidationReport) and serial.runs == 12
@@ -88,10 +90,13 @@ def test_factory_path_when_nothing_can_pickle_the_problem(light_dark_case, monke
     pickle.dumps(problem)
     monkeypatch.setitem(sys.modules, "cloudpickle", None)  # import cloudpickle -> ImportError
     args = (listing, plan, light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE)
-    with caplog.at_level(logging.DEBUG, logger="idstlpy.execution.validation"):
-        factory = validate(*args, runs=4, seed=1, problem_factory=functools.partial(light_dark, 60, 40))
-        fallback = validate(*args, runs=4, seed=1)  # no factory: runs in-process
-    assert "running in-process" in caplog.text
+    log = caplog.at_level(logging.DEBUG, logger="idstlpy.execution.validation")
+    with log, ProcessPoolExecutor(2) as pool:
+        factory = validate(
+            *args, runs=4, seed=1, executor=pool, problem_factory=functools.partial(light_dark, 60, 40)
+        )
+        fallback = validate(*args, runs=4, seed=1, executor=pool)  # no factory: runs in-process
+    assert "problem not picklable and no problem_factory: running in-process" in caplog.text
     assert factory == fallback == validate(*args, runs=4, seed=1, executor="serial")
 
 

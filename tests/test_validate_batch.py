@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import functools
 import logging
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -117,7 +117,10 @@ def test_batched_reports_do_not_depend_on_workers_or_batch_size(light_dark_case,
     serial = validate(*args, runs=30, seed=2, executor="serial")
     with ThreadPoolExecutor(2) as pool:
         assert validate(*args, runs=30, seed=2, executor=pool) == serial
-    assert validate(*args, runs=30, seed=2, problem_factory=functools.partial(light_dark, 60, 40)) == serial
+    factory = functools.partial(light_dark, 60, 40)
+    with ProcessPoolExecutor(2) as procs:
+        assert validate(*args, runs=30, seed=2, executor=procs, problem_factory=factory) == serial
+    assert validate(*args, runs=30, seed=2) == serial  # few runs: in-process by default
     from idstlpy.execution import validation
 
     monkeypatch.setattr(validation, "BATCH_RUNS", 7)  # many small batches, the same runs
@@ -279,5 +282,5 @@ def test_montecarlo_benchmark_runs_small(capsys):
 
     assert montecarlo.main(["--runs", "24", "--serial-runs", "12", "--repeats", "1"]) == 0
     out = capsys.readouterr().out
-    rows = [line for line in out.splitlines() if line.startswith("| listing") or line.startswith("| constant")]
+    rows = [line for line in out.splitlines() if line.startswith(("| listing", "| constant"))]
     assert len(rows) == 3 and all(row.endswith("| yes |") for row in rows)

@@ -943,6 +943,11 @@ def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> 
     return None
 
 
+SMALL_WORK = 200_000
+"""``validate(executor=None)`` runs in-process up to this many run-steps (batched runs only): about
+a third of a second of the listing's work on one core, less than starting worker processes."""
+
+
 PREDICT_SAMPLES = 20000
 """Default model samples of ``validate(predict=True)``: their sampling error (at most 0.0035 on a
 rate) is a tenth of the Wilson half-width of 1000 runs, so a flag says something about the model."""
@@ -1086,8 +1091,11 @@ def validate(
     seed : int or SeedSequence, optional
         Root of the run seeds; the same seed gives the identical report for any executor.
     executor : concurrent.futures.Executor, "serial" or None
-        Where runs execute. ``None``: a ``ProcessPoolExecutor(max_workers)`` made (and shut down)
-        here; ``"serial"``: in-process. See the module notes on pickling.
+        Where runs execute. ``None``: in-process when the runs are batched and few
+        (``runs x steps <= SMALL_WORK``, a fraction of a second: starting worker processes would
+        cost more), else a ``ProcessPoolExecutor(max_workers)`` made (and shut down) here;
+        ``"serial"``: in-process. The report is the same on every executor. See the module notes
+        on pickling.
     num_of_steps : int, optional
         Steps per run (default the whole plan).
     clip_controls : bool
@@ -1234,7 +1242,10 @@ def validate(
     own_pool = None
     pool: Executor | None = None
     blob: bytes | None = None
-    if executor == "serial":
+    small = payload.batched and replan_kw is None and plant is None and runs * max(steps, 1) <= SMALL_WORK
+    if executor == "serial" or (executor is None and small):
+        if executor is None:
+            logger.debug("validate: %d runs of %d steps, batched: running in-process", runs, steps)
         pool = None
     elif isinstance(executor, ThreadPoolExecutor):
         pool = executor
