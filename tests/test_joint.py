@@ -569,3 +569,25 @@ def test_infeasible_is_proven_on_the_necessary_relaxation():
     assert result.status == "infeasible"
     assert "necessary relaxation" in result.reason
     assert result.formula == str(problem.stl_formula)
+
+
+@given(
+    st.integers(1, 4),
+    st.integers(0, 2**32 - 1),
+    st.sampled_from([0.001, 0.01, 0.05, 0.1, 0.3, 0.5]),
+)
+def test_monitor_is_sound_against_the_exact_box_probability(n, seed, eps):
+    """Axis-aligned boxes, diagonal covariances: the exact probability (no sampling) at margin 0."""
+    rng = np.random.default_rng(seed)
+    half = rng.uniform(0.1, 2.0, n)
+    centre = rng.normal(size=n)
+    H = np.vstack([np.eye(n), -np.eye(n)])
+    var = rng.uniform(0.001, 1.0, n) ** 2
+    mean = centre + rng.normal(size=n) * half * 0.5
+    c = -np.concatenate([centre + half, -(centre - half)])
+    r = float(joint_slack(H, c, eps, mean, np.diag(var)))
+    c0 = c + r  # the monitor's margin is now 0: the box [centre - half + r, centre + half - r]
+    lo, hi = c0[n:], -c0[:n]
+    assert np.all(lo <= hi) or r < 0
+    if np.all(lo <= hi):
+        assert oracle.box_probability(lo, hi, mean, var) >= 1 - eps - 1e-12

@@ -89,3 +89,12 @@ def open_loop_states(
         w = rng.multivariate_normal(np.zeros(n), W, size=runs, method="eigh")
         out[:, k + 1] = out[:, k] @ A.T + controls[k] @ B.T + w
     return out
+
+
+def box_probability(lo: np.ndarray, hi: np.ndarray, mean: np.ndarray, var: np.ndarray) -> float:
+    """Exact ``P[lo <= x <= hi]`` for ``x ~ N(mean, diag(var))``: a product of 1-D probabilities."""
+    total = 1.0
+    for a, b, m, v in zip(lo, hi, mean, var, strict=True):
+        sd = math.sqrt(v)
+        total *= float(norm.cdf((b - m) / sd) - norm.cdf((a - m) / sd)) if sd > 0 else float(a <= m <= b)
+    return total
