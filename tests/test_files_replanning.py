@@ -115,7 +115,7 @@ def test_tables_are_validate_and_start_check_keywords():
 def test_the_keys_are_the_keywords_of_execute_and_start_check():
     # execute's `options` and start_check's are the file's [solver] table: not keys of their own
     assert set(schema.REPLAN_OPTION_KEYS) == set(_REPLAN_OPTIONS) - {"options"}
-    executor = {"options", "clip_controls", "process_noise", "lqr_gains", "default_lqr"}
+    executor = {"options", "clip_controls", "process_noise", "lqr_gains", "default_lqr", "policy"}
     params = inspect.signature(stl.start_check).parameters
     keywords = {k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}
     assert set(schema.START_CHECK_KEYS) == keywords - executor

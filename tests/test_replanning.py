@@ -9,6 +9,8 @@ import idstlpy as stl
 from idstlpy.errors import InvalidArgumentError, InvalidTypeError
 from idstlpy.execution.replanning import replan_seed
 
+P = stl.ReplanPolicy
+
 FORMULA_TEXT = "F[0,12] G[0,4] target"
 
 
@@ -33,6 +35,7 @@ def _problem() -> stl.Problem:
 
 
 OPTIONS = {"rrt_timeout": 2, "seed": 0}
+SOLVER = stl.SolverOptions.make(**OPTIONS)
 
 
 @pytest.fixture(scope="module")
@@ -74,10 +77,7 @@ def test_chunked_execution_with_failed_resolves_is_still_simulate(case):
         real,
         x0,
         seed=3,
-        replan="every",
-        every=2,
-        replan_time_limit=1e-9,
-        solver_options=OPTIONS,
+        policy=P(trigger="every", every=2, replan_time_limit=1e-9, solver=SOLVER),
     )
     assert starved.num_replans >= 1 and starved.num_adopted == 0
     assert all(r.status != "found" and not r.adopted for r in starved.replans)
@@ -87,7 +87,7 @@ def test_chunked_execution_with_failed_resolves_is_still_simulate(case):
 
 def test_same_seed_same_execution_and_replans(case):
     problem, plan, real, x0 = case
-    kw = {"replan": "every", "every": 3, "solver_options": OPTIONS, "adopt": "always"}
+    kw = {"policy": P(trigger="every", every=3, solver=SOLVER, adopt="always")}
     a = stl.execute(problem, plan, real, x0, seed=11, **kw)
     b = stl.execute(problem, plan, real, x0, seed=11, **kw)
     assert a.num_adopted >= 1
@@ -107,11 +107,7 @@ def test_forced_risk_triggers_a_replan_from_the_progressed_formula(case):
         real,
         x0,
         seed=1,
-        replan="on_risk",
-        risk=1.0,
-        check_every=4,
-        max_replans=2,
-        solver_options=OPTIONS,
+        policy=P(risk=1.0, check_every=4, max_replans=2, solver=SOLVER),
     )
     assert 1 <= report.num_replans <= 2
     first = report.replans[0]
@@ -130,7 +126,7 @@ def test_forced_risk_triggers_a_replan_from_the_progressed_formula(case):
     # Verdicts are the original formula's, on the whole executed run.
     assert report.belief_satisfied == stl.satisfies(report.belief, problem.stl_formula)
     # A threshold of 0 never re-plans.
-    calm = stl.execute(problem, plan, real, x0, seed=1, replan="on_risk", risk=0.0, check_every=4)
+    calm = stl.execute(problem, plan, real, x0, seed=1, policy=P(risk=0.0, check_every=4))
     assert calm.replans == ()
 
 
@@ -138,10 +134,10 @@ def test_drift_checks_a_run_that_leaves_its_predicted_ellipse(case):
     problem, plan, real, x0 = case
     # A real system twice as slow as the model: the executed belief falls behind its prediction.
     slow = stl.mk_switched_sys([stl.mk_lcs(A=np.eye(2), B=0.25 * np.eye(2))])
-    kw = {"replan": "on_risk", "risk": 1.0, "check_every": 100, "max_replans": 1, "solver_options": OPTIONS}
-    scheduled = stl.execute(problem, plan, slow, x0, seed=3, **kw)
+    kw = {"risk": 1.0, "check_every": 100, "max_replans": 1, "solver": SOLVER}
+    scheduled = stl.execute(problem, plan, slow, x0, seed=3, policy=P(**kw))
     assert scheduled.replans == ()  # the schedule's first check is after the plan's end
-    drifting = stl.execute(problem, plan, slow, x0, seed=3, drift=0.95, **kw)
+    drifting = stl.execute(problem, plan, slow, x0, seed=3, policy=P(drift=0.95, **kw))
     assert drifting.num_replans == 1
     first = drifting.replans[0]
     assert first.reason == "drift" and 1 <= first.step < plan.num_of_steps
@@ -149,7 +145,7 @@ def test_drift_checks_a_run_that_leaves_its_predicted_ellipse(case):
     k = first.step
     assert np.array_equal(drifting.real.get_state()[: k + 1], scheduled.real.get_state()[: k + 1])
     # A run checked on drift that never re-plans is simulate's, step for step.
-    calm = stl.execute(problem, plan, real, x0, seed=3, replan="on_risk", risk=0.0, drift=0.5)
+    calm = stl.execute(problem, plan, real, x0, seed=3, policy=P(risk=0.0, drift=0.5))
     _, xi_r = stl.simulate(
         problem.switched_system, plan, plan.num_of_steps, x0, real, seed=3,
         control_domain=problem.control_domain,
@@ -160,23 +156,29 @@ def test_drift_checks_a_run_that_leaves_its_predicted_ellipse(case):
 
 def test_start_check_resolves_a_plan_predicted_below_the_risk_before_its_first_step(case):
     problem, plan, real, x0 = case
-    kw = {"replan": "on_risk", "check_every": 100, "solver_options": OPTIONS, "seed": 4}
-    report = stl.execute(problem, plan, real, x0, risk=1.0, start_resolves=2, max_replans=3, **kw)
+    kw = {"check_every": 100, "solver": SOLVER}
+    report = stl.execute(
+        problem, plan, real, x0, 4, policy=P(risk=1.0, start_resolves=2, max_replans=3, **kw)
+    )
     starts = [r for r in report.replans if r.reason == "start"]
     assert len(starts) == 2 and all(r.step == 0 for r in starts)  # the plan stays below a risk of 1
     assert starts[0].formula == str(problem.stl_formula)  # nothing executed: the formula itself
     assert all(r.status == "found" and r.adopted == (r.new_predicted > r.predicted) for r in starts)
     # Adopted at the start, a plan replaces the first one: only it is followed, from the start belief.
-    always = stl.execute(problem, plan, real, x0, risk=1.0, start_resolves=1, adopt="always", **kw)
+    always = stl.execute(
+        problem, plan, real, x0, 4, policy=P(risk=1.0, start_resolves=1, adopt="always", **kw)
+    )
     assert [(r.step, r.reason, r.adopted) for r in always.replans] == [(0, "start", True)]
     ((k, new),) = always.plans
     assert k == 0 and new is not plan and np.allclose(new.get_mean(0), plan.get_mean(0))
     end = min(always.num_of_steps, new.num_of_steps)
     assert np.array_equal(always.belief.get_action()[:end], new.get_action()[:end])
     # Counted in max_replans; and a plan already above the risk is followed as it is (simulate's run).
-    capped = stl.execute(problem, plan, real, x0, risk=1.0, start_resolves=2, max_replans=1, **kw)
+    capped = stl.execute(
+        problem, plan, real, x0, 4, policy=P(risk=1.0, start_resolves=2, max_replans=1, **kw)
+    )
     assert [r.reason for r in capped.replans] == ["start"]
-    calm = stl.execute(problem, plan, real, x0, risk=0.0, start_resolves=2, **kw)
+    calm = stl.execute(problem, plan, real, x0, 4, policy=P(risk=0.0, start_resolves=2, **kw))
     fixed = stl.execute(problem, plan, real, x0, seed=4)
     assert calm.replans == () and np.array_equal(calm.real.get_state(), fixed.real.get_state())
 
@@ -184,13 +186,15 @@ def test_start_check_resolves_a_plan_predicted_below_the_risk_before_its_first_s
 def test_no_schedule_leaves_the_drift_test_and_the_start_check(case):
     problem, plan, real, x0 = case
     slow = stl.mk_switched_sys([stl.mk_lcs(A=np.eye(2), B=0.25 * np.eye(2))])
-    kw = {"replan": "on_risk", "risk": 1.0, "max_replans": 1, "solver_options": OPTIONS, "seed": 3}
-    unscheduled = stl.execute(problem, plan, slow, x0, check_every=None, drift=0.95, **kw)
-    late = stl.execute(problem, plan, slow, x0, check_every=plan.num_of_steps + 1, drift=0.95, **kw)
+    kw = {"risk": 1.0, "max_replans": 1, "solver": SOLVER}
+    unscheduled = stl.execute(problem, plan, slow, x0, 3, policy=P(check_every=None, drift=0.95, **kw))
+    late = stl.execute(
+        problem, plan, slow, x0, 3, policy=P(check_every=plan.num_of_steps + 1, drift=0.95, **kw)
+    )
     assert unscheduled.num_replans == 1 and unscheduled.replans[0].reason == "drift"
     assert unscheduled == late
     # Neither schedule nor drift test: the run is simulate's (risk 1 would re-solve at any check).
-    blind = stl.execute(problem, plan, slow, x0, check_every=None, **kw)
+    blind = stl.execute(problem, plan, slow, x0, 3, policy=P(check_every=None, **kw))
     fixed = stl.execute(problem, plan, slow, x0, seed=3)
     assert blind.replans == () and np.array_equal(blind.real.get_state(), fixed.real.get_state())
 
@@ -201,8 +205,8 @@ def test_start_check_is_the_check_execute_makes_before_its_first_step(case):
     # plan followed: the check depends on the problem, the plan and the seed only.
     checked = stl.start_check(problem, plan, risk=1.0, resolves=2, seed=4, solver_options=OPTIONS)
     report = stl.execute(
-        problem, plan, real, x0, seed=4, replan="on_risk", risk=1.0, check_every=100,
-        start_resolves=2, max_replans=2, solver_options=OPTIONS,
+        problem, plan, real, x0, seed=4,
+        policy=P(risk=1.0, check_every=100, start_resolves=2, max_replans=2, solver=SOLVER),
     )  # fmt: skip
     assert checked.replans == report.replans and len(checked.replans) == 2
     assert all(r.reason == "start" and r.step == 0 and r.status == "found" for r in checked.replans)
@@ -254,7 +258,7 @@ def test_start_check_bad_inputs_raise_package_errors_naming_the_argument(case, k
 def test_adopted_plan_is_followed(case):
     problem, plan, real, x0 = case
     report = stl.execute(
-        problem, plan, real, x0, seed=5, replan="every", every=4, solver_options=OPTIONS, adopt="always"
+        problem, plan, real, x0, seed=5, policy=P(trigger="every", every=4, solver=SOLVER, adopt="always")
     )
     assert report.num_adopted >= 1
     ((k, new),) = [p for p in report.plans if p[0] == report.replans[0].step]
@@ -287,8 +291,55 @@ def test_adopted_plan_is_followed(case):
 )
 def test_bad_inputs_raise_package_errors_naming_the_argument(case, kw, error, name):
     problem, plan, real, x0 = case
-    with pytest.raises(error, match=name):
+    if "seed" in kw:  # not a policy field
+        with pytest.raises(error, match=name):
+            stl.execute(problem, plan, real, x0, **kw, policy=P())
+        return
+    with pytest.raises(error, match=name), pytest.warns(DeprecationWarning, match="policy=ReplanPolicy"):
         stl.execute(problem, plan, real, x0, **kw)
+    policy_kw = {("trigger" if k == "replan" else k): v for k, v in kw.items()}
+    if "options" in policy_kw or "solver_options" in policy_kw:
+        with pytest.raises(error, match=name):
+            P.from_keywords(**kw)
+        return
+    with pytest.raises(error, match=name):
+        P(**policy_kw)
+
+
+def test_policy_is_frozen_typed_and_the_keywords_are_its_deprecated_spelling(case):
+    problem, plan, real, x0 = case
+    policy = P(trigger="every", every=3, solver=SOLVER, adopt="always", check_every=None)
+    with pytest.raises(AttributeError):
+        policy.every = 4  # type: ignore[misc]
+    assert P(risk=1, every=2.0).risk == 1.0 and isinstance(P(every=2.0).every, int)
+    with pytest.raises(InvalidTypeError, match="solver"):
+        P(solver={"rrt_timeout": 1})  # type: ignore[arg-type]
+    with pytest.raises(InvalidTypeError, match="policy"):
+        stl.execute(problem, plan, real, x0, policy={"replan": "every"})
+    # The keywords make the same policy, and the same run, with a DeprecationWarning naming them.
+    kw = {"replan": "every", "every": 3, "solver_options": OPTIONS, "adopt": "always", "check_every": None}
+    assert P.from_keywords(**kw) == policy
+    with pytest.warns(DeprecationWarning, match=r"execute\(adopt=\.\.\., check_every=") as caught:
+        old = stl.execute(problem, plan, real, x0, seed=11, **kw)
+    assert caught[0].filename == __file__  # attributed to the caller's line
+    new = stl.execute(problem, plan, real, x0, seed=11, policy=policy)
+    assert old == new and old.num_replans >= 1
+    # Keywords without replan: checked, no re-planning (as before).
+    with pytest.warns(DeprecationWarning):
+        quiet = stl.execute(problem, plan, real, x0, seed=11, risk=0.5)
+    assert quiet.replans == () and quiet == stl.execute(problem, plan, real, x0, seed=11)
+    with pytest.raises(InvalidArgumentError, match="not both"):
+        stl.execute(problem, plan, real, x0, policy=policy, every=2)
+    with pytest.raises(InvalidArgumentError, match="unexpected keyword"):
+        stl.execute(problem, plan, real, x0, polciy=policy)
+    # start_check reads the same policy (its risk, measure, adoption, time cap and solver).
+    checked = stl.start_check(problem, plan, resolves=1, seed=4, policy=P(risk=1.0, solver=SOLVER))
+    assert (
+        checked.replans
+        == stl.start_check(problem, plan, risk=1.0, resolves=1, seed=4, options=SOLVER).replans
+    )
+    with pytest.raises(InvalidArgumentError, match="not both"):
+        stl.start_check(problem, plan, risk=0.5, policy=P())
 
 
 def test_bad_problem_or_plan(case):
@@ -345,10 +396,7 @@ def test_validate_runs_the_replanning_executor(case):
         real,
         x0,
         seed=np.random.SeedSequence(4).spawn(6)[0],
-        replan="every",
-        every=3,
-        solver_options=OPTIONS,
-        adopt="always",
+        policy=P(trigger="every", every=3, solver=SOLVER, adopt="always"),
     )
     assert live.belief_margins[0] == one.belief_margin
 
@@ -371,7 +419,7 @@ def test_validate_replan_bad_inputs(case, kw, error, name):
 
 def test_adopt_better_keeps_the_plan_predicted_to_do_better(case):
     problem, plan, real, x0 = case
-    report = stl.execute(problem, plan, real, x0, seed=5, replan="every", every=3, solver_options=OPTIONS)
+    report = stl.execute(problem, plan, real, x0, seed=5, policy=P(trigger="every", every=3, solver=SOLVER))
     found = [r for r in report.replans if r.status == "found"]
     assert found
     for r in found:

@@ -35,6 +35,8 @@ from .execution import (
     ClosedLoopPrediction,
     ExecutionReport,
     Replan,
+    ReplanningExecutor,
+    ReplanPolicy,
     StartCheck,
     ValidationReport,
     execute,
@@ -156,6 +158,8 @@ __all__ = [
     "SolveStats",
     # execution
     "OnlineExecutor",
+    "ReplanningExecutor",
+    "ReplanPolicy",
     "ExecutorSpec",
     "finite_horizon_lqr",
     "simulate",

@@ -16,14 +16,18 @@ Submodules (one job each; none is named like a function it defines):
 - :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
   control domain);
 - :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals;
-- :mod:`idstlpy.execution.replanning`: :func:`execute`, :func:`start_check`,
-  :class:`ExecutionReport`, :class:`Replan`, :class:`StartCheck`.
+- :mod:`idstlpy.execution.replanner`: :class:`ReplanningExecutor` (the online executor that
+  re-plans: one observation in, the next mode and input out), :class:`ReplanPolicy`,
+  :class:`Replan`;
+- :mod:`idstlpy.execution.replanning`: :func:`execute` (its loop with a simulated plant),
+  :func:`start_check`, :class:`ExecutionReport`, :class:`StartCheck`.
 """
 
 from __future__ import annotations
 
 from ..tracking import finite_horizon_lqr
 from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
+from .replanner import ReplanningExecutor, ReplanPolicy
 from .replanning import ExecutionReport, Replan, StartCheck, execute, start_check
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval
@@ -36,6 +40,8 @@ __all__ = [
     "finite_horizon_lqr",
     "predict_closed_loop",
     "Replan",
+    "ReplanningExecutor",
+    "ReplanPolicy",
     "simulate",
     "StartCheck",
     "start_check",

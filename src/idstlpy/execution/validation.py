@@ -654,7 +654,7 @@ def _execute(
         x0 = payload.real_initial_state if starts is None else starts[offset]
         replans = 0
         if payload.replan is not None:
-            from .replanning import execute
+            from .replanning import ReplanPolicy, execute
 
             run = execute(
                 problem if payload.system is None else payload.problem,
@@ -666,7 +666,7 @@ def _execute(
                 process_noise=payload.sim_options["process_noise"],
                 lqr_gains=payload.sim_options["lqr_gains"],
                 plant=payload.sim_options["plant"],
-                **payload.replan,
+                policy=ReplanPolicy.from_keywords(**payload.replan),
             )
             xi_sim, xi_real, replans = run.belief, run.real, run.num_replans
         else:
