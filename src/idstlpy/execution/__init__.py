@@ -16,9 +16,10 @@ Submodules (one job each; none is named like a function it defines):
 - :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
   control domain);
 - :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals;
+- :mod:`idstlpy.execution.policy`: :class:`ReplanPolicy` (when and how to re-plan);
+- :mod:`idstlpy.execution.resolving`: re-solves from a belief, :class:`Replan` (their record);
 - :mod:`idstlpy.execution.replanner`: :class:`ReplanningExecutor` (the online executor that
-  re-plans: one observation in, the next mode and input out), :class:`ReplanPolicy`,
-  :class:`Replan`;
+  re-plans: one observation in, the next mode and input out);
 - :mod:`idstlpy.execution.replanning`: :func:`execute` (its loop with a simulated plant),
   :func:`start_check`, :class:`ExecutionReport`, :class:`StartCheck`.
 """
@@ -26,8 +27,9 @@ Submodules (one job each; none is named like a function it defines):
 from __future__ import annotations
 
 from ..tracking import finite_horizon_lqr
+from .policy import ReplanPolicy
 from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
-from .replanner import ReplanningExecutor, ReplanPolicy
+from .replanner import ReplanningExecutor
 from .replanning import ExecutionReport, Replan, StartCheck, execute, start_check
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval

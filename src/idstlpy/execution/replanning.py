@@ -79,18 +79,9 @@ from ..semantics import robustness
 from ..synthesis.options import SolverOptions
 from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .replanner import (
-    Adopt,
-    Replan,
-    ReplanningExecutor,
-    ReplanPolicy,
-    RiskMeasure,
-    RiskOn,
-    _Resolver,
-    _RiskModel,
-    executor_spec,
-    replan_seed,
-)
+from .policy import Adopt, ReplanPolicy, RiskMeasure, RiskOn
+from .replanner import ReplanningExecutor, executor_spec
+from .resolving import Replan, _Resolver, _RiskModel, replan_seed
 
 __all__ = [
     "ExecutionReport",
