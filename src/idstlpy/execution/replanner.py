@@ -227,6 +227,16 @@ class ReplanningExecutor:
         return self.executor.belief
 
     @property
+    def mean(self) -> np.ndarray:
+        """The current filter mean, shape (n,) (read-only view)."""
+        return self.executor.mean
+
+    @property
+    def cov(self) -> np.ndarray:
+        """The current filter covariance, shape (n, n) (read-only view)."""
+        return self.executor.cov
+
+    @property
     def plan(self) -> ProbabilisticTSTrajectory:
         """The plan followed now (its step 0 was execution step ``plans[-1][0]``)."""
         return self._plan
