@@ -284,3 +284,12 @@ def test_montecarlo_benchmark_runs_small(capsys):
     out = capsys.readouterr().out
     rows = [line for line in out.splitlines() if line.startswith(("| listing", "| constant"))]
     assert len(rows) == 3 and all(row.endswith("| yes |") for row in rows)
+
+
+@pytest.mark.parametrize("steps", [0, 1, 30])
+def test_batched_is_the_serial_loop_on_part_of_the_plan(light_dark_case, steps):
+    problem, plan = light_dark_case
+    kw = {"runs": 10, "seed": 0, "executor": "serial", "num_of_steps": steps, "keep_trajectories": 2}
+    batched = validate(problem, plan, light_dark_real_system(), **kw)
+    assert batched.num_of_steps == steps
+    assert_same_reports(batched, validate(problem, plan, light_dark_real_system(), batched=False, **kw))
