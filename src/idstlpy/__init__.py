@@ -46,6 +46,7 @@ from .execution import (
     start_check,
     validate,
 )
+from .execution_target import ExecutionTarget
 from .executor import ExecutorSpec, OnlineExecutor
 from .expressions import (
     ConvexConstraint,
@@ -173,6 +174,7 @@ __all__ = [
     "predict_closed_loop",
     "ClosedLoopPrediction",
     "ValidationReport",
+    "ExecutionTarget",
     # problem files and text syntax
     "load_problem",
     "apply_overrides",
