@@ -18,11 +18,9 @@ and applies the returned mode and input::
 :class:`~idstlpy.executor.law.StepLaw`), so a robot running this object executes exactly what
 simulation, validation and the planner's predictions assume.
 
-Re-planning: the drift and risk checks and the re-solves of :func:`idstlpy.execute` are not
-(yet) part of this object. To combine them, run the checks between two ``step`` calls on
-``executor.belief``, and when a new plan is adopted build a new executor on it whose prior is
-the current belief: ``OnlineExecutor(problem, new_plan).reset(executor.belief)`` (the new plan's
-step 0 is the current time).
+Re-planning: :class:`idstlpy.ReplanningExecutor` (:mod:`idstlpy.execution.replanner`, a layer
+up: it calls the solver) is this object plus the drift and risk checks and the re-solves of
+:func:`idstlpy.execute`, with the same ``step`` / ``observe`` loop.
 """
 
 from __future__ import annotations
