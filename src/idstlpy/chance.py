@@ -187,21 +187,63 @@ def joint_slack(
         z = quantile(np.full(F, eps))
         return np.asarray(np.min(slack(H, c, z, mean, cov), axis=-1), dtype=float)
     d, sd = _face_moments(H, c, mean, cov)
+    shape = d.shape[:-1]
+    d = d.reshape(-1, F)
+    sd = np.broadcast_to(sd, d.shape) if sd.ndim == 1 else sd.reshape(-1, F)
     lo = np.min(d - float(quantile(eps / F)) * sd, axis=-1)
     hi = np.min(d - float(quantile(eps)) * sd, axis=-1)
     lo = np.minimum(lo, hi)
-    finite = np.isfinite(lo) & np.isfinite(hi)
-    lo = np.where(finite, lo, -np.inf)
-    a = np.where(finite, lo, 0.0)
-    b = np.where(finite, hi, 0.0)
-    for _ in range(iterations):
-        mid = 0.5 * (a + b)
-        ok = np.sum(_tail(d - mid[..., None], sd), axis=-1) <= eps
-        a = np.where(ok, mid, a)
-        b = np.where(ok, b, mid)
-        if np.all(b - a <= 1e-15 * np.maximum(1.0, np.abs(a))):
+    out = np.where(np.isfinite(lo) & np.isfinite(hi), lo, -np.inf)
+    todo = np.flatnonzero(np.isfinite(lo) & np.isfinite(hi))
+    if todo.size:
+        out[todo] = _root(d[todo], sd[todo], eps, lo[todo], hi[todo], iterations)
+    return np.asarray(out.reshape(shape), dtype=float)
+
+
+def _root(
+    d: np.ndarray, sd: np.ndarray, eps: float, a: np.ndarray, b: np.ndarray, iterations: int
+) -> np.ndarray:
+    """The largest ``r`` in ``[a, b]`` with ``sum_f tail(d_f - r, sd_f) <= eps``, feasible side.
+
+    ``a`` is feasible. Illinois false position on the bracket, a bisection every fourth step;
+    returns the bracket's feasible end once the bracket is narrower than ``1e-12`` of the
+    problem's scale or the end's risk is within ``1e-10 eps`` of ``eps``.
+    """
+
+    def g(r: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        return np.sum(_tail(d[rows] - r[:, None], sd[rows]), axis=-1) - eps
+
+    rows = np.arange(d.shape[0])
+    ga = g(a, rows)
+    gb = g(b, rows)
+    a = np.where(gb <= 0, b, a)  # the upper end itself is feasible (other faces risk-free)
+    scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), np.max(sd, axis=-1))
+    side = np.zeros(d.shape[0], dtype=int)  # which end moved last: -1 a, +1 b
+    live = np.flatnonzero((gb > 0) & (b - a > 1e-12 * scale) & (ga < -1e-10 * eps))
+    for it in range(iterations):
+        if not live.size:
             break
-    return np.asarray(np.where(finite, a, lo), dtype=float)
+        A, B, GA, GB = a[live], b[live], ga[live], gb[live]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = B - GB * (B - A) / (GB - GA)
+        bad = ~np.isfinite(x) | (x <= A) | (x >= B) | (it % 4 == 3)
+        x = np.where(bad, 0.5 * (A + B), x)
+        gx = g(x, live)
+        left = gx <= 0
+        a[live] = np.where(left, x, A)
+        ga[live] = np.where(left, gx, GA)
+        b[live] = np.where(left, B, x)
+        gb[live] = np.where(left, GB, gx)
+        # Illinois: an end kept twice in a row has its value halved (the position moves to it)
+        move = np.where(left, -1, 1)
+        stuck_b = left & (side[live] == -1)
+        stuck_a = ~left & (side[live] == 1)
+        gb[live] = np.where(stuck_b, 0.5 * gb[live], gb[live])
+        ga[live] = np.where(stuck_a, 0.5 * ga[live], ga[live])
+        side[live] = move
+        # done when the bracket is narrow or the feasible end's risk is eps to 1e-10 of it
+        live = live[(b[live] - a[live] > 1e-12 * scale[live]) & (ga[live] < -1e-10 * eps)]
+    return a
 
 
 def _chebyshev_center(H: np.ndarray, c: np.ndarray) -> np.ndarray | None:
