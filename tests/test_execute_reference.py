@@ -2,11 +2,13 @@
 re-planning online executor (issue 22).
 
 ``tests/data/execute_reference.npz`` holds, for a few recorded-seed cases (re-solves on risk,
-drift checks, no schedule, start re-solves, the ``"every"`` schedule, a step-function plant), the
-report of ``execute`` as it was at commit 967ec19 (five nested closures calling ``simulate`` a
-chunk at a time): every record, the plans followed, the executed belief and the true states. The
-first plan of every case is stored too, so only the re-solves go through the solver (small
-budgets, LP-exact problem: they are deterministic).
+drift checks, no schedule, start re-solves, the ``"every"`` schedule, a step-function plant, the
+paper's listing with its state-dependent sensor noise), the report of ``execute`` as it was at
+commit 967ec19 (five nested closures calling ``simulate`` a chunk at a time; the listing case
+was recorded later with that commit's ``execution/replanning.py`` on the then current package):
+every record, the plans followed, the executed belief and the true states. The first plan of the
+integrator cases is stored too, so only the re-solves go through the solver (small budgets,
+seeded, no wall-clock cap hit: deterministic).
 
 Regenerate (only when a behaviour change is intended and recorded in CHANGELOG.md)::
 
@@ -120,6 +122,20 @@ CASES: dict[str, tuple[Any, Any, int, dict[str, Any]]] = {
             "solver_options": OPTIONS,
         },
     ),  # fmt: skip
+    # The paper's listing (a state-dependent sensor noise), a rollout plan checked every 10 steps.
+    "listing_on_risk": (
+        None,
+        None,
+        2,
+        {
+            "replan": "on_risk",
+            "risk": 0.5,
+            "check_every": 10,
+            "max_replans": 1,
+            "replan_time_limit": 30.0,
+            "solver_options": {"seed": 0},
+        },
+    ),  # fmt: skip
 }
 
 
@@ -129,8 +145,26 @@ def _plan(data: Any) -> stl.ProbabilisticTSTrajectory:
     )
 
 
+def _listing() -> tuple[stl.Problem, stl.ProbabilisticTSTrajectory, Any, np.ndarray]:
+    """The paper's listing with a rollout plan towards the light and back (benchmarks/executor_step)."""
+    from idstlpy.scenarios import LIGHT_DARK_REAL_INITIAL_STATE, light_dark, light_dark_real_system
+
+    problem = light_dark()
+    steps = 30
+    controls = np.vstack([np.tile([1.0, -0.1], (15, 1)), np.tile([-1.0, 0.0], (steps - 15, 1))])
+    plan = stl.rollout(
+        problem.switched_system, problem.initial_state, np.zeros(steps, dtype=int), 0.25 * controls
+    )
+    return problem, plan, light_dark_real_system(), np.asarray(LIGHT_DARK_REAL_INITIAL_STATE, dtype=float)
+
+
 def _run(name: str, problem: stl.Problem, plan: stl.ProbabilisticTSTrajectory) -> Any:
     real, plant, seed, kw = CASES[name]
+    if name.startswith("listing"):
+        problem, plan, listing_real, x0 = _listing()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            return stl.execute(problem, plan, listing_real, x0, seed=seed, **kw)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # the keyword spelling, as recorded
         return stl.execute(
@@ -203,6 +237,7 @@ def test_the_cases_exercise_what_they_are_named_for(reference):
     assert "risk" in reasons["on_risk"] and "drift" in reasons["drift"]
     assert "start" in reasons["unscheduled_start"] and "drift" in reasons["unscheduled_start"]
     assert set(reasons["every"]) == {"every"} and reasons["plant_start_only"] == ["start"]
+    assert reasons["listing_on_risk"] == ["risk"]
     assert all(len(reference[f"{name}/plan_starts"]) >= 2 for name in ("on_risk", "every"))
 
 

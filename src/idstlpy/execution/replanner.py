@@ -48,7 +48,7 @@ from ..progression import progress
 from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory
 from .policy import ReplanPolicy
-from .resolving import Replan, _Resolver, _RiskModel, replan_seed
+from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
 
 if TYPE_CHECKING:
     from .prediction import ClosedLoopPrediction
@@ -135,14 +135,7 @@ class ReplanningExecutor:
         spec: ExecutorSpec | None = None,
         **options: Any,
     ) -> None:
-        if not isinstance(problem, Problem):
-            raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
-        if plan is None:
-            raise InvalidArgumentError(
-                "plan is None: there is no plan to execute (see problem.last_result.reason)"
-            )
-        if not isinstance(plan, ProbabilisticTSTrajectory):
-            raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
+        check_problem_plan(problem, plan, "execute")
         if policy is not None and not isinstance(policy, ReplanPolicy):
             raise InvalidTypeError(f"policy must be a ReplanPolicy, got {type(policy).__name__}")
         if spec is None:

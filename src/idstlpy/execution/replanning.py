@@ -81,7 +81,7 @@ from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .policy import Adopt, ReplanPolicy, RiskMeasure, RiskOn
 from .replanner import ReplanningExecutor, executor_spec
-from .resolving import Replan, _Resolver, _RiskModel, replan_seed
+from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
 
 __all__ = [
     "ExecutionReport",
@@ -184,17 +184,6 @@ def _same(a: float, b: float) -> bool:
     return a == b or (math.isnan(a) and math.isnan(b))
 
 
-def _check_problem_plan(problem: Any, plan: Any, what: str) -> None:
-    if not isinstance(problem, Problem):
-        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
-    if plan is None:
-        raise InvalidArgumentError(
-            f"plan is None: there is no plan to {what} (see problem.last_result.reason)"
-        )
-    if not isinstance(plan, ProbabilisticTSTrajectory):
-        raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
-
-
 def _policy(policy: Any, legacy: Mapping[str, Any], caller: str) -> ReplanPolicy | None:
     """The policy of ``caller``: ``policy``, or the deprecated keywords ``legacy`` (warned)."""
     unknown = sorted(set(legacy) - _POLICY_KEYWORDS)
@@ -287,7 +276,7 @@ def execute(
         When dimensions of the plan, the model and the real system disagree.
     """
     t0 = time.perf_counter()
-    _check_problem_plan(problem, plan, "execute")
+    check_problem_plan(problem, plan, "execute")
     policy = _policy(policy, deprecated, "execute")
     ss = as_seed_sequence(seed)
     system = problem.switched_system
@@ -445,7 +434,7 @@ def start_check(
     InvalidArgumentError
         When ``plan`` is None or an option is out of range (the message names it).
     """
-    _check_problem_plan(problem, plan, "check")
+    check_problem_plan(problem, plan, "check")
     given = ReplanPolicy.from_keywords(
         risk=risk, risk_measure=risk_measure, risk_on=risk_on, risk_samples=risk_samples, adopt=adopt,
         replan_time_limit=replan_time_limit, options=options, solver_options=solver_options,

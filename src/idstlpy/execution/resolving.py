@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..belief import GaussianBelief, to_belief
-from ..errors import IdstlpyError
+from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
 from ..executor import ExecutorSpec
 from ..formulas import FALSE, TRUE, STLFormula
 from ..synthesis.options import SolverOptions
@@ -101,6 +101,18 @@ class Replan:
 
     def __hash__(self) -> int:
         return hash(self._key())
+
+
+def check_problem_plan(problem: Any, plan: Any, what: str) -> None:
+    """Raise a package error naming ``problem`` or ``plan`` when they cannot be executed."""
+    if not isinstance(problem, Problem):
+        raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
+    if plan is None:
+        raise InvalidArgumentError(
+            f"plan is None: there is no plan to {what} (see problem.last_result.reason)"
+        )
+    if not isinstance(plan, ProbabilisticTSTrajectory):
+        raise InvalidTypeError(f"plan must be a ProbabilisticTSTrajectory, got {type(plan).__name__}")
 
 
 def replan_seed(seed_sequence: np.random.SeedSequence, index: int) -> int:
