@@ -199,20 +199,17 @@ def run_batch(
         kw = {"replan": "every", "every": every}
     if mode in ("on_risk_cl", "drift_start_cl", *CHECKED):  # re-solves against the predicted true state
         options = options.with_(guarantee="closed_loop")
+    policy = (
+        stl.ReplanPolicy.from_keywords(
+            options=options, replan_time_limit=replan_time_limit, max_replans=max_replans, **kw
+        )
+        if kw
+        else None  # fixed: simulate's run
+    )
     out = []
     for ss in seeds:
         t0 = time.perf_counter()
-        rep = stl.execute(
-            problem,
-            plan,
-            real,
-            x0,
-            seed=ss,
-            options=options,
-            replan_time_limit=replan_time_limit,
-            max_replans=max_replans,
-            **kw,
-        )
+        rep = stl.execute(problem, plan, real, x0, seed=ss, policy=policy)
         out.append(
             {
                 "belief": rep.belief_satisfied,
