@@ -267,6 +267,11 @@ class ReplanningExecutor:
         """Update the belief with the observation taken after the last input
         (:meth:`idstlpy.OnlineExecutor.observe`).
 
+        Parameters
+        ----------
+        observation : array_like, shape (p,), or None
+            The planning mode's sensor reading; None exactly when that mode is blind.
+
         Raises
         ------
         InvalidArgumentError

@@ -412,7 +412,9 @@ def start_check(
     risk_measure, risk_on, risk_samples, adopt, replan_time_limit
         As the fields of :class:`ReplanPolicy`.
     options : SolverOptions, optional
-        The re-solves' options; ``solver_options`` (a mapping of its fields) overrides them:
+        The re-solves' options.
+    solver_options : mapping, optional
+        :class:`~idstlpy.SolverOptions` fields overriding ``options``:
         ``solver_options={"guarantee": "closed_loop"}`` re-solves against the predicted true
         state.
     clip_controls, process_noise, lqr_gains, default_lqr
