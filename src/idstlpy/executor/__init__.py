@@ -5,7 +5,9 @@
 - :mod:`idstlpy.executor.law`: :class:`StepLaw`, the one step law (tracking input, true state,
   observation, Kalman filter) for a batch of runs;
 - :mod:`idstlpy.executor.online`: :class:`OnlineExecutor`, driven from a user's own loop
-  (``reset``, ``step(observation) -> (mode, input)``).
+  (``reset``, ``step(observation) -> (mode, input)``);
+- :mod:`idstlpy.executor.predict`: the predicted execution of a plan (:func:`predict_closed_loop`,
+  the linear-Gaussian closed loop), which the planner's default guarantee holds to the target.
 """
 
 from __future__ import annotations
