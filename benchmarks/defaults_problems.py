@@ -54,7 +54,9 @@ def _p(pred: Any, conf: float) -> Any:
     return stl.prob(pred) >= conf
 
 
-def _box(x: Any, lo: Sequence[float], hi: Sequence[float], conf: float, name: str, extra: Sequence[Any] = ()) -> Any:
+def _box(
+    x: Any, lo: Sequence[float], hi: Sequence[float], conf: float, name: str, extra: Sequence[Any] = ()
+) -> Any:
     preds: list[Any] = list(extra)
     for i, (low, high) in enumerate(zip(lo, hi, strict=True)):
         preds += [_p(x[i] >= low, conf), _p(x[i] <= high, conf)]
@@ -77,7 +79,9 @@ def one_d() -> stl.Problem:
     0.5 elsewhere, prior ``N(0, 1)``, ``F[0,30] G[0,5] (5.8 <= x <= 6.2 at 90%)``."""
     x, u = stl.mk_variable(1, float), stl.mk_variable(1, float)
     sensor = SpotSensor()
-    mode = stl.mk_lbs(A=np.eye(1), B=np.eye(1), W=np.zeros((1, 1)), C=np.eye(1), V=sensor, V_floor=sensor.good)
+    mode = stl.mk_lbs(
+        A=np.eye(1), B=np.eye(1), W=np.zeros((1, 1)), C=np.eye(1), V=sensor, V_floor=sensor.good
+    )
     goal = _box(x, [5.8], [6.2], 0.9, "goal")
     return stl.Problem(
         switched_system=stl.mk_switched_sys([mode]),
@@ -228,7 +232,9 @@ def thermal() -> stl.Problem:
     thermometer useless: std 1) or rest (``b = 0.05``, an accurate thermometer: std 0.05), process
     noise 0.05, prior ``N(0, 0.25)``: reach ``[4.5, 5.5]`` (90%) within 30 steps and hold it 5."""
     x, u = stl.mk_variable(1, float), stl.mk_variable(1, float)
-    heat = stl.mk_lbs(A=np.array([[0.95]]), B=np.array([[0.5]]), W=np.array([[0.05]]), C=np.eye(1), V=np.eye(1))
+    heat = stl.mk_lbs(
+        A=np.array([[0.95]]), B=np.array([[0.5]]), W=np.array([[0.05]]), C=np.eye(1), V=np.eye(1)
+    )
     rest = stl.mk_lbs(
         A=np.array([[0.95]]), B=np.array([[0.05]]), W=np.array([[0.05]]), C=np.eye(1), V=0.05 * np.eye(1)
     )
@@ -247,7 +253,12 @@ def thermal_dark() -> stl.Problem:
     x, u = stl.mk_variable(1, float), stl.mk_variable(1, float)
     sensor = HeaterSensor()
     mode = stl.mk_lbs(
-        A=np.array([[0.95]]), B=np.array([[0.5]]), W=np.array([[0.02]]), C=np.eye(1), V=sensor, V_floor=sensor.b
+        A=np.array([[0.95]]),
+        B=np.array([[0.5]]),
+        W=np.array([[0.02]]),
+        C=np.eye(1),
+        V=sensor,
+        V_floor=sensor.b,
     )
     goal = stl.logical_and(_p(x[0] >= 2.7, 0.9), _p(x[0] <= 3.3, 0.9), name="warm")
     return stl.Problem(
@@ -277,7 +288,9 @@ def one_d_spot_tight() -> stl.Problem:
     """The issue's 1-D problem with a narrower goal ``[5.85, 6.15]`` at 95%, held 3 steps."""
     x, u = stl.mk_variable(1, float), stl.mk_variable(1, float)
     sensor = SpotSensor()
-    mode = stl.mk_lbs(A=np.eye(1), B=np.eye(1), W=np.zeros((1, 1)), C=np.eye(1), V=sensor, V_floor=sensor.good)
+    mode = stl.mk_lbs(
+        A=np.eye(1), B=np.eye(1), W=np.zeros((1, 1)), C=np.eye(1), V=sensor, V_floor=sensor.good
+    )
     goal = _box(x, [5.85], [6.15], 0.95, "goal")
     return stl.Problem(
         switched_system=stl.mk_switched_sys([mode]),

@@ -101,7 +101,7 @@ def test_prediction_matches_monte_carlo_of_the_executor():
 
 def test_mlo_plan_breaks_its_promise_and_closed_loop_keeps_it():
     problem = _hold_problem(0.3)
-    mlo = problem.solve_result(seed=0, time_limit=30)
+    mlo = problem.solve_result(seed=0, time_limit=30, guarantee="mlo")
     assert mlo.found and mlo.guarantee == "mlo" and mlo.predicted is None
     system, domain, formula = problem.switched_system, problem.control_domain, problem.stl_formula
     # The MLO plan is fine for its own semantics but its executed true state is not.
@@ -137,7 +137,7 @@ def test_closed_loop_check_screens_an_untrackable_plan_with_the_gaussian_closure
     monkeypatch.setattr(teacher, "predicted_state", spy)
     for half_width, passes in ((0.3, False), (1.2, True)):
         problem = _hold_problem(half_width)
-        plan = problem.solve_result(seed=0, time_limit=30).trajectory
+        plan = problem.solve_result(seed=0, time_limit=30, guarantee="mlo").trajectory
         system, domain, formula = problem.switched_system, problem.control_domain, problem.stl_formula
         gaussian = stl.robustness(real(system, plan, domain), formula)
         particles = stl.robustness(real(system, plan, domain, closure="particles"), formula)
@@ -188,7 +188,7 @@ def test_infeasible_stays_a_proof_under_constant_noise():
 
 def test_infeasible_is_not_claimed_under_state_dependent_noise():
     problem = scenarios.light_dark(deadline=2, hold=1)  # the target is out of reach
-    mlo = problem.solve_result(seed=0, time_limit=30)
+    mlo = problem.solve_result(seed=0, time_limit=30, guarantee="mlo")
     assert mlo.status == "infeasible"
     cl = problem.solve_result(seed=0, time_limit=30, guarantee="closed_loop")
     assert cl.status == "budget_exhausted"

@@ -24,6 +24,7 @@ from .dynamical_system import (
 )
 from .errors import (
     DimensionError,
+    ExecutionTargetWarning,
     IdstlpyError,
     InvalidArgumentError,
     InvalidTypeError,
@@ -196,4 +197,5 @@ __all__ = [
     "OutOfRangeError",
     "NoiseFunctionError",
     "ProblemFileError",
+    "ExecutionTargetWarning",
 ]

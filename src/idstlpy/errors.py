@@ -15,6 +15,7 @@ __all__ = [
     "OutOfRangeError",
     "NoiseFunctionError",
     "ProblemFileError",
+    "ExecutionTargetWarning",
 ]
 
 
@@ -44,3 +45,12 @@ class NoiseFunctionError(InvalidArgumentError):
 
 class ProblemFileError(InvalidArgumentError):
     """A problem file is malformed; the message names the file, line and field."""
+
+
+class ExecutionTargetWarning(UserWarning):
+    """A returned plan's predicted execution falls short of its execution target.
+
+    Issued with :func:`warnings.warn` (so a plain script shows it) when a solve can only return
+    a plan whose predicted success (executed belief or true state) is below
+    ``SolverOptions.execution_target``; the result says so too (``meets_target`` is False).
+    """

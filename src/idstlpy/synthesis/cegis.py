@@ -15,6 +15,17 @@ The loop orchestrates typed parts (:mod:`.interfaces`) and decides nothing itsel
 5. On an LP-exact single-mode problem whose lazy loop has not converged after
    ``lazy_candidates`` candidates, the eager MILP (:mod:`.milp`) chooses the discrete plan.
 
+With ``guarantee="execution"`` (the default) a plan that passes the monitor must also meet the
+execution target: its predicted execution (:func:`idstlpy.executor.predict.predict_closed_loop`,
+the true start drawn from the prior) reaches ``options.execution_target`` on both readings
+(:func:`_hold`). A plan below target gets the closed-loop repair (:func:`_certify`) and is
+predicted again; one still below target is set aside (the best is kept) and the search goes on
+for at most :data:`BELOW_TARGET_EXTRA` times the candidates it took, at least
+:data:`BELOW_TARGET_MIN` more. If no plan meets the target by then (or another budget ends the
+search), the best plan set aside is returned ``found`` with ``meets_target`` False, the reason
+says so and an :class:`~idstlpy.errors.ExecutionTargetWarning` is issued. Every found result,
+under every guarantee, carries its predicted execution (``SolveResult.execution``).
+
 With ``guarantee="closed_loop"`` the monitor verifies the true state predicted under the executor
 (:func:`idstlpy.closed_loop.predicted_state`) instead of the MLO belief, and a plan that fails it
 is first repaired (:func:`_certify`). An MLO refutation stays a proof under constant sensor noise
@@ -38,6 +49,8 @@ import numpy as np
 
 from ..backends import get_backend
 from ..belief import rollout
+from ..errors import ExecutionTargetWarning, IdstlpyError
+from ..executor.predict import predict_closed_loop
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -50,7 +63,7 @@ from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness, trajectory_plan
 from .plan_lp import Scaling
 from .proposer import BMCProposer
-from .results import SolveResult, SolveStats, Status
+from .results import PredictedExecution, SolveResult, SolveStats, Status
 from .sampler import SamplerTeacher
 from .teacher import (
     TIGHTEN,
@@ -65,6 +78,15 @@ from .teacher import (
 __all__ = ["synthesize"]
 
 logger = logging.getLogger(__name__)
+
+PREDICT_SAMPLES = 1000
+"""Model samples (and particles of the particle closure) of each predicted execution: the
+estimates' standard error is at most 1.6 points, 0.7 near a 95% rate."""
+BELOW_TARGET_EXTRA = 2.0
+"""Under ``guarantee="execution"``, after the first verified plan below target (found after ``c``
+candidates) the search goes on for at most ``BELOW_TARGET_EXTRA * c`` more candidates ..."""
+BELOW_TARGET_MIN = 20
+"""... and at least this many (a work budget: the same seed gives the same plan)."""
 
 
 def _input_scale(system: Any, domain: Any, units: Scaling) -> np.ndarray | None:
@@ -103,6 +125,12 @@ class _Run:
         self.formula = problem.stl_formula
         self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
         self.closed_loop = options.guarantee == "closed_loop"
+        self.execution = options.guarantee == "execution"
+        # Under "execution": the best verified plan below target so far, and the candidate count
+        # at which the search stops looking for one that meets it.
+        self.below: Verified | None = None
+        self.below_until: int | None = None
+        self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
         system = problem.switched_system
         self._units: Scaling | None = None  # the loop's (use_units), else computed when asked
         # Under closed_loop, MLO proofs carry over only when the filter covariance is the MLO one.
@@ -122,6 +150,14 @@ class _Run:
         predicted: ProbabilisticTSTrajectory | None = None,
     ) -> SolveResult:
         stats = self.stats
+        if status != "found" and self.below is not None:
+            # Under "execution": no plan met the target, but a verified one was set aside.
+            below = self.below
+            reason = (
+                f"no plan met the execution target {self.options.execution_target} before the search "
+                f"stopped ({reason}); the best verified plan is returned, predicted below target"
+            )
+            status, traj, margin, predicted = "found", below.traj, below.margin, below.predicted
         stats.time_total = self.budget.elapsed()
         if status == "infeasible" and not self.proofs_hold:
             status = "budget_exhausted"
@@ -137,6 +173,21 @@ class _Run:
             reason += f"; {advice}" if advice else ""
         if status != "found" and "time_limit" in stats.caps_hit:
             reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
+        execution = None
+        if status == "found" and traj is not None:
+            execution = self.predict(traj)
+            if not execution.meets_target:
+                warnings.warn(
+                    ExecutionTargetWarning(
+                        f"the returned plan falls short of the execution target {execution.target}: "
+                        f"predicted to hold for the executed belief in "
+                        f"{100 * execution.belief_estimate:.1f}% and for the true state in "
+                        f"{100 * execution.state_estimate:.1f}% of executions "
+                        f"(guarantee={self.options.guarantee!r}); see result.execution"
+                    ),
+                    stacklevel=4,
+                )
+            stats.time_total = self.budget.elapsed()
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
         closest = None
         if status == "budget_exhausted" and self.closest is not None:
@@ -152,6 +203,7 @@ class _Run:
             guarantee=self.options.guarantee,
             predicted=predicted,
             closest=closest,
+            execution=execution,
         )
 
     def use_units(self, scaling: Scaling) -> None:
@@ -168,6 +220,51 @@ class _Run:
             abstraction = Abstraction(problem.stl_formula, system.n)
             self._units = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
         return self._units
+
+    def predict(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
+        """The plan's predicted execution against the target (the last one is remembered).
+
+        The planner's reading of the execution: the true start drawn from the prior, the
+        model's noise, the modes' tracking gains, inputs clipped to the control domain. A
+        prediction that cannot be made (a diverging loop) counts as below target (NaN rates).
+        """
+        if self._predicted is not None and self._predicted[0] is traj:
+            return self._predicted[1]
+        problem, stats = self.problem, self.stats
+        target = self.options.execution_target
+        with stats.clock("time_prediction"):
+            try:
+                pred = predict_closed_loop(
+                    problem,
+                    traj,
+                    real_initial_cov=problem.initial_state.cov,
+                    samples=PREDICT_SAMPLES,
+                    particles=PREDICT_SAMPLES,
+                    seed=0,
+                )
+                out = PredictedExecution.from_prediction(pred, target)
+            except IdstlpyError as exc:
+                logger.info("the plan's execution could not be predicted: %s", exc)
+                nan = float("nan")
+                out = PredictedExecution(nan, nan, nan, nan, {}, target)
+        stats.predictions += 1
+        self._predicted = (traj, out)
+        return out
+
+    def set_aside(self, checked: Verified) -> None:
+        """Keep a verified plan below target if it is the best so far; start the extra search."""
+        stats = self.stats
+        stats.below_target += 1
+        ex = checked.execution
+        if self.below is None or (
+            ex is not None
+            and self.below.execution is not None
+            and ex.shortfall < self.below.execution.shortfall
+        ):
+            self.below = checked
+        if self.below_until is None:
+            c = stats.candidates
+            self.below_until = c + max(BELOW_TARGET_MIN, int(np.ceil(BELOW_TARGET_EXTRA * c)))
 
     def counts(self) -> str:
         s = self.stats
@@ -253,6 +350,12 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 return run.done(
                     "budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}"
                 )
+            if run.below_until is not None and stats.candidates >= run.below_until:
+                return run.done(
+                    "budget_exhausted",
+                    f"{stats.candidates - stats.below_target} candidates after the first plan below target; "
+                    f"{run.counts()}",
+                )
             if eager and switch_to_eager(
                 proposer.hard, stats.candidates, lazy_budget, options.lazy_conflict_size
             ):
@@ -286,6 +389,7 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 logger.debug("candidate %d refuted: %s", stats.candidates, verdict.conflict.proof)
                 continue
             if isinstance(verdict, Found):
+                set_aside = stats.below_target
                 checked = _verify(run, verdict.actions, verdict.controls, abstraction, scaling)
                 if checked is not None:
                     found = run.done(
@@ -300,6 +404,8 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 why = (
                     "the plan's predicted closed loop failed the monitor, even repaired"
                     if run.closed_loop
+                    else "the plan's predicted execution is below the execution target, even repaired"
+                    if stats.below_target > set_aside
                     else "the plan failed the monitor's exact re-check"
                 )
             else:
@@ -380,6 +486,9 @@ def _optimise(
         stats.caps_hit.append("time_limit")
         how += " (the time limit stopped the optimisation: the best plan so far)"
     final = _check(run, traj)
+    if final is not None and run.execution and traj is not found.trajectory:
+        if found.meets_target and not run.predict(traj).meets_target:
+            final = None  # the optimised plan lost the execution target the first plan met
     if final is None:
         # The optimiser works on the MLO belief; its plan may lose the closed-loop promise the
         # first plan had: keep that one.
@@ -641,6 +750,7 @@ class Verified(NamedTuple):
     traj: ProbabilisticTSTrajectory
     margin: float
     predicted: ProbabilisticTSTrajectory | None
+    execution: PredictedExecution | None = None
 
 
 def _check(run: _Run, traj: ProbabilisticTSTrajectory | None) -> Verified | None:
@@ -755,7 +865,40 @@ def _verify(
             "candidate failed the final re-check (monitor margin %.3g)",
             robustness(traj, problem.stl_formula),
         )
+    if checked is not None and run.execution:
+        return _hold(run, checked, abstraction, scaling)
     return checked
+
+
+def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scaling) -> Verified | None:
+    """Under ``guarantee="execution"``: the verified plan if its predicted execution meets the
+    target, else its closed-loop repair (:func:`_certify`) if that keeps the paper's semantics and
+    meets it; otherwise the better of the two is set aside (:meth:`_Run.set_aside`) and None
+    returned (the candidate is abandoned, the search goes on)."""
+    execution = run.predict(checked.traj)
+    checked = checked._replace(execution=execution)
+    if execution.meets_target:
+        return checked
+    logger.info("verified plan below the execution target (%s): repairing", execution.summary())
+    room = run.stats.execution_room
+    try:
+        repaired = _certify(run, checked.traj, abstraction, scaling)
+    finally:
+        run.stats.execution_room = room
+    best = checked
+    if repaired is not None:
+        margin = robustness(repaired.traj, run.formula)
+        if margin >= 0:  # the repair keeps the MLO semantics (it should: its covariances are larger)
+            ex = run.predict(repaired.traj)
+            fixed = Verified(repaired.traj, margin, None, ex)
+            if ex.meets_target:
+                logger.info("the closed-loop repair meets the execution target (%s)", ex.summary())
+                return fixed
+            if ex.shortfall < execution.shortfall:
+                best = fixed
+    logger.info("plan set aside below the execution target: %s", (best.execution or execution).summary())
+    run.set_aside(best)
+    return None
 
 
 def _certify(

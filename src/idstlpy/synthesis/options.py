@@ -17,8 +17,12 @@ import numpy as np
 from .._checks import as_float, as_int
 from ..backends import available_backends, default_milp_backend
 from ..errors import InvalidArgumentError, InvalidTypeError, OutOfRangeError
+from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 
-__all__ = ["ITERATIONS_PER_SECOND", "SolverOptions"]
+__all__ = ["GUARANTEES", "ITERATIONS_PER_SECOND", "SolverOptions"]
+
+GUARANTEES = ("execution", "mlo", "closed_loop")
+"""The values of :attr:`SolverOptions.guarantee` (the first is the default)."""
 
 ITERATIONS_PER_SECOND = 250
 """Sampler iterations per second of ``rrt_timeout`` when ``sampler_iterations`` is not given.
@@ -116,13 +120,27 @@ class SolverOptions:
         :mod:`idstlpy.synthesis.objectives`).
     effort_weights : sequence of float, optional
         Per-input weights ``w`` of ``"effort"`` (default ones), length ``m``.
-    guarantee : {"mlo", "closed_loop"}
-        What the chance constraints constrain. ``"mlo"`` (the paper's semantics): the belief
-        under the maximum-likelihood observation. ``"closed_loop"``: the true state predicted
-        under the executor (LQR tracking with the modes' gains and a Kalman filter, inputs
-        projected on the control domain; :func:`idstlpy.closed_loop.predicted_state`). The
-        returned plan is still the MLO belief trajectory the executor tracks; the result's
-        ``predicted`` holds the distribution that was verified.
+    guarantee : {"execution", "mlo", "closed_loop"}
+        What the chance constraints constrain and what a returned plan promises.
+        ``"execution"`` (the default): the plan satisfies the formula under the paper's (MLO)
+        semantics *and* its predicted execution (:func:`idstlpy.executor.predict.predict_closed_loop`:
+        the Kalman filter, the modes' LQR tracking, inputs clipped to the control domain, the true
+        start drawn from the prior, the model's noise) meets ``execution_target`` on both
+        readings (the executed belief satisfies the formula; the true states satisfy its
+        deterministic reading). A candidate predicted below target is repaired (the closed-loop
+        repair of ``"closed_loop"``) or set aside while the search goes on; if only a plan below
+        target can be returned, ``SolveResult.meets_target`` is False and an
+        :class:`~idstlpy.errors.ExecutionTargetWarning` is issued. ``"mlo"``: the paper's
+        semantics only (the belief under the maximum-likelihood observation).
+        ``"closed_loop"``: the true state predicted under the executor
+        (:func:`idstlpy.closed_loop.predicted_state`). The returned plan is always the MLO belief
+        trajectory the executor tracks; under ``"closed_loop"`` the result's ``predicted`` holds
+        the distribution that was verified.
+    execution_target : ExecutionTarget, (belief, state) pair, mapping or None
+        Least predicted success rates of the execution (:class:`~idstlpy.execution_target.ExecutionTarget`);
+        default 90% belief / 95% true state. The search is held to it under
+        ``guarantee="execution"``; under every guarantee a found result says whether its plan
+        meets it (``SolveResult.meets_target``).
     sat_backend : str
         python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
     lp_backend, milp_backend : str
@@ -151,7 +169,8 @@ class SolverOptions:
     shortcut_checks: int = 24
     objective: str | None = None
     effort_weights: tuple[float, ...] | None = None
-    guarantee: str = "mlo"
+    guarantee: str = "execution"
+    execution_target: ExecutionTarget = DEFAULT_EXECUTION_TARGET
     sat_backend: str = "cadical195"
     lp_backend: str = "highs"
     milp_backend: str = "auto"
@@ -192,7 +211,8 @@ class SolverOptions:
             if not w or not all(math.isfinite(v) and v >= 0 for v in w):
                 raise InvalidArgumentError(f"effort_weights must be finite and >= 0, got {list(w)}")
             put(self, "effort_weights", w)
-        put(self, "guarantee", _name(self.guarantee, "guarantee", ("mlo", "closed_loop")))
+        put(self, "guarantee", _name(self.guarantee, "guarantee", GUARANTEES))
+        put(self, "execution_target", as_execution_target(self.execution_target, "execution_target"))
         put(self, "sat_backend", _name(self.sat_backend, "sat_backend", tuple(sat_backends())))
         put(self, "lp_backend", _name(self.lp_backend, "lp_backend", tuple(available_backends())))
         if self.milp_backend == "auto":

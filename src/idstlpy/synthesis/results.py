@@ -20,9 +20,12 @@ import numpy as np
 
 from .._version import software_info
 from ..errors import InvalidArgumentError
+from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 from ..trajectory import ProbabilisticTSTrajectory
 
-__all__ = ["RESULT_SCHEMA", "SolveResult", "SolveStats", "Status", "load_result"]
+__all__ = ["RESULT_SCHEMA", "PredictedExecution", "SolveResult", "SolveStats", "Status", "load_result"]
+
+GUARANTEE_NAMES = ("execution", "mlo", "closed_loop")
 
 Status = Literal["found", "infeasible", "budget_exhausted"]
 STATUSES: tuple[str, ...] = ("found", "infeasible", "budget_exhausted")
@@ -75,6 +78,13 @@ class SolveStats:
         (a warning is logged). ``None`` where it was not computed: noise-free problems, plans
         the sampler's polish and the objective's refiner did not see (the LP and MILP paths),
         and ``guarantee="closed_loop"``, whose promise is the predicted true state itself.
+    predictions : int
+        Predicted executions of plans (:func:`idstlpy.executor.predict.predict_closed_loop`).
+    below_target : int
+        Verified plans set aside under ``guarantee="execution"`` because their predicted
+        execution (after repair) fell short of the execution target.
+    time_prediction : float
+        Seconds spent predicting executions (measured, never used to decide the search).
     """
 
     candidates: int = 0
@@ -97,6 +107,9 @@ class SolveStats:
     caps_hit: list[str] = field(default_factory=list)
     improvements: list[tuple[float, float]] = field(default_factory=list)
     execution_room: float | None = None
+    predictions: int = 0
+    below_target: int = 0
+    time_prediction: float = 0.0
 
     @contextmanager
     def clock(self, name: str) -> Iterator[None]:
@@ -146,6 +159,154 @@ def _finite_or_none(x: float) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+@dataclass(frozen=True)
+class PredictedExecution:
+    """The predicted execution of a returned plan, and whether it meets the execution target.
+
+    Read off :func:`idstlpy.executor.predict.predict_closed_loop` under the planner's reading of
+    the execution: the Kalman filter and the modes' LQR tracking (their gains at solve time),
+    inputs clipped to the control domain, the true start drawn from the prior, the model's noise.
+
+    Parameters
+    ----------
+    belief_estimate, state_estimate : float
+        Predicted probability that the executed belief satisfies the formula / that the true
+        states satisfy its deterministic reading (sampled from the predicted loop).
+    belief_bound, state_bound : float
+        Lower bounds on the same probabilities (sound for the linear-Gaussian model; under the
+        particle closure capped by a 99.9% Clopper-Pearson bound of the samples).
+    proposition_violation : dict
+        Per atomic proposition, ``{"belief": p, "state": p}``: predicted probability that it is
+        broken at some step the plan promises it.
+    target : ExecutionTarget
+        The target the rates were held to.
+    samples : int
+        Model samples behind the estimates.
+    closure : str
+        ``"gaussian"`` or ``"particles"`` (how the loop's non-linearities were modelled).
+    """
+
+    belief_estimate: float
+    state_estimate: float
+    belief_bound: float
+    state_bound: float
+    proposition_violation: dict[str, dict[str, float]] = field(default_factory=dict)
+    target: ExecutionTarget = DEFAULT_EXECUTION_TARGET
+    samples: int = 0
+    closure: str = "gaussian"
+
+    @classmethod
+    def from_prediction(cls, prediction: Any, target: ExecutionTarget) -> PredictedExecution:
+        """Summarise a :class:`~idstlpy.executor.predict.ClosedLoopPrediction` against ``target``.
+
+        Parameters
+        ----------
+        prediction : ClosedLoopPrediction
+            A prediction made with a formula and samples.
+        target : ExecutionTarget
+
+        Returns
+        -------
+        PredictedExecution
+        """
+        return cls(
+            float(prediction.belief_success_estimate),
+            float(prediction.state_success_estimate),
+            float(prediction.belief_success_bound),
+            float(prediction.state_success_bound),
+            {k: {r: float(v) for r, v in d.items()} for k, d in prediction.proposition_violation.items()},
+            target,
+            int(prediction.samples),
+            str(prediction.closure),
+        )
+
+    @property
+    def meets_target(self) -> bool:
+        """Whether both predicted success estimates reach the target (NaN never does)."""
+        return self.target.met_by(self.belief_estimate, self.state_estimate) and not (
+            math.isnan(self.belief_estimate) or math.isnan(self.state_estimate)
+        )
+
+    @property
+    def shortfall(self) -> float:
+        """The larger shortfall of the two estimates below the target (0 when met; 1 for NaN)."""
+        gaps = [
+            1.0 if math.isnan(rate) else max(0.0, bar - rate)
+            for rate, bar in (
+                (self.belief_estimate, self.target.belief),
+                (self.state_estimate, self.target.state),
+            )
+        ]
+        return max(gaps)
+
+    def summary(self) -> str:
+        """One line: predicted rates, bounds and the verdict against the target."""
+        verdict = "meets" if self.meets_target else "BELOW"
+        return (
+            f"predicted execution: belief {_pct(self.belief_estimate)} (>= {_pct(self.belief_bound)}), "
+            f"true state {_pct(self.state_estimate)} (>= {_pct(self.state_bound)}); {verdict} the target "
+            f"{self.target}"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data (NaN becomes ``None``)."""
+        return {
+            "belief_estimate": _finite_or_none(self.belief_estimate),
+            "state_estimate": _finite_or_none(self.state_estimate),
+            "belief_bound": _finite_or_none(self.belief_bound),
+            "state_bound": _finite_or_none(self.state_bound),
+            "proposition_violation": {
+                k: {r: _finite_or_none(v) for r, v in d.items()}
+                for k, d in self.proposition_violation.items()
+            },
+            "target": self.target.as_dict(),
+            "samples": self.samples,
+            "closure": self.closure,
+            "meets_target": self.meets_target,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> PredictedExecution:
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : dict
+
+        Returns
+        -------
+        PredictedExecution
+
+        Raises
+        ------
+        InvalidArgumentError
+            When ``data`` is not a mapping.
+        """
+        if not isinstance(data, dict):
+            raise InvalidArgumentError(f"execution must be a mapping, got {type(data).__name__}")
+
+        def num(v: Any) -> float:
+            return float("nan") if v is None else float(v)
+
+        return cls(
+            num(data.get("belief_estimate")),
+            num(data.get("state_estimate")),
+            num(data.get("belief_bound")),
+            num(data.get("state_bound")),
+            {
+                str(k): {str(r): num(v) for r, v in d.items()}
+                for k, d in dict(data.get("proposition_violation") or {}).items()
+            },
+            as_execution_target(data.get("target"), "execution.target"),
+            int(data.get("samples", 0)),
+            str(data.get("closure", "gaussian")),
+        )
+
+
+def _pct(rate: float) -> str:
+    return "nan" if math.isnan(rate) else f"{100.0 * rate:.1f}%"
+
+
 @dataclass
 class SolveResult:
     """Outcome of :meth:`Problem.solve_result`.
@@ -183,9 +344,10 @@ class SolveResult:
         stated, no execution margin), ``"plans of at most N steps"`` (the same under
         ``max_plan_length``), ``"shortest first"`` (time: every shorter candidate was refuted by
         a proof) or ``""``.
-    guarantee : {"mlo", "closed_loop"}
+    guarantee : {"execution", "mlo", "closed_loop"}
         What ``margin`` and the verification are about: the MLO belief trajectory (the paper's
-        semantics) or the true state predicted under the executor (``predicted``).
+        semantics; under ``"execution"`` with the predicted execution held to the target) or
+        the true state predicted under the executor (``predicted``).
     predicted : ProbabilisticTSTrajectory or None
         With ``guarantee="closed_loop"``: the predicted true-state distribution (means
         (N + 1, n), covariances (N + 1, n, n)) on which the monitor verified the formula.
@@ -197,6 +359,10 @@ class SolveResult:
         Which code made the result: ``{"idstlpy": version, "commit": git commit or None,
         "python", "numpy", "platform"}`` (by default the running code's; a loaded result keeps
         the one it was saved with). The JSON field ``software``.
+    execution : PredictedExecution or None
+        Every found plan's predicted execution (success estimates and lower bounds for the
+        executed belief and the true state, per-proposition violation rates) against the
+        execution target; None without a plan.
 
     Notes
     -----
@@ -216,10 +382,11 @@ class SolveResult:
     objective_bound: float = float("nan")
     optimal: bool = False
     optimal_scope: str = ""
-    guarantee: str = "mlo"
+    guarantee: str = "execution"
     predicted: ProbabilisticTSTrajectory | None = None
     software: dict[str, str | None] = field(default_factory=software_info)
     closest: ProbabilisticTSTrajectory | None = None
+    execution: PredictedExecution | None = None
 
     @property
     def plan(self) -> ProbabilisticTSTrajectory | None:
@@ -240,6 +407,16 @@ class SolveResult:
         if not isinstance(other, SolveResult):
             return NotImplemented
         return all(_same(getattr(self, f.name), getattr(other, f.name)) for f in fields(self))
+
+    @property
+    def meets_target(self) -> bool | None:
+        """Whether the plan's predicted execution meets the execution target (None without one).
+
+        False means the plan is predicted to hold less often than asked: under
+        ``guarantee="execution"`` the solver found no plan that meets it within its budget
+        (an :class:`~idstlpy.errors.ExecutionTargetWarning` was issued).
+        """
+        return None if self.execution is None else self.execution.meets_target
 
     @property
     def gap(self) -> float:
@@ -264,8 +441,15 @@ class SolveResult:
         obj = ""
         if self.objective is not None:
             obj = f", {self.objective}={self.objective_value:.4g}" + (" (optimal)" if self.optimal else "")
+        ex = ""
+        if self.execution is not None:
+            e = self.execution
+            ex = (
+                f", predicted belief/state={_pct(e.belief_estimate)}/{_pct(e.state_estimate)}"
+                f" ({'meets' if e.meets_target else 'BELOW'} target)"
+            )
         return (
-            f"SolveResult(status={self.status!r}{steps}, margin={self.margin:.3g}{obj}, "
+            f"SolveResult(status={self.status!r}{steps}, margin={self.margin:.3g}{obj}{ex}, "
             f"time={self.stats.time_total:.3g} s, reason={self.reason!r})"
         )
 
@@ -289,6 +473,7 @@ class SolveResult:
             "predicted": None if self.predicted is None else _trajectory_to_dict(self.predicted),
             "software": dict(self.software),
             "closest": None if self.closest is None else _trajectory_to_dict(self.closest),
+            "execution": None if self.execution is None else self.execution.to_dict(),
         }
 
     @classmethod
@@ -328,8 +513,11 @@ class SolveResult:
         traj = None if plan is None else _trajectory_from_dict(plan)
         pred = data.get("predicted")
         guarantee = str(data.get("guarantee", "mlo"))
-        if guarantee not in ("mlo", "closed_loop"):
-            raise InvalidArgumentError(f"guarantee must be 'mlo' or 'closed_loop', got {guarantee!r}")
+        if guarantee not in GUARANTEE_NAMES:
+            raise InvalidArgumentError(
+                f"guarantee must be one of {', '.join(GUARANTEE_NAMES)}, got {guarantee!r}"
+            )
+        execution = data.get("execution")
 
         def num(key: str) -> float:
             v = data.get(key)
@@ -351,6 +539,7 @@ class SolveResult:
             None if pred is None else _trajectory_from_dict(pred),
             _software_from(data.get("software")),
             closest=None if data.get("closest") is None else _trajectory_from_dict(data["closest"]),
+            execution=None if execution is None else PredictedExecution.from_dict(execution),
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -416,6 +605,8 @@ def _same(a: Any, b: Any) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         x, y = np.asarray(a), np.asarray(b)
         return x.shape == y.shape and bool(np.array_equal(x, y, equal_nan=x.dtype.kind == "f"))
+    if isinstance(a, PredictedExecution) and isinstance(b, PredictedExecution):
+        return a.to_dict() == b.to_dict()
     if isinstance(a, SolveStats) and isinstance(b, SolveStats):
         return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a))
     if isinstance(a, list | tuple) and isinstance(b, list | tuple):
