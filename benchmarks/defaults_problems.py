@@ -3,7 +3,7 @@
 Every builder returns a :class:`idstlpy.Problem` written with the public API only. The issue's
 four problems come first (``ISSUE``), then ten of our own (``OWN``); ``PROBLEMS`` maps every name
 to its builder. Choices the issue leaves open are stated in each docstring (control domains of
-``|u_i| <= 1``, the second two-mode problem's free space ``[-1, 5] x [-2, 2]`` at 99%).
+``|u_i| <= 1``, the second two-mode problem's free space ``[-2, 5] x [-2, 2]`` at 99%).
 """
 
 from __future__ import annotations
@@ -122,12 +122,13 @@ def drive_look_noisy() -> stl.Problem:
 def drive_sense() -> stl.Problem:
     """drive (``B = 0.25 I``, ``W = 0.01 I``, no sensor) or sense (``B = 0.05 I``, ``C = I``,
     ``V = 0.1 I``), prior ``N(0, 0.2 I)``, ``|u_i| <= 1``, ``free U[0,60] G[0,10] tgt``: free
-    ``[-1, 5] x [-2, 2]`` at 99%, tgt the sense mode and the 0.5 x 0.5 box at (3, 0) at 95%."""
+    ``[-2, 5] x [-2, 2]`` at 99% (the issue does not give it; ``x >= -1`` at 99% fails at the
+    prior), tgt the sense mode and the 0.5 x 0.5 box at (3, 0) at 95%."""
     x, u = stl.mk_variable(2, float), stl.mk_variable(2, float)
     q = stl.mk_variable(2, int)
     drive = stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.01 * np.eye(2))
     sense = stl.mk_lbs(A=np.eye(2), B=0.05 * np.eye(2), W=0.01 * np.eye(2), C=np.eye(2), V=0.1 * np.eye(2))
-    free = _box(x, [-1, -2], [5, 2], 0.99, "free")
+    free = _box(x, [-2, -2], [5, 2], 0.99, "free")
     tgt = _box(x, [2.75, -0.25], [3.25, 0.25], 0.95, "tgt", extra=[q == 1])
     return stl.Problem(
         switched_system=stl.mk_switched_sys([drive, sense]),

@@ -398,10 +398,29 @@ def _single(args: argparse.Namespace, kind: str) -> int:
         label = f"{verb} {spec.name} (seed {seed})"
     records = _run(args, [job], label)
     record = records[0]
+    _print_execution(record)
     _print_verdict(record)
     if figure is not None:
         _figure(spec, record, figure)
     return exit_status(records)
+
+
+def _print_execution(record: Mapping[str, Any]) -> None:
+    """The found plan's predicted execution against the execution target (every solve)."""
+    ex = record.get("execution")
+    if not isinstance(ex, Mapping):
+        return
+
+    def pct(v: Any) -> str:
+        return "n/a" if v is None else f"{100 * float(v):.1f}%"
+
+    target = ex.get("target") or {}
+    verdict = "meets" if ex.get("meets_target") else "BELOW"
+    print(
+        f"predicted execution: belief {pct(ex.get('belief_estimate'))} (>= {pct(ex.get('belief_bound'))}), "
+        f"true state {pct(ex.get('state_estimate'))} (>= {pct(ex.get('state_bound'))}); {verdict} the "
+        f"target {pct(target.get('belief'))} / {pct(target.get('state'))}"
+    )
 
 
 def _print_verdict(record: Mapping[str, Any]) -> None:

@@ -85,8 +85,11 @@ estimates' standard error is at most 1.6 points, 0.7 near a 95% rate."""
 BELOW_TARGET_EXTRA = 2.0
 """Under ``guarantee="execution"``, after the first verified plan below target (found after ``c``
 candidates) the search goes on for at most ``BELOW_TARGET_EXTRA * c`` more candidates ..."""
-BELOW_TARGET_MIN = 20
-"""... and at least this many (a work budget: the same seed gives the same plan)."""
+BELOW_TARGET_MIN = 200
+"""... and at least this many (a work budget: the same seed gives the same plan). From then on
+the plan LP's mode search (issue 24) is off: it scores modes on the MLO plan LP, and maps the
+proposer's mode sequences back to the plan just set aside (a "look on the last step"); the
+proposer's own enumeration of mode sequences is what finds plans that hold when executed."""
 
 
 def _input_scale(system: Any, domain: Any, units: Scaling) -> np.ndarray | None:
@@ -131,6 +134,7 @@ class _Run:
         self.below: Verified | None = None
         self.below_until: int | None = None
         self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
+        self.unrepaired: set[tuple[int, ...]] = set()  # mode sequences whose repair fell short
         system = problem.switched_system
         self._units: Scaling | None = None  # the loop's (use_units), else computed when asked
         # Under closed_loop, MLO proofs carry over only when the filter covariance is the MLO one.
@@ -352,9 +356,7 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 )
             if run.below_until is not None and stats.candidates >= run.below_until:
                 return run.done(
-                    "budget_exhausted",
-                    f"{stats.candidates - stats.below_target} candidates after the first plan below target; "
-                    f"{run.counts()}",
+                    "budget_exhausted", f"the search budget after a plan below target; {run.counts()}"
                 )
             if eager and switch_to_eager(
                 proposer.hard, stats.candidates, lazy_budget, options.lazy_conflict_size
@@ -391,6 +393,10 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
             if isinstance(verdict, Found):
                 set_aside = stats.below_target
                 checked = _verify(run, verdict.actions, verdict.controls, abstraction, scaling)
+                if stats.below_target > set_aside:
+                    for teacher in teachers:  # see BELOW_TARGET_MIN
+                        if isinstance(teacher, LPTeacher):
+                            teacher.mode_search = False
                 if checked is not None:
                     found = run.done(
                         "found",
@@ -404,7 +410,7 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
                 why = (
                     "the plan's predicted closed loop failed the monitor, even repaired"
                     if run.closed_loop
-                    else "the plan's predicted execution is below the execution target, even repaired"
+                    else "the plan's predicted execution is below the execution target (repair included)"
                     if stats.below_target > set_aside
                     else "the plan failed the monitor's exact re-check"
                 )
@@ -881,10 +887,13 @@ def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scali
         return checked
     logger.info("verified plan below the execution target (%s): repairing", execution.summary())
     room = run.stats.execution_room
-    try:
-        repaired = _certify(run, checked.traj, abstraction, scaling)
-    finally:
-        run.stats.execution_room = room
+    modes = tuple(int(a) for a in checked.traj.get_action())
+    repaired = None
+    if modes not in run.unrepaired:  # the repair keeps the modes: once per mode sequence
+        try:
+            repaired = _certify(run, checked.traj, abstraction, scaling)
+        finally:
+            run.stats.execution_room = room
     best = checked
     if repaired is not None:
         margin = robustness(repaired.traj, run.formula)
@@ -896,6 +905,7 @@ def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scali
                 return fixed
             if ex.shortfall < execution.shortfall:
                 best = fixed
+    run.unrepaired.add(modes)
     logger.info("plan set aside below the execution target: %s", (best.execution or execution).summary())
     run.set_aside(best)
     return None

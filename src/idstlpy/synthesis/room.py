@@ -568,7 +568,11 @@ def give_room(
         stats.lp_calls += 1
         out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling, time_limit=left)
         if out is not None:
-            moved = rollout(system, init, traj.get_action()[: plan.length - 1], out[0])
+            # The LP moves the witness's steps; the plan keeps its length (its callers pair the
+            # controls with the candidate's modes), later steps keep their inputs.
+            controls = np.array(traj.get_control(), dtype=float, copy=True)
+            controls[: plan.length - 1] = out[0]
+            moved = rollout(system, init, traj.get_action(), controls)
             if robustness(moved, formula) >= 0:
                 moved_plan = trajectory_plan(formula, abstraction, moved)
                 moved_room = None
