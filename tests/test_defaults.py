@@ -236,3 +236,21 @@ def test_predicted_execution_summary_and_shortfall():
     nan = PredictedExecution(float("nan"), 1.0, float("nan"), 1.0)
     assert not nan.meets_target and nan.shortfall == 1.0
     assert PredictedExecution.from_dict(ex.to_dict()) == ex
+
+
+def test_problem_files_take_the_execution_target(tmp_path):
+    from idstlpy.cli import main
+    from idstlpy.errors import ProblemFileError
+    from idstlpy.problem_file import apply_overrides, load_problem
+
+    path = tmp_path / "ra.toml"
+    assert main(["example", "reach-avoid", "--out", str(path)]) == 0
+    spec = apply_overrides(load_problem(path), {"solver.execution_target": {"belief": 0.5, "state": 0.6}})
+    _, solver, _ = spec.build()
+    assert stl.SolverOptions.make(**solver).execution_target == ExecutionTarget(0.5, 0.6)
+    with pytest.raises(ProblemFileError, match="execution_target"):
+        apply_overrides(
+            load_problem(path), {"solver.execution_target": {"belief": 2.0, "state": 0.6}}
+        ).build()
+    with pytest.raises(ProblemFileError, match="execution_target"):
+        apply_overrides(load_problem(path), {"solver.execution_target": "high"}).build()

@@ -476,6 +476,10 @@ class _Builder:
     def solver_value(self, path: FieldPath, v: Any, default: Any, type_text: str) -> Any:
         """A ``[solver]`` value checked against the type of its SolverOptions field."""
         words = set(type_text.replace("|", " ").replace("[", " ").replace("]", " ").replace(",", " ").split())
+        if "ExecutionTarget" in words:  # { belief = 0.9, state = 0.95 } or [0.9, 0.95]
+            if not (isinstance(v, dict) or (isinstance(v, list) and all(sc.is_number(x) for x in v))):
+                raise self.err(path, f"must be a table {{ belief = ..., state = ... }}, got {sc.kind_of(v)}")
+            return dict(v) if isinstance(v, dict) else tuple(float(x) for x in v)
         if words & {"tuple", "list", "Sequence"}:
             if not isinstance(v, list) or not all(sc.is_number(x) for x in v):
                 raise self.err(path, f"must be an array of numbers, got {sc.kind_of(v)}")
