@@ -38,7 +38,7 @@ OPTIONS = dict(
     min_num_of_steps=3,
     max_num_of_steps=15,
     seed=0,
-    time_limit=120,
+    time_limit=60,
 )
 
 

@@ -181,10 +181,11 @@ def _common(parser: argparse.ArgumentParser, single: bool) -> None:
         )
         parser.add_argument(
             "--guarantee",
-            choices=("mlo", "closed_loop"),
+            choices=("execution", "mlo", "closed_loop"),
             default=None,
-            help="what the chance constraints constrain: the MLO belief (the paper's semantics, default) "
-            "or the true state predicted under the executor (the same as --set solver.guarantee=...)",
+            help="what a plan promises: the paper's semantics and a predicted execution that meets the "
+            "execution target (execution, default), the paper's semantics only (mlo), or chance "
+            "constraints on the predicted true state (closed_loop); the same as --set solver.guarantee=...",
         )
 
 
@@ -261,7 +262,16 @@ def format_table(records: Sequence[Mapping[str, Any]]) -> str:
     -------
     str
     """
-    header = ["id", "status", "steps", "margin", "time [s]", "belief/state ok", "overrides / reason"]
+    header = [
+        "id",
+        "status",
+        "steps",
+        "margin",
+        "time [s]",
+        "predicted b/s",
+        "belief/state ok",
+        "overrides / reason",
+    ]
     rows = [header]
     for r in records:
         timing = r.get("timing") or {}
@@ -275,6 +285,12 @@ def format_table(records: Sequence[Mapping[str, Any]]) -> str:
                 vtext = f"{rates[0]:.2f}/{rates[1]:.2f}"
             else:
                 vtext = "done"
+        ex = r.get("execution")
+        ptext = "-"
+        if isinstance(ex, Mapping):
+            rates = [ex.get(k) for k in ("belief_estimate", "state_estimate")]
+            if all(isinstance(v, int | float) for v in rates):
+                ptext = f"{rates[0]:.2f}/{rates[1]:.2f}" + ("" if ex.get("meets_target") else " BELOW")
         problem = r.get("problem") or {}
         overrides = problem.get("overrides") or {}
         note = ", ".join(f"{k}={v}" for k, v in overrides.items())
@@ -291,6 +307,7 @@ def format_table(records: Sequence[Mapping[str, Any]]) -> str:
                 "-" if steps is None else str(steps),
                 f"{margin:.3g}" if isinstance(margin, int | float) else "-",
                 f"{solver_time:.2f}" if isinstance(solver_time, int | float) else "-",
+                ptext,
                 vtext,
                 _short(note, 60),
             ]

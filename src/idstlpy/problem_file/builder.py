@@ -477,6 +477,8 @@ class _Builder:
         """A ``[solver]`` value checked against the type of its SolverOptions field."""
         words = set(type_text.replace("|", " ").replace("[", " ").replace("]", " ").replace(",", " ").split())
         if "ExecutionTarget" in words:  # { belief = 0.9, state = 0.95 } or [0.9, 0.95]
+            if type(v).__name__ == "ExecutionTarget":  # an override given as the object itself
+                return v
             if not (isinstance(v, dict) or (isinstance(v, list) and all(sc.is_number(x) for x in v))):
                 raise self.err(path, f"must be a table {{ belief = ..., state = ... }}, got {sc.kind_of(v)}")
             return dict(v) if isinstance(v, dict) else tuple(float(x) for x in v)
