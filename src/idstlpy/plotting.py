@@ -714,6 +714,12 @@ def _annotate_still(ax: Any, points: np.ndarray) -> list[Any]:
                     textcoords="offset points",
                     fontsize="x-small",
                     zorder=8,
+                    bbox={
+                        "boxstyle": "round,pad=0.15",
+                        "facecolor": "white",
+                        "edgecolor": "none",
+                        "alpha": 0.7,
+                    },
                 )
             )
         k = k1
