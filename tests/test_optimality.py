@@ -177,7 +177,7 @@ def test_an_infeasibility_within_the_tolerance_is_no_proof():
     assert far.solve_result(seed=0, objective="effort").status == "infeasible"
 
 
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(seed=st.integers(0, 10**6), noisy=st.booleans())
 def test_objectives_against_the_exact_optimiser(seed, noisy):
     """Random small one-mode problems: every claim of every objective against the oracle."""

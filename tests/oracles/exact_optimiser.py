@@ -475,7 +475,8 @@ def random_small_problem(seed: int, noisy: bool | None = None) -> SmallProblem:
 
     The formula is built around a random admissible roll-out (targets and corridors centred on
     its means, widened by the chance constraints' tightening and a random slack, sometimes
-    almost zero), so most instances are feasible; the exact optimiser decides. Domains are
+    almost zero), so most instances are feasible; one shape in eight puts the goal near or
+    beyond the edge of the reachable set instead. The exact optimiser decides. Domains are
     boxes: symmetric, off-centre, or excluding ``u = 0``.
     """
     import idstlpy as stl
@@ -539,7 +540,7 @@ def random_small_problem(seed: int, noisy: bool | None = None) -> SmallProblem:
                 ]
         return stl.logical_and(*parts, name=name)
 
-    shape = rng.choice(["reach", "reach_tiny", "either", "stay_reach", "until", "release", "always"])
+    shape = rng.choice(["reach", "reach_tiny", "either", "stay_reach", "until", "release", "always", "far"])
     k = int(rng.integers(1, H + 1))
     a0 = int(rng.integers(0, k + 1))
     if shape in ("reach", "reach_tiny"):
@@ -560,6 +561,17 @@ def random_small_problem(seed: int, noisy: bool | None = None) -> SmallProblem:
         formula = stl.until(box(list(range(k)) or [0], "safe"), a0, H, box([k], "goal"))
     elif shape == "release":
         formula = stl.release(box([k], "goal"), 0, H, box(list(range(k + 1)), "safe"))
+    elif shape == "far":
+        # A goal near the edge of what k steps reach, or beyond it: feasible or not, maybe narrowly.
+        reach = k * float(np.max(np.abs(B))) * float(np.max(np.abs(np.r_[lo, hi])))
+        centre = means[k] + rng.choice([-1.0, 1.0], n) * rng.uniform(0.3, 1.3, n) * reach
+        half = z * sds[k] + (1e-6 if rng.random() < 0.3 else 0.05)
+        goal = stl.logical_and(
+            *[stl.prob(x[i] >= float(centre[i] - half[i])) >= 1 - eps for i in range(n)],
+            *[stl.prob(x[i] <= float(centre[i] + half[i])) >= 1 - eps for i in range(n)],
+            name="goal",
+        )
+        formula = stl.eventually(a0, k, goal)
     else:
         b0 = int(rng.integers(k, H + 1))
         formula = stl.always(k, b0, box(list(range(k, b0 + 1)), "hold"))
