@@ -41,9 +41,13 @@ from scipy.stats import norm
 from .brute_force import sat
 from .rollout import ModeSpec, loosen, mlo_rollout, mlo_step
 
-__all__ = ["Optimum", "exact_optimum", "covariances"]
+__all__ = ["Optimum", "Undecided", "exact_optimum", "covariances", "random_small_problem"]
 
 INF = math.inf
+
+
+class Undecided(RuntimeError):
+    """The MILP's plan meets the formula only within the solvers' tolerances: no ground truth."""
 
 
 @dataclass
@@ -55,7 +59,8 @@ class Optimum:
     feasible : bool
         Whether any plan of at most ``horizon`` steps meets the formula.
     value : float
-        The optimum (``nan`` when infeasible).
+        The optimum (``nan`` when infeasible; for ``"margin"`` the largest robustness, negative
+        when infeasible).
     steps : int
         Length ``N`` of an optimal plan (``-1`` when infeasible).
     controls : ndarray, shape (N, m) or None
@@ -443,11 +448,13 @@ def exact_optimum(
     if best is None:
         return Optimum(False, float("nan"), -1, None, per)
     value, N, controls = best
-    if check and np.isfinite(value):
+    # The margin's optimum is the largest robustness, negative when no plan meets the formula.
+    feasible = objective != "margin" or value >= 0
+    if check and feasible and np.isfinite(value):
         trace = mlo_rollout([mode], mean0, cov0, np.zeros(N, dtype=int), controls)
         if not sat(loosen(formula, trace, 1e-7), 0, trace):
-            raise RuntimeError("exact optimiser: the optimal plan fails the brute-force monitor")
-    return Optimum(True, float(value), N, controls, per)
+            raise Undecided("the optimal plan fails the brute-force monitor: feasible within tolerances only")
+    return Optimum(feasible, float(value), N, controls, per)
 
 
 # ------------------------------------------------------------------------------------------------
