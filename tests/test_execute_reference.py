@@ -8,7 +8,12 @@ commit 967ec19 (five nested closures calling ``simulate`` a chunk at a time; the
 was recorded later with that commit's ``execution/replanning.py`` on the then current package):
 every record, the plans followed, the executed belief and the true states. The first plan of the
 integrator cases is stored too, so only the re-solves go through the solver (small budgets,
-seeded, no wall-clock cap hit: deterministic).
+seeded, no wall-clock cap hit: deterministic). The re-solves ask for ``guarantee="mlo"``, the
+default when the reports were recorded (``"execution"`` became the default later).
+
+The recording pins the results of one day's solver; the old executor itself is kept as an oracle
+(``tests/oracles/chunked_execute.py``) and run beside ``execute`` on the current solver, so a
+later change to synthesis cannot hide or fake a difference between the two executors.
 
 Regenerate (only when a behaviour change is intended and recorded in CHANGELOG.md)::
 
@@ -30,7 +35,7 @@ import pytest
 import idstlpy as stl
 
 DATA = Path(__file__).parent / "data" / "execute_reference.npz"
-OPTIONS = {"rrt_timeout": 2, "seed": 0}
+OPTIONS = {"rrt_timeout": 2, "seed": 0, "guarantee": "mlo"}  # the guarantee of the recording
 
 
 def _problem() -> stl.Problem:
@@ -133,7 +138,7 @@ CASES: dict[str, tuple[Any, Any, int, dict[str, Any]]] = {
             "check_every": 10,
             "max_replans": 1,
             "replan_time_limit": 30.0,
-            "solver_options": {"seed": 0},
+            "solver_options": {"seed": 0, "guarantee": "mlo"},
         },
     ),  # fmt: skip
 }
@@ -229,6 +234,43 @@ def test_execute_reproduces_the_recorded_report(reference, name):
     for key, value in arrays.items():
         assert np.array_equal(value, reference[f"{name}/{key}"], equal_nan=True), (name, key)
     assert report.seed_entropy == CASES[name][2]
+
+
+def _without_guarantee(kw: dict[str, Any]) -> dict[str, Any]:
+    solver = {k: v for k, v in kw["solver_options"].items() if k != "guarantee"}
+    return {**kw, "solver_options": solver}
+
+
+LIVE = [(name, False) for name in sorted(CASES)] + [("on_risk", True), ("unscheduled_start", True)]
+
+
+@pytest.mark.parametrize(("name", "default_guarantee"), LIVE)
+def test_execute_is_the_chunked_executor_it_replaced_on_the_current_solver(
+    reference, name, default_guarantee
+):
+    """Beside the old executor (tests/oracles/chunked_execute.py) on today's solver and predictor:
+    the same records, plans and runs bit for bit, whatever synthesis does to the re-solves (also
+    with the solver's default guarantee, which the recording predates)."""
+    from oracles import chunked_execute
+
+    real, plant, seed, kw = CASES[name]
+    if default_guarantee:
+        kw = _without_guarantee(kw)
+    if name.startswith("listing"):
+        problem, plan, real_system, x0 = _listing()
+    else:
+        problem = _problem()
+        plan = _plan({k[len("first_") :]: v for k, v in reference.items() if k.startswith("first_")})
+        real_system, x0 = (None if real is None else real()), np.array([0.2, -0.1])
+    old = chunked_execute.execute(problem, plan, real_system, x0, seed=seed, plant=plant, **kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        new = stl.execute(problem, plan, real_system, x0, seed=seed, plant=plant, **kw)
+    assert _records(new) == _records(old) and old.replans
+    old_arrays, new_arrays = _arrays(old), _arrays(new)
+    assert sorted(old_arrays) == sorted(new_arrays)
+    for key, value in new_arrays.items():
+        assert np.array_equal(value, old_arrays[key], equal_nan=True), (name, key)
 
 
 def test_the_cases_exercise_what_they_are_named_for(reference):
