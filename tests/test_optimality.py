@@ -21,6 +21,10 @@ from idstlpy import prob as P
 
 TOL = 1e-6
 
+# The oracle is the paper's (MLO) semantics: the solves ask for guarantee="mlo", and plans that keep
+# no execution room may fall short of the execution target (a warning, not the subject here).
+pytestmark = pytest.mark.filterwarnings("ignore:the returned plan falls short of the execution target")
+
 
 def _one_state(a, b, lo, hi, x0, cov0, formula_of, W=0.0):
     """``x' = a x + b u`` (one state, blind), ``lo <= u <= hi``, prior ``N(x0, cov0)``."""
@@ -64,7 +68,7 @@ def test_effort_is_not_charged_for_the_execution_margin():
     )
     optimum = _oracle(spec, -1.0, 1.0, 0.0, 0.01, formula, "effort")
     assert optimum.value == pytest.approx(2.2563, abs=1e-4)
-    result = problem.solve_result(seed=0, objective="effort")
+    result = problem.solve_result(seed=0, objective="effort", guarantee="mlo")
     assert result.status == "found" and result.optimal and result.optimal_scope == "horizon"
     assert result.objective_value == pytest.approx(optimum.value, rel=TOL)
     _assert_true_claims(result, optimum, "effort")
@@ -83,7 +87,7 @@ def test_margin_is_not_decided_by_a_zero_step_plan():
     )
     optimum = _oracle(spec, -0.66, 0.74, 1.4, 0.0, formula, "margin")
     assert optimum.value == pytest.approx(0.4, abs=1e-9)
-    result = problem.solve_result(seed=0, objective="margin")
+    result = problem.solve_result(seed=0, objective="margin", guarantee="mlo")
     assert result.status == "found" and result.optimal
     assert result.objective_value == pytest.approx(0.4, abs=1e-6)
     assert stl.robustness(result.trajectory, formula) == pytest.approx(0.4, abs=1e-6)
@@ -95,7 +99,7 @@ def test_effort_is_not_inflated_by_the_tightening_over_a_small_gain():
     problem, spec, formula = _one_state(
         1.0, 0.01, -1.0, 1.0, 0.995, 0.0, lambda x: stl.eventually(0, 3, stl.logical_and(P(x[0] >= 1) >= 0.9))
     )
-    result = problem.solve_result(seed=0, objective="effort")
+    result = problem.solve_result(seed=0, objective="effort", guarantee="mlo")
     assert result.status == "found" and result.optimal
     assert result.objective_value == pytest.approx(0.5, rel=TOL)
     assert result.objective_bound <= 0.5 + 1e-12
@@ -113,7 +117,7 @@ def test_idle_steps_are_not_charged_when_the_domain_excludes_zero():
         0.0,
         lambda x: stl.eventually(0, 8, stl.logical_and(P(x[0] >= 1.5) >= 0.9, P(x[0] <= 1.6) >= 0.9)),
     )
-    result = problem.solve_result(seed=0, objective="effort")
+    result = problem.solve_result(seed=0, objective="effort", guarantee="mlo")
     assert result.status == "found" and result.optimal
     assert result.objective_value == pytest.approx(1.5, rel=TOL)
     controls = result.trajectory.get_control()
@@ -134,7 +138,7 @@ def test_a_narrow_target_is_not_declared_infeasible(objective, d):
         0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 0.3 - d) >= 0.9, P(x[0] <= 0.3 + d) >= 0.9)),
     )
-    result = problem.solve_result(seed=0, objective=objective)
+    result = problem.solve_result(seed=0, objective=objective, guarantee="mlo")
     assert result.status == "found", result.reason
     optimum = _oracle(spec, -1.0, 1.0, 0.0, 0.0, formula, objective)
     _assert_true_claims(result, optimum, objective)
@@ -146,7 +150,7 @@ def test_an_infeasible_answer_under_an_objective_is_still_a_proof():
         1.0, 1.0, -1.0, 1.0, 0.0, 0.0, lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 4.5) >= 0.9))
     )
     for objective in ("effort", "time", "margin"):
-        result = problem.solve_result(seed=0, objective=objective)
+        result = problem.solve_result(seed=0, objective=objective, guarantee="mlo")
         assert result.status == "infeasible", (objective, result.reason)
 
 
@@ -162,7 +166,7 @@ def test_an_infeasibility_within_the_tolerance_is_no_proof():
         0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 4.0 + 1e-7) >= 0.9)),
     )
-    result = problem.solve_result(seed=0, objective="effort")
+    result = problem.solve_result(seed=0, objective="effort", guarantee="mlo")
     assert result.status == "budget_exhausted" and "tolerance" in result.reason
     # A margin of 1e-5 beyond reach is a proof.
     far, _, _ = _one_state(
@@ -174,7 +178,7 @@ def test_an_infeasibility_within_the_tolerance_is_no_proof():
         0.0,
         lambda x: stl.eventually(0, 4, stl.logical_and(P(x[0] >= 4.0 + 1e-4) >= 0.9)),
     )
-    assert far.solve_result(seed=0, objective="effort").status == "infeasible"
+    assert far.solve_result(seed=0, objective="effort", guarantee="mlo").status == "infeasible"
 
 
 @settings(max_examples=30, deadline=None)
@@ -189,7 +193,9 @@ def test_objectives_against_the_exact_optimiser(seed, noisy):
             )
         except Undecided:
             continue  # feasible only within the solvers' tolerances: no ground truth here
-        result = sp.problem.solve_result(seed=0, objective=objective, effort_weights=tuple(sp.weights))
+        result = sp.problem.solve_result(
+            seed=0, objective=objective, effort_weights=tuple(sp.weights), guarantee="mlo"
+        )
         if not optimum.feasible:
             if result.status == "found":
                 # Only at the edge: the independent monitor accepts the plan, and the oracle's
