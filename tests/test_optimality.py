@@ -74,6 +74,26 @@ def test_effort_is_not_charged_for_the_execution_margin():
     _assert_true_claims(result, optimum, "effort")
 
 
+def test_under_the_execution_guarantee_the_claims_stay_true():
+    """The default guarantee sets the room-less optimum aside (below the execution target): the
+    plan returned keeps room, is not called optimal, and the MILP's bound still bounds it."""
+    problem, spec, formula = _one_state(
+        1.0,
+        0.5,
+        -1.0,
+        1.0,
+        0.0,
+        0.01,
+        lambda x: stl.eventually(2, 5, stl.logical_and(P(x[0] >= 1) >= 0.9, P(x[0] <= 2) >= 0.9)),
+    )
+    optimum = _oracle(spec, -1.0, 1.0, 0.0, 0.01, formula, "effort")
+    result = problem.solve_result(seed=0, objective="effort", guarantee="execution")
+    assert result.status == "found" and result.meets_target
+    _assert_true_claims(result, optimum, "effort")
+    assert result.objective_bound == pytest.approx(optimum.value, rel=1e-6)
+    assert result.optimal == (abs(result.objective_value - optimum.value) <= TOL * max(1.0, optimum.value))
+
+
 def test_margin_is_not_decided_by_a_zero_step_plan():
     """x' = x + 0.1 u, u in [-0.66, 0.74], x0 = 1.4, F[0,4] (0.8 <= x <= 1.6): 0.4 in four steps."""
     problem, spec, formula = _one_state(

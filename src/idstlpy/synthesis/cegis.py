@@ -127,6 +127,10 @@ class _Run:
         self.closest: tuple[np.ndarray, np.ndarray, float] | None = None
         self.formula = problem.stl_formula
         self.milp_proof: tuple[bool, str, float] = (False, "", float("nan"))
+        # An objective's bound the eager MILP proved over a scope (every plan of it, under the
+        # paper's semantics, which every returned plan meets), kept when its own plan is not
+        # returned (set aside below the execution target): (bound, scope) or None.
+        self.mlo_bound: tuple[float, str] | None = None
         self.closed_loop = options.guarantee == "closed_loop"
         self.execution = options.guarantee == "execution"
         # Under "execution": the best verified plan below target so far, and the candidate count
@@ -502,6 +506,12 @@ def _optimise(
         traj, final = found.trajectory, _check(run, found.trajectory)
         value, optimal, scope, bound = objective_value(name, traj, formula, weights), False, "", float("nan")
         how = found.reason + " (the optimised plan failed the closed-loop check)"
+    if not np.isfinite(bound) and run.mlo_bound is not None:
+        # The eager MILP's plan was not returned (below the execution target, or a repair moved
+        # it), but its proven bound holds for every plan of its scope, the returned one included.
+        bound, scope = run.mlo_bound
+        bound = max(bound, value) if name == "margin" else min(bound, value)
+        optimal = abs(value - bound) <= OPTIMALITY_TOL * max(1.0, abs(value))
     if np.isfinite(bound):
         # The MILP's bound is on its own model, within the solver's tolerances; the verified plan
         # is a bound too, so the reported one is never on the wrong side of the value.
@@ -563,6 +573,8 @@ def _global(
     stats.milp_calls += 1
     if out.status != "found" or out.claims is None or out.controls is None:
         return None
+    if out.proven and proposer.bound >= proposer.H:
+        run.mlo_bound = (out.bound, "horizon")
     checked = _retime(run, abstraction, scaling, out.claims, out.controls, name, weights)
     if checked is None:
         return None
@@ -734,11 +746,13 @@ def _eager(
     # second re-timing. Without an objective that reads the margin, the re-timing leaves room of
     # 1e-5 of the largest state unit inside every required face at once.
     room = 1e-5 * float(np.max(scaling.dx)) if options.objective in (None, "time") else 0.0
+    whole = proposer.bound >= proposer.H or options.objective == "time"  # shorter plans are all inside
+    scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
+    if options.objective is not None and out.proven and not borderline:
+        run.mlo_bound = (out.bound, scope)
     checked = _retime(run, abstraction, scaling, claims, controls, options.objective, weights, room)
     if checked is None:
         return None
-    whole = proposer.bound >= proposer.H or options.objective == "time"  # shorter plans are all inside
-    scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
     run.milp_proof = (out.proven and not borderline, scope, out.bound)
     return run.done(
         "found",

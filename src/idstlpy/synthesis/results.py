@@ -335,7 +335,9 @@ class SolveResult:
     objective_bound : float
         The best proven bound on the optimum over ``optimal_scope``, where known (``nan``
         otherwise): a lower bound for effort and time, an upper bound for margin; never on the
-        wrong side of ``objective_value``.
+        wrong side of ``objective_value``. A bound the eager MILP proved under the paper's
+        semantics holds for every returned plan, and is kept when its own plan was not returned
+        (e.g. set aside below the execution target): then ``optimal`` is usually False.
     optimal : bool
         True only when the bound is proven and ``gap <= 1e-6``: the value is within
         ``1e-6 * max(1, |value|)`` of the optimum over ``optimal_scope``.
