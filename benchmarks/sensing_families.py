@@ -515,6 +515,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--time-limit", type=float, default=120.0)
     ap.add_argument("--runs", type=int, default=0)
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "sensing_results.md"))
+    ap.add_argument("--csv", default=str(ROOT / "benchmarks" / "results" / "sensing" / "sensing.csv"))
     args = ap.parse_args(argv)
     fams = set(args.families.split(","))
     names = set(filter(None, args.instances.split(",")))
@@ -536,10 +537,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         "",
         f"`python -m benchmarks.sensing_families --seeds {args.seeds} --time-limit {args.time_limit:g} "
         f"--runs {args.runs}` at commit {commit.stdout.strip()}, "
-        f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, 2 shared cores.",
+        f"{dt.datetime.now(dt.UTC):%Y-%m-%d %H:%M} UTC, 2 cores shared with other work (wall-clock "
+        "times are inflated by the load), the solver's default guarantee "
+        f"({stl.SolverOptions().guarantee!r}), `rrt_timeout=60`, the time limit as the cap.",
         "",
     ]
     Path(args.out).write_text("\n".join(head + summarise(rows)) + "\n")
+    if args.csv:
+        import csv
+
+        keys = sorted({k for r in rows for k in r})
+        Path(args.csv).parent.mkdir(parents=True, exist_ok=True)
+        with open(args.csv, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows(rows)
     return 0
 
 
