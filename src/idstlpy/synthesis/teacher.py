@@ -614,6 +614,18 @@ class LPTeacher:
         # a plan gets the room its execution needs (:mod:`.room`), as the sampler's plans do.
         self._room = objective is None and not closed_loop
 
+    @property
+    def _search_applies(self) -> bool:
+        """Whether a refuted candidate's modes are searched (:meth:`_search_modes`).
+
+        Only where the plan LP is exact (no state-dependent noise): elsewhere the belief-space
+        sampler chooses its own modes and is handed the candidates refuted for their modes
+        (``SamplerTeacher.rescue``), which was faster on the perception suite's sensor
+        switching (2-4 s with the sampler at the first refutation, 4-8 s after twenty LP-refuted
+        candidates).
+        """
+        return self.mode_search and self.exact(self.problem)
+
     def _with_room(
         self, actions: np.ndarray, controls: np.ndarray, stats: SolveStats, budget: Budget | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -883,7 +895,7 @@ class LPTeacher:
             out = self._solve(plan, margin, budget, stats)
         set_aside = False
         proposed: tuple[DiscretePlan, LPOutcome] | None = None  # refuted, then modes searched
-        if out.status == "infeasible" and system.num_modes > 1 and self.mode_search:
+        if out.status == "infeasible" and system.num_modes > 1 and self._search_applies:
             proposed = (plan, out)
             every = self._every_mode_refutation(plan, budget, stats)
             if every is not None:
