@@ -125,6 +125,6 @@ def test_two_mode_noise_floor_is_proven_infeasible_naming_the_proposition():
 def test_feasible_two_mode_problem_is_not_claimed_out_of_reach():
     # A precise look (V = 0.01) reaches the goal's confidence: no floor claim, a plan is found.
     problem = _two_mode_floor_problem(v_drive=0.5, v_look=0.01, w=0.0, hold=0)
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=60, max_candidates=400)
+    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=60, max_candidates=400, guarantee="mlo")
     assert result.status == "found"
     assert stl.robustness(result.trajectory, problem.stl_formula) >= 0

@@ -5,6 +5,11 @@ Every clause the proposer learns on small two-mode instances is re-checked by br
 (all of them for a clause without modes, enumerated), admit no controls, by an LP written from
 scratch. Requirement sets the mode search sets aside are not proofs: a problem whose only plans
 were set aside must not be called infeasible.
+
+The searches are measured under ``guarantee="mlo"`` (the LP's own semantics; under the default
+``"execution"`` a plan the search finds may be set aside below the execution target, and the
+loop turns the search off after a while, see ``cegis.BELOW_TARGET_MIN``); the proofs are checked
+under the default too.
 """
 
 from __future__ import annotations
@@ -83,7 +88,7 @@ def _check_clauses(problem, learnt, max_enum=9):
 def test_every_learnt_clause_blocks_no_feasible_plan(monkeypatch, build):
     learnt = _record(monkeypatch)
     problem, witness, _ = build()
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=120, max_candidates=60)
+    result = problem.solve_result(rrt_timeout=60, guarantee="mlo", seed=0, time_limit=120, max_candidates=60)
     assert result.status == "found"
     assert result.stats.candidates <= 60
     assert learnt, "the instance should need at least one refutation"
@@ -96,7 +101,7 @@ def test_mode_free_refutation_is_checked_against_every_sequence(monkeypatch):
     # every mode sequence (mode-free clauses), enumerated here in full.
     learnt = _record(monkeypatch)
     problem, _, _ = sf.stop_and_look(1.5, 0.1, hold=0, deadline=12)
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=60, max_candidates=40)
+    result = problem.solve_result(rrt_timeout=60, guarantee="mlo", seed=0, time_limit=60, max_candidates=40)
     assert result.status == "found"
     free = [(c, a) for c, a in learnt if c.modes is None]
     assert free
@@ -108,7 +113,7 @@ def test_set_aside_requirements_are_not_proofs():
     # budget_exhausted, never infeasible (the stop-and-look dock with too short a deadline for
     # the looks, but not provably so by any LP).
     problem, _, _ = sf.stop_and_look(4.0, 0.1, hold=2, deadline=9)
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=60, max_candidates=200)
+    result = problem.solve_result(rrt_timeout=60, guarantee="mlo", seed=0, time_limit=60, max_candidates=200)
     assert result.status == "budget_exhausted"
     assert "set aside" in result.reason
 
@@ -118,7 +123,7 @@ def test_sensing_families_take_tens_of_candidates(name):
     inst = next(i for i in sf.instances() if i.name == name)
     problem, witness, lazy = inst.build()
     assert sf.check_plan(problem, witness) and not sf.check_plan(problem, lazy)
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=120, max_candidates=100)
+    result = problem.solve_result(rrt_timeout=60, guarantee="mlo", seed=0, time_limit=120, max_candidates=100)
     assert result.status == "found"
     assert result.stats.candidates <= 50
     traj = result.trajectory
@@ -130,7 +135,7 @@ def test_fixed_point_path_gives_the_execution_room():
     # the plan LP on re-rolled covariances, which used to skip the execution room (issue 24).
     problem, witness, lazy = sf.recurrent(0.1)
     assert sf.check_plan(problem, witness) and not sf.check_plan(problem, lazy)
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=120, max_candidates=100)
+    result = problem.solve_result(rrt_timeout=60, guarantee="mlo", seed=0, time_limit=120, max_candidates=100)
     assert result.status == "found"
     assert result.stats.execution_room is not None
 
@@ -165,6 +170,6 @@ def test_issue23_drive_look_takes_tens_of_candidates():
         stl.to_belief(mean=np.zeros(2), cov=0.1 * np.eye(2)),
         stl.until(box(-1, 5, 0.99, "safe"), 0, 40, box(2.8, 3.2, 0.95, "goal")),
     )
-    result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=120, max_candidates=100)
+    result = problem.solve_result(rrt_timeout=60, guarantee="mlo", seed=0, time_limit=120, max_candidates=100)
     assert result.status == "found"
     assert result.stats.candidates <= 50
