@@ -158,7 +158,8 @@ class _Run:
         predicted: ProbabilisticTSTrajectory | None = None,
     ) -> SolveResult:
         stats = self.stats
-        if status != "found" and self.below is not None:
+        fallback = status != "found" and self.below is not None
+        if fallback and self.below is not None:
             # Under "execution": no plan met the target, but a verified one was set aside.
             below = self.below
             reason = (
@@ -201,7 +202,7 @@ class _Run:
         if status == "budget_exhausted" and self.closest is not None:
             acts, ctrls, _ = self.closest
             closest = rollout(self.problem.switched_system, self.problem.initial_state, acts, ctrls)
-        return SolveResult(
+        result = SolveResult(
             status,
             traj,
             reason,
@@ -213,6 +214,14 @@ class _Run:
             closest=closest,
             execution=execution,
         )
+        name = self.options.objective
+        if fallback and name is not None and traj is not None:
+            # The plan set aside below target: its objective's value, no optimality claimed.
+            weights = self.options.effort_weights
+            w = None if weights is None else np.asarray(weights, dtype=float)
+            result.objective = name
+            result.objective_value = objective_value(name, traj, self.formula, w)
+        return result
 
     def use_units(self, scaling: Scaling) -> None:
         """The units the final check measures inputs in: the loop's own."""
