@@ -254,3 +254,10 @@ def test_problem_files_take_the_execution_target(tmp_path):
         ).build()
     with pytest.raises(ProblemFileError, match="execution_target"):
         apply_overrides(load_problem(path), {"solver.execution_target": "high"}).build()
+
+
+def test_a_plan_below_target_under_an_objective_carries_its_value():
+    problem = dp.drive_look_noisy()
+    result, caught = solve(problem, seed=0, time_limit=60, max_candidates=30, objective="effort")
+    assert result.found and result.meets_target is False and caught
+    assert result.objective == "effort" and np.isfinite(result.objective_value) and not result.optimal
