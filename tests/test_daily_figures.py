@@ -205,7 +205,7 @@ def test_sensing_steps_of_a_mode_that_stands_still_are_marked(look_drive):
     assert art.sensing is not None and len(art.sensing.get_offsets()) == sensing == 4
     np.testing.assert_allclose(art.sensing.get_offsets()[0], plan.get_mean()[2])  # after step 1
     texts = _texts(art.legend)
-    assert "plan: mode 0 (senses, stands still: B = 0)" in texts
+    assert "plan: mode 0 (senses, noise std 0.1, stands still: B = 0)" in texts
     assert "plan: mode 1 (blind)" in texts
     assert any(t.startswith("sensing step (4 of 10)") for t in texts)
     assert [a.get_text() for a in art.still] == ["3 steps in place (k = 1..4)"]
@@ -283,7 +283,7 @@ def test_one_state_executions_are_overlaid_on_the_time_series():
     assert "start (initial mean)" in texts and "end of plan" in texts
     assert ts.end[0].get_xdata()[0] == plan.num_of_steps
     assert "Thin lines: 5 executions" in ts.caption.get_text().replace("\n", " ")
-    assert [t.get_text() for t in ts.modes_ax.get_yticklabels()] == ["0 (senses)"]
+    assert [t.get_text() for t in ts.modes_ax.get_yticklabels()] == ["0 (senses, noise varies with the state)"]
     # on one given axes: the state alone
     fig, ax = plt.subplots()
     single = plot_monte_carlo(problem, plan, report.executions[:2], ax=ax)
@@ -306,6 +306,31 @@ def test_time_series_fills_the_intervals_of_box_shaped_propositions(look_drive):
     assert _span(art.regions["target (x[1])"]) == pytest.approx((-0.5, 0.5))
     assert _span(art.regions["below"]) == pytest.approx((art.axes[1].get_ylim()[0], 1.0))
     assert [t.get_text() for t in art.modes_ax.get_yticklabels()] == [
-        "0 (senses, stands still: B = 0)",
+        "0 (senses, noise std 0.1, stands still: B = 0)",
         "1 (blind)",
     ]
+
+
+def test_mode_legend_tells_precise_from_poor_sensors_and_drift_from_standing_still():
+    from idstlpy.plotting import _mode_text
+
+    x = stl.mk_variable(1, float)
+    u = stl.mk_variable(1, float)
+    heater = stl.mk_lbs(A=[[1.0]], B=[[0.5]], W=[[0.01]], C=[[1.0]], V=[[0.5]])
+    off = stl.mk_lbs(A=[[0.95]], B=[[0.0]], W=[[0.01]], C=[[1.0]], V=[[0.05]])
+    lit = stl.mk_lbs(A=[[1.0]], B=[[1.0]], W=[[0.0]], C=[[1.0]], V=lambda s: np.array([[0.1 + s[0] ** 2]]))
+    problem = stl.Problem(
+        switched_system=stl.mk_switched_sys([heater, off, lit]),
+        control_domain=stl.logical_and(u[0] >= -1.0, u[0] <= 1.0).region,
+        initial_state=stl.to_belief(mean=np.zeros(1), cov=np.eye(1)),
+        stl_formula=stl.eventually(0, 3, stl.logical_and(stl.prob(x[0] >= 0.0) >= 0.9, name="g")),
+    )
+    assert _mode_text(problem, 0) == "senses, noise std 0.5"
+    assert _mode_text(problem, 1) == "senses, noise std 0.05, no input: B = 0"
+    assert _mode_text(problem, 2) == "senses, noise varies with the state"
+
+
+def test_workspace_has_equal_units_unless_it_is_a_corridor(look_drive):
+    problem, plan = look_drive
+    art = plot_workspace(problem, plan)
+    assert art.ax.get_aspect() == 1.0

@@ -164,7 +164,7 @@ def test_modes_are_coloured_along_the_plan(four_d, ld):
     np.testing.assert_allclose(colours[:, :3], expected[:, :3])
     assert len(art.modes.get_segments()) == plan.num_of_steps
     texts = _legend_texts(art.legend)
-    assert "plan: mode 0 (blind)" in texts and "plan: mode 1 (senses)" in texts
+    assert "plan: mode 0 (blind)" in texts and "plan: mode 1 (senses, noise varies with the state)" in texts
     # The shading is the sensor of the mode the plan uses most (mode 1 here: 7 of 12 steps).
     assert "mode 1" in art.colorbar.ax.get_xlabel()
     # One mode: a plain blue line unless asked.

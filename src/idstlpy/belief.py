@@ -98,6 +98,13 @@ def to_belief(mean: Any, cov: Any) -> GaussianBelief:
         if np.any(variances < 0):
             raise InvalidArgumentError(f"cov given as variances must be >= 0, got {variances.tolist()}")
         cov = np.diag(variances)
+    shape = np.shape(cov) if _is_numeric(cov) else None
+    if shape is not None and len(shape) == 2 and shape[0] == shape[1] and shape[0] != mean.shape[0]:
+        # Say that the two disagree, not which one is "wrong": either may be the mistake.
+        raise DimensionError(
+            f"mean has {mean.shape[0]} entries but cov is {shape[0]} x {shape[1]}: they must agree "
+            "(mean of shape (n,), cov of shape (n, n))"
+        )
     cov = as_covariance(cov, "cov", mean.shape[0])
     return GaussianBelief(mean, cov)
 

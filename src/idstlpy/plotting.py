@@ -648,11 +648,22 @@ def _mode_color(q: int) -> str:
 
 
 def _mode_text(problem: Any, q: int) -> str:
-    """What mode ``q`` does: ``"senses"`` or ``"blind"``, and ``"stands still"`` when ``B = 0``."""
+    """What mode ``q`` does: how it senses (``"blind"``, ``"senses, noise std 0.1"``, ``"senses,
+    noise varies with the state"``) and, when ``B = 0``, ``"stands still"`` (``A = I``: the mean
+    stays) or ``"no input"`` (the state drifts by ``A``)."""
     md = problem.switched_system.mode(int(q))
-    parts = ["senses" if md.p else "blind"]
+    if not md.p:
+        parts = ["blind"]
+    elif md.has_state_dependent_noise:
+        parts = ["senses, noise varies with the state"]
+    else:
+        # The largest standard deviation of the (constant) sensor noise: what tells a precise
+        # sensor from a poor one in the legend.
+        std = float(np.sqrt(max(np.linalg.eigvalsh(md.noise_floor).max(initial=0.0), 0.0)))
+        parts = ["senses, noise-free" if std == 0 else f"senses, noise std {std:.3g}"]
     if not np.any(md.B):
-        parts.append("stands still: B = 0")
+        still = np.array_equal(md.A, np.eye(md.n))  # the mean stays; noise may still move x
+        parts.append("stands still: B = 0" if still else "no input: B = 0")
     return ", ".join(parts)
 
 
@@ -1294,6 +1305,11 @@ def plot_workspace(
     _write_region_labels(ax, region_labels, [*trajs, start[None, :]], lo, hi, out)
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
+    # One unit is one unit on both axes, so a round covariance is drawn round; a very elongated
+    # workspace (a corridor) keeps the free aspect rather than a sliver of a figure.
+    spans = np.asarray(hi, dtype=float)[:2] - np.asarray(lo, dtype=float)[:2]
+    if np.all(spans > 0) and max(spans) / min(spans) <= 5.0:
+        ax.set_aspect("equal", adjustable="box")
     ax.set_xlabel(f"x[{d[0]}]")
     ax.set_ylabel(f"x[{d[1]}]")
     out.legend_proxies = proxies

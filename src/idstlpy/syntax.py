@@ -327,6 +327,12 @@ class _Parser:
         if tok.text == "false":
             return FALSE
         ap = self.atoms.get(tok.text)
+        if ap is None and tok.text in self.atoms:
+            raise self.error(
+                f"proposition {tok.text!r} is None in atoms (expected an STLAtomicProposition, "
+                "e.g. logical_and(..., name=...))",
+                tok,
+            )
         if ap is None:
             known = ", ".join(sorted(set(self.atoms) - RESERVED_NAMES)) or "none"
             raise self.error(f"unknown proposition {tok.text!r} (defined: {known})", tok)
