@@ -283,7 +283,9 @@ def test_one_state_executions_are_overlaid_on_the_time_series():
     assert "start (initial mean)" in texts and "end of plan" in texts
     assert ts.end[0].get_xdata()[0] == plan.num_of_steps
     assert "Thin lines: 5 executions" in ts.caption.get_text().replace("\n", " ")
-    assert [t.get_text() for t in ts.modes_ax.get_yticklabels()] == ["0 (senses, noise varies with the state)"]
+    assert [t.get_text() for t in ts.modes_ax.get_yticklabels()] == [
+        "0 (senses, noise varies with the state)"
+    ]
     # on one given axes: the state alone
     fig, ax = plt.subplots()
     single = plot_monte_carlo(problem, plan, report.executions[:2], ax=ax)
