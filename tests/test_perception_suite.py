@@ -226,7 +226,9 @@ def test_tight_hold_under_process_noise_is_found():
     settle at the centre and go on for the rest of their plan (a hold is not limited to one
     extension), and under process noise a holder is selected by its progress."""
     problem, _ = pp.build("noisy_hold_narrow", "full")
-    result = problem.solve_result(**suite.SAMPLER, seed=0, time_limit=120)
+    # The paper's reading: under the default ("execution") no plan of (d') meets the target and
+    # the search for one runs to the time cap (benchmarks/defaults_results.md).
+    result = problem.solve_result(**suite.SAMPLER, seed=0, time_limit=120, guarantee="mlo")
     _assert_found_and_met(problem, result)
     assert not result.stats.caps_hit
     # No plan of (d') keeps the room its execution needs (perception_problems.noisy_hold_narrow):
