@@ -179,6 +179,7 @@ def test_plain_script_sees_the_warning():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "False"
     assert "ExecutionTargetWarning" in out.stderr
+    assert "<string>:2: ExecutionTargetWarning" in out.stderr  # the user's line, not the library's
 
 
 # ------------------------------------------------------------------------------------------------

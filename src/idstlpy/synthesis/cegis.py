@@ -41,6 +41,8 @@ clauses at the formula's full horizon, or the MILP over a correctly bounded mode
 from __future__ import annotations
 
 import logging
+import os
+import sys
 import time
 import warnings
 from typing import Any, NamedTuple
@@ -110,6 +112,16 @@ def _input_scale(system: Any, domain: Any, units: Scaling) -> np.ndarray | None:
         move = np.min(reach, axis=0)
         scale = np.maximum(scale, np.where(np.isfinite(move), move, 0.0))
     return scale
+
+
+def _user_stacklevel() -> int:
+    """The ``stacklevel`` (for a ``warnings.warn`` in the caller) of the first frame outside the
+    package, so that a warning names the user's line."""
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    level, frame = 1, sys._getframe(1)  # stacklevel 1: the caller of warnings.warn
+    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 class _Run:
@@ -194,7 +206,7 @@ class _Run:
                         f"{100 * execution.state_estimate:.1f}% of executions "
                         f"(guarantee={self.options.guarantee!r}); see result.execution"
                     ),
-                    stacklevel=4,
+                    stacklevel=_user_stacklevel(),
                 )
             stats.time_total = self.budget.elapsed()
         logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
