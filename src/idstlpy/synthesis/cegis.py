@@ -57,6 +57,7 @@ from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .advice import budget_advice
+from .decoupled import solve_decoupled
 from .allocation import NO_PROOF
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp, switch_to_eager
@@ -316,6 +317,9 @@ def synthesize(problem: Any, options: SolverOptions, start: float | None = None)
     """
     run = _Run(problem, options, time.perf_counter() if start is None else start)
     try:
+        composed = _decoupled(run, problem, options)
+        if composed is not None:
+            return composed
         return _loop(run, problem, options)
     except BudgetExceeded as exc:
         run.stats.caps_hit.append("time_limit")
@@ -323,6 +327,21 @@ def synthesize(problem: Any, options: SolverOptions, start: float | None = None)
             "budget_exhausted",
             f"time limit of {options.total_time_cap:.3g} s reached during {exc.where}; {run.counts()}",
         )
+
+
+def _decoupled(run: _Run, problem: Any, options: SolverOptions) -> SolveResult | None:
+    """Independent blocks planned one by one (:mod:`.decoupled`); the composed plan must pass the
+    final check (:func:`_check`), else ``None`` and the joint loop runs."""
+    if options.objective is not None or run.closed_loop:
+        return None
+    plan = solve_decoupled(problem, options, run.budget, run.stats, synthesize)
+    if plan is None:
+        return None
+    checked = _check(run, rollout(problem.switched_system, problem.initial_state, plan.actions, plan.controls))
+    if checked is None:
+        logger.info("decoupled: the composed plan failed the final check; searching the joint problem")
+        return None
+    return run.done("found", f"{plan.how}; the monitor agrees", checked.traj, checked.margin, checked.predicted)
 
 
 def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
