@@ -169,7 +169,10 @@ def check_instance(k: int, hold: int = HOLD) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, plan in (("witness", witness(k, hold)), ("lazy", lazy_plan(k, hold))):
         traj = stl.rollout(problem.switched_system, problem.initial_state, *plan)
-        out[name] = (bool(stl.satisfies(traj, problem.stl_formula)), float(stl.robustness(traj, problem.stl_formula)))
+        out[name] = (
+            bool(stl.satisfies(traj, problem.stl_formula)),
+            float(stl.robustness(traj, problem.stl_formula)),
+        )
     return out
 
 
@@ -186,7 +189,9 @@ def solve_job(k: int, seed: int, cap: float, decoupled: bool = True) -> dict[str
     verified = False
     if ok and result.trajectory is not None:
         traj = result.trajectory
-        again = stl.rollout(problem.switched_system, problem.initial_state, traj.get_action(), traj.get_control())
+        again = stl.rollout(
+            problem.switched_system, problem.initial_state, traj.get_action(), traj.get_control()
+        )
         verified = bool(stl.satisfies(again, problem.stl_formula))
     s = result.stats
     return {
@@ -241,10 +246,19 @@ def main(argv: list[str] | None = None) -> None:
                         args.cap + 60.0,
                     )
                     rows.append(r)
-                    print(k, mode, seed, {key: r.get(key) for key in ("status", "verified", "time", "candidates")}, flush=True)
+                    print(
+                        k,
+                        mode,
+                        seed,
+                        {key: r.get(key) for key in ("status", "verified", "time", "candidates")},
+                        flush=True,
+                    )
                 found = [r for r in rows if r.get("status") == "found"]
                 ver = [r for r in found if r.get("verified")]
-                times = [float(r.get("time", args.cap)) if r.get("status") == "found" else float(args.cap) for r in rows]
+                times = [
+                    float(r.get("time", args.cap)) if r.get("status") == "found" else float(args.cap)
+                    for r in rows
+                ]
                 cands = [int(r.get("candidates", 0)) for r in rows if "candidates" in r]
                 rooms = [r["room"] for r in found if r.get("room") is not None]
                 lines.append(

@@ -57,8 +57,8 @@ from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .advice import budget_advice
-from .decoupled import solve_decoupled
 from .allocation import NO_PROOF
+from .decoupled import solve_decoupled
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp, switch_to_eager
 from .objectives import better, objective_value, refine
@@ -337,11 +337,13 @@ def _decoupled(run: _Run, problem: Any, options: SolverOptions) -> SolveResult |
     plan = solve_decoupled(problem, options, run.budget, run.stats, synthesize)
     if plan is None:
         return None
-    checked = _check(run, rollout(problem.switched_system, problem.initial_state, plan.actions, plan.controls))
+    traj = rollout(problem.switched_system, problem.initial_state, plan.actions, plan.controls)
+    checked = _check(run, traj)
     if checked is None:
         logger.info("decoupled: the composed plan failed the final check; searching the joint problem")
         return None
-    return run.done("found", f"{plan.how}; the monitor agrees", checked.traj, checked.margin, checked.predicted)
+    how = f"{plan.how}; the monitor agrees"
+    return run.done("found", how, checked.traj, checked.margin, checked.predicted)
 
 
 def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from ..belief import to_belief
-from ..dynamical_system import LBS, POLBS, POLBSWithNonLinNoise, mk_lbs, mk_lcs, mk_switched_sys
+from ..dynamical_system import LBS, LCS, POLBS, POLBSWithNonLinNoise, mk_lbs, mk_lcs, mk_switched_sys
 from ..expressions import ProbabilisticLinearPredicate, mk_variable
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, logical_and, map_atoms
 from ..sets import Polytope
@@ -148,8 +148,6 @@ def split(problem: Any) -> list[Block] | None:
     if any(ap.joints for ap in atoms):
         return None
     conjuncts = list(formula.children) if isinstance(formula, STLAnd) else [formula]
-    if len(conjuncts) < 2:
-        return None
     uf = _Union(n)
     _link_matrix(uf, mode.A)
     owner_in = np.zeros(m, dtype=int)
@@ -225,7 +223,9 @@ class _BlockNoise:
     other coordinates are held at ``ref`` (they do not enter these rows: probed by :func:`split`).
     Takes a state (n_g,) or a batch (S, n_g)."""
 
-    def __init__(self, V: Callable[[np.ndarray], Any], ref: np.ndarray, states: np.ndarray, outputs: np.ndarray):
+    def __init__(
+        self, V: Callable[[np.ndarray], Any], ref: np.ndarray, states: np.ndarray, outputs: np.ndarray
+    ):
         self.V, self.ref, self.states, self.outputs = V, ref, states, outputs
 
     def __call__(self, xg: Any) -> np.ndarray:
@@ -242,6 +242,7 @@ def _sub_problem(problem: Any, block: Block) -> Any:
     mode = problem.switched_system.system_modes[0]
     s, i, o = block.states, block.inputs, block.outputs
     A, B = mode.A[np.ix_(s, s)], mode.B[np.ix_(s, i)]
+    sub: LCS
     if isinstance(mode, POLBS):
         C = mode.C[np.ix_(o, s)]
         if isinstance(mode, POLBSWithNonLinNoise):
@@ -342,9 +343,17 @@ def solve_decoupled(
         result = synthesize(sub, options.with_(seed=seed, time_limit=left), time.perf_counter())
         _merge(stats, result.stats)
         if result.status != "found" or result.trajectory is None:
-            logger.info("decoupled: block %d (states %s): %s: %s", g, block.states.tolist(), result.status, result.reason)
+            logger.info(
+                "decoupled: block %d (states %s): %s: %s",
+                g,
+                block.states.tolist(),
+                result.status,
+                result.reason,
+            )
             return None
-        parts.append((np.asarray(result.trajectory.get_control(), dtype=float).reshape(-1, block.inputs.size), centre))
+        parts.append(
+            (np.asarray(result.trajectory.get_control(), dtype=float).reshape(-1, block.inputs.size), centre)
+        )
     N = max(c.shape[0] for c, _ in parts)
     controls = np.zeros((N, m))
     for block, (c, centre) in zip(blocks, parts, strict=True):
