@@ -4,7 +4,9 @@ Several robots that share nothing but a plan (``k`` independent light-dark robot
 make one belief of ``2 k`` dimensions that the belief sampler does not search well. When the
 problem *splits*, it is solved block by block instead:
 
-- one mode (a mode sequence is shared by every block; with one mode there is nothing to share);
+- one mode (a mode sequence is shared by every block; with one mode there is nothing to share),
+  with state-dependent sensor noise (elsewhere the plan LP and the eager MILP are exact and fast,
+  and the sampler, which this serves, is not used);
 - the coordinates fall into two or more groups (the connected components of a graph that links
   two coordinates whenever ``A``, an input column of ``B``, a face of the control domain, the
   process noise ``W W'``, the prior covariance, an output row of ``C``, the sensor noise
@@ -143,6 +145,8 @@ def split(problem: Any) -> list[Block] | None:
     if system.num_modes != 1 or system.n < 2:
         return None
     mode = system.system_modes[0]
+    if not mode.has_state_dependent_noise:
+        return None  # the plan LP and the eager MILP are exact there: nothing to gain
     n, m = system.n, system.m
     atoms = formula.atomic_propositions()
     if any(ap.joints for ap in atoms):
@@ -270,11 +274,15 @@ def _sub_problem(problem: Any, block: Block) -> Any:
 
     parts = [map_atoms(f, atom) for f in block.conjuncts]
     formula = parts[0] if len(parts) == 1 else logical_and(*parts)
-    dom = problem.control_domain
-    domain = Polytope(dom.H[np.ix_(block.rows, i)], dom.c[block.rows])
+    domain = _sub_domain(problem.control_domain, block)
     init = problem.initial_state
     prior = to_belief(np.asarray(init.mean, dtype=float)[s], np.asarray(init.cov, dtype=float)[np.ix_(s, s)])
     return Problem(mk_switched_sys([sub]), domain, prior, formula)
+
+
+def _sub_domain(dom: Polytope, block: Block) -> Polytope:
+    """The faces of the control domain over the block's inputs, shape (rows, m_g)."""
+    return Polytope(dom.H[np.ix_(block.rows, block.inputs)], dom.c[block.rows])
 
 
 def _merge(into: SolveStats, sub: SolveStats) -> None:
@@ -330,12 +338,13 @@ def solve_decoupled(
     from .sampler import steering_center
 
     parts = []
+    dom = problem.control_domain
     for g, block in enumerate(blocks):
-        sub = _sub_problem(problem, block)
-        centre = steering_center(sub.control_domain)
+        centre = steering_center(_sub_domain(dom, block))
         if not block.conjuncts:
             parts.append((np.zeros((0, block.inputs.size)), centre))
             continue
+        sub = _sub_problem(problem, block)
         left = budget.remaining()
         if left < MIN_SECONDS:
             return None
