@@ -241,8 +241,6 @@ class _BlockNoise:
 
 def _sub_problem(problem: Any, block: Block) -> Any:
     """The problem of one block: its coordinates, inputs, outputs, faces and conjuncts."""
-    from .problem import Problem  # (problem imports the synthesis loop)
-
     mode = problem.switched_system.system_modes[0]
     s, i, o = block.states, block.inputs, block.outputs
     A, B = mode.A[np.ix_(s, s)], mode.B[np.ix_(s, i)]
@@ -277,7 +275,8 @@ def _sub_problem(problem: Any, block: Block) -> Any:
     domain = _sub_domain(problem.control_domain, block)
     init = problem.initial_state
     prior = to_belief(np.asarray(init.mean, dtype=float)[s], np.asarray(init.cov, dtype=float)[np.ix_(s, s)])
-    return Problem(mk_switched_sys([sub]), domain, prior, formula)
+    # (the problem's own class: importing Problem here would close an import cycle)
+    return type(problem)(mk_switched_sys([sub]), domain, prior, formula)
 
 
 def _sub_domain(dom: Polytope, block: Block) -> Polytope:
