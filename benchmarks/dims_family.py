@@ -71,14 +71,27 @@ class RobotsLight:
         return np.asarray(diag[..., :, None] * np.identity(2 * self.k))
 
 
-def build(k: int, hold: int = HOLD) -> stl.Problem:
-    """The ``k``-robot instance (``k`` in 1..3): ``2 k`` states, ``2 k`` inputs, one mode."""
+FORMS = ("each", "all")
+"""``each``: the conjunction of the robots' own tasks; ``all``: one task of the team."""
+
+
+def build(k: int, hold: int = HOLD, form: str = "each") -> stl.Problem:
+    """The ``k``-robot instance (``k`` in 1..3): ``2 k`` states, ``2 k`` inputs, one mode.
+
+    ``form="each"``: ``AND_i free_i U[0,240] G[0,hold] target_i``; ``form="all"``: the team's
+    ``free U[0,240] G[0,hold] target`` where ``free`` (``target``) is one proposition holding
+    every robot's free-space (target) constraints: all stay in free space until all reach their
+    targets and hold them together.
+    """
     if not 1 <= k <= len(ROBOTS):
         raise ValueError(f"k must be in 1..{len(ROBOTS)}, got {k}")
+    if form not in FORMS:
+        raise ValueError(f"form must be one of {FORMS}, got {form!r}")
     n = 2 * k
     x = stl.mk_variable(size=n, dtype=float)
     u = stl.mk_variable(size=n, dtype=float, name="u")
     tasks = []
+    atoms = []
     for i in range(k):
         c = ROBOTS[i][1]
         px, py = x[2 * i], x[2 * i + 1]
@@ -96,8 +109,14 @@ def build(k: int, hold: int = HOLD) -> stl.Problem:
             stl.prob(py <= c[1] + TARGET_HALF) >= 0.95,
             name=f"target_{i}",
         )
+        atoms.append((free, target))
         tasks.append(stl.until(free, 0, DEADLINE, stl.always(0, hold, target)))
-    formula = tasks[0] if k == 1 else stl.logical_and(*tasks)
+    if form == "all" and k > 1:
+        free_all = stl.logical_and(*[p for f, _ in atoms for p in f.predicates], name="free")
+        target_all = stl.logical_and(*[p for _, t in atoms for p in t.predicates], name="target")
+        formula = stl.until(free_all, 0, DEADLINE, stl.always(0, hold, target_all))
+    else:
+        formula = tasks[0] if k == 1 else stl.logical_and(*tasks)
     noise = RobotsLight(k)
     system = stl.mk_switched_sys(
         [
@@ -163,9 +182,9 @@ def lazy_plan(k: int, hold: int = HOLD) -> tuple[np.ndarray, np.ndarray]:
     return _compose(k, [_robot_controls(i, False, hold) for i in range(k)])
 
 
-def check_instance(k: int, hold: int = HOLD) -> dict[str, Any]:
+def check_instance(k: int, hold: int = HOLD, form: str = "each") -> dict[str, Any]:
     """Independent check: the witness's roll-out satisfies the formula, the lazy plan's does not."""
-    problem = build(k, hold)
+    problem = build(k, hold, form)
     out: dict[str, Any] = {}
     for name, plan in (("witness", witness(k, hold)), ("lazy", lazy_plan(k, hold))):
         traj = stl.rollout(problem.switched_system, problem.initial_state, *plan)
@@ -176,12 +195,12 @@ def check_instance(k: int, hold: int = HOLD) -> dict[str, Any]:
     return out
 
 
-def solve_job(k: int, seed: int, cap: float, decoupled: bool = True) -> dict[str, Any]:
+def solve_job(k: int, seed: int, cap: float, decoupled: bool = True, form: str = "each") -> dict[str, Any]:
     """One solve (run in a child process by :class:`benchmarks.harness.Worker`)."""
     from idstlpy.synthesis import decoupled as dec
 
     dec.ENABLED = decoupled
-    problem = build(k)
+    problem = build(k, form=form)
     t0 = time.perf_counter()
     result = problem.solve_result(seed=seed, time_limit=cap)
     elapsed = time.perf_counter() - t0

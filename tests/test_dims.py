@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from benchmarks.dims_family import ROBOTS, TARGET_HALF, RobotsLight, build, check_instance, lazy_plan, witness
 
 import idstlpy as stl
-from benchmarks.dims_family import RobotsLight, build, check_instance, lazy_plan, witness
 from idstlpy.synthesis import decoupled
 
 BUDGET = {"sampler_iterations": 3000, "max_candidates": 20, "time_limit": 60}
@@ -64,7 +64,11 @@ def _two_robots(noise, formula_kind="conjunction"):
         formula = stl.logical_and(goal0, goal1)
     elif formula_kind == "one":
         formula = goal0
-    else:  # one proposition over both robots: not separable
+    elif formula_kind == "sum":  # one chance constraint over both robots
+        formula = stl.logical_and(
+            goal0, stl.eventually(0, 30, stl.logical_and(stl.prob(x[0] + x[2] <= 3) >= 0.9))
+        )
+    else:  # one proposition over both robots
         both = stl.logical_and(
             *box(0, (-0.5, -0.5), (0.5, 0.5), 0.9, "a").predicates,
             *box(1, (0.5, 2.5), (1.5, 3.5), 0.9, "b").predicates,
@@ -86,7 +90,11 @@ def _coupled_noise(x):
 
 def test_split_refuses_coupled_sensing_and_joint_propositions():
     assert decoupled.split(_two_robots(_coupled_noise)) is None
-    assert decoupled.split(_two_robots(RobotsLight(2, a=0.01, b=0.05), "joint")) is None
+    # a proposition over both robots is projected (one conjunct for both blocks) ...
+    team = decoupled.split(_two_robots(RobotsLight(2, a=0.01, b=0.05), "joint"))
+    assert team is not None and [len(b.conjuncts) for b in team] == [1, 1]
+    # ... but one chance constraint over both robots ties them
+    assert decoupled.split(_two_robots(RobotsLight(2, a=0.01, b=0.05), "sum")) is None
     blocks = decoupled.split(_two_robots(RobotsLight(2, a=0.01, b=0.05)))
     assert blocks is not None and len(blocks) == 2
 
@@ -139,3 +147,41 @@ def test_four_dimensions_solved_and_joint_search_still_available(monkeypatch):
     assert "independent blocks" not in joint.reason
     if joint.status == "found":
         assert stl.satisfies(joint.trajectory, small.stl_formula)
+
+
+def test_team_formula_is_projected_and_composed_with_holds():
+    problem = build(3, form="all")
+    blocks = decoupled.split(problem)
+    assert blocks is not None and len(blocks) == 3
+    result = problem.solve_result(seed=2, **BUDGET)
+    assert result.status == "found", result.reason
+    assert "projections, composed with holds" in result.reason
+    traj = result.trajectory
+    again = stl.rollout(problem.switched_system, problem.initial_state, traj.get_action(), traj.get_control())
+    assert stl.satisfies(again, problem.stl_formula)
+    # the team holds its targets together for the last 41 steps
+    centres = np.concatenate([np.asarray(c) for _, c in ROBOTS[:3]])
+    tail = np.array([again.get_mean(j) for j in range(again.num_of_steps - 40, again.num_of_steps + 1)])
+    assert np.all(np.abs(tail - centres) <= TARGET_HALF)
+    assert result.stats.execution_room is not None
+
+
+def test_a_composed_plan_that_fails_the_final_check_goes_to_the_joint_search(monkeypatch, caplog):
+    # break the composition on purpose: the padding input leaves the control domain
+    monkeypatch.setattr(
+        decoupled, "_hold_input", lambda mode, dom, block, mean: np.full(block.inputs.size, 5.0)
+    )
+    problem = _two_robots(RobotsLight(2, a=0.01, b=0.05), "one")
+    with caplog.at_level("INFO", logger="idstlpy.synthesis.cegis"):
+        result = problem.solve_result(seed=3, **BUDGET)
+    assert "independent blocks" not in result.reason
+    assert any("composed plan failed the final check" in r.getMessage() for r in caplog.records)
+    if result.status == "found":
+        assert stl.satisfies(result.trajectory, problem.stl_formula)
+        assert np.all(np.abs(result.trajectory.get_control()) <= 1 + 1e-6)
+
+
+def test_team_instances_have_a_witness_and_a_lazy_plan_fails():
+    for k in (2, 3):
+        checks = check_instance(k, form="all")
+        assert checks["witness"][0] and not checks["lazy"][0]

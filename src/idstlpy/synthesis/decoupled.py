@@ -2,32 +2,36 @@
 
 Several robots that share nothing but a plan (``k`` independent light-dark robots, issue 24)
 make one belief of ``2 k`` dimensions that the belief sampler does not search well. When the
-problem *splits*, it is solved block by block instead:
+problem *splits*, it is solved block by block instead. It splits when it has
 
 - one mode (a mode sequence is shared by every block; with one mode there is nothing to share),
   with state-dependent sensor noise (elsewhere the plan LP and the eager MILP are exact and fast,
   and the sampler, which this serves, is not used);
-- the coordinates fall into two or more groups (the connected components of a graph that links
-  two coordinates whenever ``A``, an input column of ``B``, a face of the control domain, the
-  process noise ``W W'``, the prior covariance, an output row of ``C``, the sensor noise
+- two or more groups of coordinates: the connected components of a graph that links two
+  coordinates whenever ``A``, an input column of ``B``, a face of the control domain, the process
+  noise ``W W'``, the prior covariance, an output row of ``C``, the sensor noise
   ``R(x) = n(x) n(x)'`` (its cross terms, and which coordinates its entries depend on, probed at
-  a fixed set of states) or one top-level conjunct of the formula couples them);
+  :data:`PROBES` fixed states) or one chance constraint couples them;
 - no joint chance constraints, no objective, ``guarantee="mlo"`` (the caller checks the last two).
 
 Then the covariance stays block-diagonal along every plan (the Kalman update of a block-diagonal
-``C``, ``R`` and prior never couples the blocks), each block's belief evolves on its own, and a
-top-level conjunct whose propositions constrain one block is decided by that block's belief.
-Each group's conjuncts are solved as a problem of their own (the full solver, the group's
-coordinates, inputs, outputs, faces of the control domain and prior; seeds spawned from the
-solve's seed: the same seed gives the same plan), and the plans are composed: each block's plan
-is followed by inputs at its control domain's steering centre until the longest one ends (a
-formula without negation that a plan satisfies stays satisfied when the plan goes on).
+``C``, ``R`` and prior never couples the blocks) and each block's belief evolves on its own.
+Each block gets the *projection* of the formula's top-level conjuncts that constrain it (every
+proposition keeps the chance constraints on the block's coordinates only) and is solved as a
+problem of its own (the full solver on the block's coordinates, inputs, outputs, faces of the
+control domain and prior; seeds spawned from the solve's seed, so the same seed gives the same
+plan). The plans are composed: after its plan ends each block holds its last mean (the input
+with ``B u = (I - A) mean`` when the domain admits it) until the longest plan ends, and the
+composed plan gets the room its execution needs on the whole problem (:func:`.room.give_room`).
 
-Nothing here is trusted: the composed plan is re-rolled with the exact joint belief dynamics and
-must pass the solve's final check (:func:`.cegis._check`); otherwise, or when a block is not
-found, the caller falls back to the joint search. A block's ``infeasible`` is not turned into a
-claim about the whole problem (the sensor's dependence was probed, not proven), so soundness
-rests on the final check alone.
+When every conjunct constrains one block, the composition is exact (a formula without negation
+that a plan satisfies stays satisfied when the plan goes on). Otherwise (``free U G target``
+where ``free`` and ``target`` constrain every robot: all must hold their targets together) the
+projections are only necessary conditions, and the holds usually make the composition satisfy
+the team's formula. Nothing here is trusted: the composed plan is re-rolled with the exact joint
+belief dynamics and must pass the solve's final check (:func:`.cegis._check`); otherwise, or when
+a block is not found, the caller searches the joint problem. A block's ``infeasible`` is not
+turned into a claim about the whole problem (the sensor's dependences were probed, not proven).
 """
 
 from __future__ import annotations
@@ -40,12 +44,14 @@ from typing import Any
 
 import numpy as np
 
-from ..belief import to_belief
+from ..belief import rollout, to_belief
 from ..dynamical_system import LBS, LCS, POLBS, POLBSWithNonLinNoise, mk_lbs, mk_lcs, mk_switched_sys
 from ..expressions import ProbabilisticLinearPredicate, mk_variable
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, logical_and, map_atoms
 from ..sets import Polytope
+from .abstraction import Abstraction
 from .interfaces import Budget
+from .plan_lp import Scaling
 from .results import SolveStats
 
 __all__ = ["ENABLED", "Block", "DecoupledPlan", "solve_decoupled", "split"]
@@ -77,7 +83,8 @@ class Block:
     rows : ndarray of int
         The faces of the control domain over its inputs.
     conjuncts : list of STLFormula
-        The formula's top-level conjuncts over its states (may be empty).
+        The formula's top-level conjuncts that constrain its states (may be empty); the block's
+        formula is their projection (:func:`project`).
     """
 
     states: np.ndarray
@@ -151,7 +158,7 @@ def split(problem: Any) -> list[Block] | None:
     atoms = formula.atomic_propositions()
     if any(ap.joints for ap in atoms):
         return None
-    conjuncts = list(formula.children) if isinstance(formula, STLAnd) else [formula]
+    conjuncts = _conjuncts(formula)
     uf = _Union(n)
     _link_matrix(uf, mode.A)
     owner_in = np.zeros(m, dtype=int)
@@ -188,16 +195,15 @@ def split(problem: Any) -> list[Block] | None:
                     uf.link([j, *owner_out[hit].tolist()])
         else:
             _link_outputs(uf, mode.noise_cov(problem.initial_state.mean), owner_out)
-    coords_of: list[np.ndarray] = []
+    coords_of: list[set[int]] = []
     for f in conjuncts:
         coords: set[int] = set()
         for ap in f.atomic_propositions():
             for pred in ap.predicates:
-                coords.update(_nonzero(pred.h).tolist())
-        if not coords:
-            return None  # a conjunct on no state (mode predicates only): nothing to split on
-        uf.link(sorted(coords))
-        coords_of.append(np.array(sorted(coords)))
+                touched = _nonzero(pred.h)
+                uf.link(touched)  # one chance constraint is never split
+                coords.update(touched.tolist())
+        coords_of.append(coords)
     roots = sorted({uf.find(i) for i in range(n)})
     if len(roots) < 2:
         return None
@@ -209,7 +215,7 @@ def split(problem: Any) -> list[Block] | None:
         rows = np.array(
             [k for k in range(domain.H.shape[0]) if np.any(np.abs(domain.H[k, inputs]) > 0)], dtype=int
         )
-        mine = [f for f, c in zip(conjuncts, coords_of, strict=True) if uf.find(int(c[0])) == r]
+        mine = [f for f, c in zip(conjuncts, coords_of, strict=True) if any(uf.find(i) == r for i in c)]
         if inputs.size == 0:
             return None
         blocks.append(Block(states, inputs, outputs, rows, mine))
@@ -264,8 +270,11 @@ def _sub_problem(problem: Any, block: Block) -> Any:
     def atom(ap: STLAtomicProposition) -> STLAtomicProposition:
         preds = []
         for pred in ap.predicates:
+            touched = _nonzero(pred.h)
+            if not touched.size or int(touched[0]) not in where:
+                continue  # another block's chance constraint (or a constant one)
             h = np.zeros(s.size)
-            for c in _nonzero(pred.h):
+            for c in touched:
                 h[where[int(c)]] = pred.h[c]
             preds.append(ProbabilisticLinearPredicate(h, pred.c, x, pred.eps))
         return STLAtomicProposition(preds, ap.modes, ap.name)
@@ -282,6 +291,34 @@ def _sub_problem(problem: Any, block: Block) -> Any:
 def _sub_domain(dom: Polytope, block: Block) -> Polytope:
     """The faces of the control domain over the block's inputs, shape (rows, m_g)."""
     return Polytope(dom.H[np.ix_(block.rows, block.inputs)], dom.c[block.rows])
+
+
+def _hold_input(mode: Any, dom: Polytope, block: Block, mean: np.ndarray) -> np.ndarray:
+    """The block's input after its plan ends: the one that keeps its mean where the plan left it
+    (least squares of ``B u = (I - A) mean``) when the control domain admits it, else the domain's
+    steering centre. Shape (m_g,)."""
+    from .sampler import steering_center  # (the sampler imports the synthesis parts)
+
+    s, i = block.states, block.inputs
+    A, B = mode.A[np.ix_(s, s)], mode.B[np.ix_(s, i)]
+    domain = _sub_domain(dom, block)
+    u = np.linalg.lstsq(B, mean - A @ mean, rcond=None)[0]
+    if domain.H.shape[0] == 0 or np.all(domain.H @ u + domain.c <= 0):
+        return np.asarray(u)
+    return np.asarray(steering_center(domain))
+
+
+def _conjuncts(formula: STLFormula) -> list[STLFormula]:
+    return list(formula.children) if isinstance(formula, STLAnd) else [formula]
+
+
+def _blocks_of(formula: STLFormula, blocks: list[Block]) -> set[int]:
+    """The blocks whose states the formula's chance constraints touch."""
+    touched: set[int] = set()
+    for ap in formula.atomic_propositions():
+        for pred in ap.predicates:
+            touched.update(_nonzero(pred.h).tolist())
+    return {g for g, b in enumerate(blocks) if touched & set(b.states.tolist())}
 
 
 def _merge(into: SolveStats, sub: SolveStats) -> None:
@@ -334,14 +371,13 @@ def solve_decoupled(
     )
     seeds = np.random.SeedSequence(options.seed).spawn(len(blocks))
     m = problem.switched_system.m
-    from .sampler import steering_center
-
-    parts = []
+    mode = problem.switched_system.system_modes[0]
     dom = problem.control_domain
+    mean0 = np.asarray(problem.initial_state.mean, dtype=float)
+    parts = []
     for g, block in enumerate(blocks):
-        centre = steering_center(_sub_domain(dom, block))
         if not block.conjuncts:
-            parts.append((np.zeros((0, block.inputs.size)), centre))
+            parts.append((np.zeros((0, block.inputs.size)), mean0[block.states]))
             continue
         sub = _sub_problem(problem, block)
         left = budget.remaining()
@@ -359,13 +395,35 @@ def solve_decoupled(
                 result.reason,
             )
             return None
-        parts.append(
-            (np.asarray(result.trajectory.get_control(), dtype=float).reshape(-1, block.inputs.size), centre)
-        )
+        traj = result.trajectory
+        controls_g = np.asarray(traj.get_control(), dtype=float).reshape(-1, block.inputs.size)
+        parts.append((controls_g, np.asarray(traj.get_mean(traj.num_of_steps), dtype=float)))
     N = max(c.shape[0] for c, _ in parts)
     controls = np.zeros((N, m))
-    for block, (c, centre) in zip(blocks, parts, strict=True):
-        controls[:, block.inputs] = centre
+    for block, (c, last) in zip(blocks, parts, strict=True):
+        controls[:, block.inputs] = _hold_input(mode, dom, block, last)
         controls[: c.shape[0], block.inputs] = c
-    how = f"{len(blocks)} independent blocks planned one by one and composed"
-    return DecoupledPlan(np.zeros(N, dtype=int), controls, how)
+    actions = np.zeros(N, dtype=int)
+    # The room of the composed plan, measured (and given where one LP round can) on the whole
+    # problem: the blocks' own rooms are about their own formulas.
+    stats.execution_room = None
+    if options.polish_rounds:
+        from .room import give_room  # (room imports the plan LP; kept out of the import-time graph)
+
+        init = problem.initial_state
+        traj = rollout(problem.switched_system, init, actions, controls)
+        abstraction = Abstraction(problem.stl_formula, problem.switched_system.n)
+        scaling = Scaling.compute(problem.switched_system, dom, init.mean, init.cov, abstraction)
+        rounds = 2 * max(options.polish_rounds, 4)
+        traj = give_room(problem, abstraction, scaling, traj, rounds, stats, budget.deadline)
+        actions, controls = (
+            np.asarray(traj.get_action(), dtype=int),
+            np.asarray(traj.get_control(), dtype=float),
+        )
+    separable = all(len(_blocks_of(f, blocks)) == 1 for f in _conjuncts(problem.stl_formula))
+    how = (
+        f"{len(blocks)} independent blocks planned one by one and composed"
+        if separable
+        else f"{len(blocks)} independent blocks planned on the formula's projections, composed with holds"
+    )
+    return DecoupledPlan(actions, controls, how)
