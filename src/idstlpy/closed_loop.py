@@ -404,6 +404,12 @@ def _batched_gain(PCt: np.ndarray, S: np.ndarray) -> np.ndarray:
             ok = (np.abs(det) > 1e-10 * (np.abs(a * d) + np.abs(b * c))) & np.isfinite(det) & (det != 0.0)
             inv = np.stack([np.stack([d, -b], axis=1), np.stack([-c, a], axis=1)], axis=1)
             K = PCt @ (inv / np.where(ok, det, 1.0)[:, None, None])
+        else:  # gain_from's solve, one LAPACK call for the batch (a singular one: per sample)
+            try:
+                K = np.swapaxes(np.linalg.solve(np.swapaxes(S, 1, 2), np.swapaxes(PCt, 1, 2)), 1, 2)
+                ok = np.ones(num, dtype=bool)
+            except np.linalg.LinAlgError:
+                pass
         ok &= np.all(np.isfinite(K), axis=(1, 2))
     for i in np.flatnonzero(~ok):
         K[i] = gain_from(PCt[i], S[i])

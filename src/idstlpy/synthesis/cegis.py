@@ -331,14 +331,18 @@ def synthesize(problem: Any, options: SolverOptions, start: float | None = None)
 
 def _decoupled(run: _Run, problem: Any, options: SolverOptions) -> SolveResult | None:
     """Independent blocks planned one by one (:mod:`.decoupled`); the composed plan must pass the
-    final check (:func:`_check`), else ``None`` and the joint loop runs."""
+    final check (:func:`_verify`: under ``"execution"`` the target too, or it is set aside), else
+    ``None`` and the joint loop runs."""
     if options.objective is not None or run.closed_loop:
         return None
     plan = solve_decoupled(problem, options, run.budget, run.stats, synthesize)
     if plan is None:
         return None
-    traj = rollout(problem.switched_system, problem.initial_state, plan.actions, plan.controls)
-    checked = _check(run, traj)
+    system, init = problem.switched_system, problem.initial_state
+    abstraction = Abstraction(problem.stl_formula, system.n)
+    scaling = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
+    run.use_units(scaling)
+    checked = _verify(run, plan.actions, plan.controls, abstraction, scaling)
     if checked is None:
         logger.info("decoupled: the composed plan failed the final check; searching the joint problem")
         return None
