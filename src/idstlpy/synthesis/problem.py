@@ -209,12 +209,18 @@ class Problem:
         else:
             raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
         from .cegis import synthesize
+        from .escalation import closed_loop_fallback
 
-        result = synthesize(self, opts, start)
-        if getattr(self, "_joint", False):
-            from .allocation import after_solve  # joint chance constraints (allocation.py)
+        def first() -> SolveResult:
+            result = synthesize(self, opts, start)
+            if getattr(self, "_joint", False):
+                from .allocation import after_solve  # joint chance constraints (allocation.py)
 
-            result = after_solve(self, opts, start, result, synthesize)
+                result = after_solve(self, opts, start, result, synthesize)
+            return result
+
+        # Under the default guarantee, a closed-loop solve when only plans below target were found.
+        result = closed_loop_fallback(self, opts, start, first, synthesize)
         self.last_result = result
         return result
 

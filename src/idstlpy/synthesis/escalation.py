@@ -1,0 +1,121 @@
+"""The default guarantee's last resort: a closed-loop solve when only plans below target were found.
+
+Under ``guarantee="execution"`` the search plans under the maximum-likelihood observation (the
+paper's reading), predicts each verified plan's execution and repairs or sets aside the plans
+below the execution target. When the search ends with only such plans, the MLO model was the
+wrong one to plan with: a plan that holds needs the execution's own spread in its constraints.
+``guarantee="closed_loop"`` plans against exactly that (the predicted true state), so one
+closed-loop solve, in the time left of the same cap and with the same seed, is tried before a
+below-target plan is returned.
+
+Its plan is returned only when it keeps every promise of the default: it satisfies the formula
+under the paper's semantics (re-checked here by the monitor on the MLO belief trajectory) *and*
+its predicted execution meets the target. Otherwise the first answer stands, warnings included.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+import warnings
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from ..errors import ExecutionTargetWarning
+from ..semantics import robustness
+from .options import SolverOptions
+from .results import SolveResult, SolveStats
+
+if TYPE_CHECKING:
+    from .problem import Problem
+
+__all__ = ["closed_loop_fallback"]
+
+logger = logging.getLogger(__name__)
+
+_MAXIMA = ("bmc_depth", "encoded_depth")  # statistics that are a maximum, not a count
+
+
+def _combined(first: SolveStats, second: SolveStats) -> SolveStats:
+    """The work of both solves in one record (counts and times add, depths take the maximum)."""
+    out = dataclasses.replace(second)
+    for f in dataclasses.fields(SolveStats):
+        a, b = getattr(first, f.name), getattr(second, f.name)
+        if f.name in _MAXIMA:
+            setattr(out, f.name, max(a, b))
+        elif f.name == "time_total" or f.name == "execution_room":
+            continue  # the second solve's clock counts from the same start; its plan's room
+        elif isinstance(a, list):
+            setattr(out, f.name, [*a, *(x for x in b if x not in a)] if f.name == "caps_hit" else [*a, *b])
+        elif isinstance(a, int | float) and not isinstance(a, bool):
+            setattr(out, f.name, a + b)
+    return out
+
+
+def _reissue(caught: list[warnings.WarningMessage], keep_target_warning: bool) -> None:
+    for w in caught:
+        if issubclass(w.category, ExecutionTargetWarning) and not keep_target_warning:
+            continue
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+
+
+def closed_loop_fallback(
+    problem: Problem,
+    options: SolverOptions,
+    start: float,
+    solve: Callable[[], SolveResult],
+    synthesize: Callable[[Problem, SolverOptions, float], SolveResult],
+) -> SolveResult:
+    """Run ``solve`` and, when the default guarantee could only return a plan below target, try
+    one closed-loop solve in the time left.
+
+    Parameters
+    ----------
+    problem : Problem
+    options : SolverOptions
+        The options of the solve (``guarantee="execution"`` enables the fallback).
+    start : float
+        ``time.perf_counter()`` at the first line of ``solve``: both solves share one time cap.
+    solve : callable () -> SolveResult
+        The first solve (warnings it issues are held until the answer is known).
+    synthesize : callable (problem, options, start) -> SolveResult
+        The solver, called with ``guarantee="closed_loop"`` for the fallback.
+
+    Returns
+    -------
+    SolveResult
+        The closed-loop plan when it satisfies the formula under the paper's semantics and meets
+        the execution target; the first result otherwise. Its statistics count both solves.
+    """
+    if options.guarantee != "execution":
+        return solve()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        first = solve()
+    below = first.status == "found" and first.meets_target is False
+    left = options.total_time_cap - (time.perf_counter() - start)
+    if not below or left <= 0:
+        _reissue(caught, keep_target_warning=True)
+        return first
+    logger.info("execution guarantee: only plans below target; trying guarantee='closed_loop'")
+    with warnings.catch_warnings(record=True) as caught_second:
+        warnings.simplefilter("always")
+        second = synthesize(problem, options.with_(guarantee="closed_loop"), start)
+    holds = (
+        second.status == "found"
+        and second.trajectory is not None
+        and second.meets_target is True
+        and robustness(second.trajectory, problem.stl_formula) >= 0.0
+    )
+    if not holds:
+        _reissue(caught, keep_target_warning=True)
+        logger.info("closed-loop fallback: %s; the first plan stands", second.reason)
+        return dataclasses.replace(first, stats=_combined(first.stats, second.stats))
+    _reissue(caught, keep_target_warning=False)
+    _reissue(caught_second, keep_target_warning=True)
+    reason = (
+        f"{second.reason}; planned against the predicted execution (guarantee='closed_loop') after "
+        f"the MLO search found only plans below the execution target (best: {first.reason})"
+    )
+    return dataclasses.replace(second, reason=reason, stats=_combined(first.stats, second.stats))
