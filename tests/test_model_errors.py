@@ -105,7 +105,7 @@ def test_to_belief_rejects_bad_covariance(cov, match):
 def test_to_belief_rejects_bad_mean_and_shape():
     with pytest.raises(stl.InvalidArgumentError, match="mean contains NaN or inf"):
         stl.to_belief([0.0, np.inf], I2)
-    with pytest.raises(stl.DimensionError, match=r"cov must have shape \(3, 3\)"):
+    with pytest.raises(stl.DimensionError, match=r"mean has 3 entries but cov is 2 x 2"):
         stl.to_belief([0.0, 0.0, 0.0], I2)
 
 
