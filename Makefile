@@ -27,12 +27,14 @@ demo: $(DEMO_STAMP)
 	$(BIN)/idstlpy demo light-dark --out out
 
 test: $(TEST_STAMP)
-	$(BIN)/ruff check src tests benchmarks examples
+	$(BIN)/ruff check src tests benchmarks examples tools
+	$(BIN)/ruff format --check src tests benchmarks examples tools
 	$(BIN)/mypy src
 	$(BIN)/python -m pytest
 
 lint: $(TEST_STAMP)
 	$(BIN)/ruff check src tests benchmarks examples tools
+	$(BIN)/ruff format --check src tests benchmarks examples tools
 	$(BIN)/mypy src
 	$(BIN)/python tools/structure_report.py
 

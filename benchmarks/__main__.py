@@ -43,38 +43,68 @@ def _csv_list(text: str) -> tuple[str, ...]:
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m benchmarks", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--suites", type=_csv_list, default=ALL_SUITES,
-                   help=f"comma-separated subset of {','.join(ALL_SUITES)} (default: all)")
-    p.add_argument("--quick", action="store_true",
-                   help="small subset: 3 scenarios at their example T and T=25, 1 repeat, 20 s limit, "
-                        "PrSTL at T=25, 3 light-dark seeds; does not touch BENCHMARKS.md")
-    p.add_argument("--scenarios", type=_csv_list, default=None,
-                   help=f"stlpy scenarios (default: all of {','.join(SCENARIOS)})")
-    p.add_argument("--horizons", type=lambda s: tuple(int(x) for x in _csv_list(s)), default=None,
-                   help=f"horizons T besides each example's own (default: {','.join(map(str, HORIZONS))})")
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--suites",
+        type=_csv_list,
+        default=ALL_SUITES,
+        help=f"comma-separated subset of {','.join(ALL_SUITES)} (default: all)",
+    )
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="small subset: 3 scenarios at their example T and T=25, 1 repeat, 20 s limit, "
+        "PrSTL at T=25, 3 light-dark seeds; does not touch BENCHMARKS.md",
+    )
+    p.add_argument(
+        "--scenarios",
+        type=_csv_list,
+        default=None,
+        help=f"stlpy scenarios (default: all of {','.join(SCENARIOS)})",
+    )
+    p.add_argument(
+        "--horizons",
+        type=lambda s: tuple(int(x) for x in _csv_list(s)),
+        default=None,
+        help=f"horizons T besides each example's own (default: {','.join(map(str, HORIZONS))})",
+    )
     p.add_argument("--no-example-T", action="store_true", help="do not add each scenario's example T")
     p.add_argument("--peers", type=_csv_list, default=PEERS, help="subset of gurobi,highs,scip")
     p.add_argument("--modes", type=_csv_list, default=MODES, help="subset of feasibility,robustness")
     p.add_argument("--repeats", type=int, default=None, help="repeats per job (default 3; median)")
     p.add_argument("--timeout", type=float, default=None, help="time limit per run in seconds (default 60)")
-    p.add_argument("--no-skip", action="store_true",
-                   help="run larger horizons even after a tool timed out on a smaller one")
+    p.add_argument(
+        "--no-skip",
+        action="store_true",
+        help="run larger horizons even after a tool timed out on a smaller one",
+    )
     p.add_argument("--prstl-horizons", type=lambda s: tuple(int(x) for x in _csv_list(s)), default=None)
     p.add_argument("--light-dark-seeds", type=int, default=None)
-    p.add_argument("--only", choices=("idstlpy", "peers"), default=None,
-                   help="run only idstlpy or only the peers")
-    p.add_argument("--reuse-peers", type=Path, default=None, metavar="CSV",
-                   help="take the peers' rows from an earlier results.csv and run idstlpy only "
-                        "(the peers do not change when idstlpy does)")
+    p.add_argument(
+        "--only", choices=("idstlpy", "peers"), default=None, help="run only idstlpy or only the peers"
+    )
+    p.add_argument(
+        "--reuse-peers",
+        type=Path,
+        default=None,
+        metavar="CSV",
+        help="take the peers' rows from an earlier results.csv and run idstlpy only "
+        "(the peers do not change when idstlpy does)",
+    )
     p.add_argument("--threads", type=int, default=0, help="solver threads for the peers (0: their default)")
     p.add_argument("--out", type=Path, default=ROOT / "results", help="output directory (default results/)")
     p.add_argument("--no-doc", action="store_true", help="do not rewrite BENCHMARKS.md")
     p.add_argument("--doc", type=Path, default=ROOT / "BENCHMARKS.md", help="where to write BENCHMARKS.md")
-    p.add_argument("--doc-from", type=Path, default=None, metavar="DIR",
-                   help="run nothing: refresh BENCHMARKS.md's sections from an earlier run's --out DIR "
-                        "(its results.csv and run.json), e.g. after editing benchmarks/analysis.md")
+    p.add_argument(
+        "--doc-from",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="run nothing: refresh BENCHMARKS.md's sections from an earlier run's --out DIR "
+        "(its results.csv and run.json), e.g. after editing benchmarks/analysis.md",
+    )
     p.add_argument("-v", "--verbose", action="store_true")
     return p.parse_args(argv)
 
@@ -126,8 +156,20 @@ def _write_doc(a: argparse.Namespace, run: dict, tables: str, plotted: bool, png
         plot_rel = str(png_path.relative_to(a.doc.resolve().parent)) if plotted else None
     except ValueError:
         plot_rel = str(png_path) if plotted else None
-    write_benchmarks_md(a.doc, tables, run["command"], run["machine"], run["timeout"], run["repeats"],
-                        plot_rel, run["started"], run["wall"], analysis, run.get("load"), run.get("suites"))
+    write_benchmarks_md(
+        a.doc,
+        tables,
+        run["command"],
+        run["machine"],
+        run["timeout"],
+        run["repeats"],
+        plot_rel,
+        run["started"],
+        run["wall"],
+        analysis,
+        run.get("load"),
+        run.get("suites"),
+    )
     logging.info("wrote %s", a.doc)
 
 
@@ -149,8 +191,11 @@ def _doc_from(a: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     a = parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if a.verbose else logging.INFO,
-                        format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    logging.basicConfig(
+        level=logging.DEBUG if a.verbose else logging.INFO,
+        format="%(asctime)s %(message)s",
+        datefmt="%H:%M:%S",
+    )
     for name in ("matplotlib", "PIL", "idstlpy"):
         logging.getLogger(name).setLevel(logging.WARNING)
     if a.doc_from is not None:
@@ -165,14 +210,20 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     rows: list[dict] = []
     if a.reuse_peers is not None:
-        rows.extend(r for r in load_rows(str(a.reuse_peers), "peers")
-                    if r["suite"] in a.suites and (r["suite"] != "stlpy" or r["scenario"] in cfg.scenarios))
+        rows.extend(
+            r
+            for r in load_rows(str(a.reuse_peers), "peers")
+            if r["suite"] in a.suites and (r["suite"] != "stlpy" or r["scenario"] in cfg.scenarios)
+        )
         logging.info("reusing %d peer rows from %s", len(rows), a.reuse_peers)
         cfg.extra["known"] = list(rows)
     csv_path, md_path, png_path = a.out / "results.csv", a.out / "results.md", a.out / "horizon_scaling.png"
     with Worker() as worker:
-        for suite, runner in (("stlpy", run_stlpy_suite), ("prstl", run_prstl_suite),
-                              ("lightdark", run_light_dark_suite)):
+        for suite, runner in (
+            ("stlpy", run_stlpy_suite),
+            ("prstl", run_prstl_suite),
+            ("lightdark", run_light_dark_suite),
+        ):
             if suite not in a.suites:
                 continue
             for row in runner(worker, cfg):
@@ -183,11 +234,21 @@ def main(argv: list[str] | None = None) -> int:
     mach = machine()
     plotted = plot_scaling(rows, png_path, cfg.timeout)
     cmd = command_line()
-    md_path.write_text(f"# Benchmark results\n\n`{cmd}` - {started}, nproc {mach['nproc']}, "
-                       f"{mach['cpu']}\n\n{tables}\n")
-    run = {"command": cmd, "started": started, "wall": wall, "machine": mach, "timeout": cfg.timeout,
-           "repeats": cfg.repeats, "peers": list(cfg.peers), "modes": list(cfg.modes),
-           "load": f"{load0} at the start, {_load()} at the end", "suites": list(a.suites)}
+    md_path.write_text(
+        f"# Benchmark results\n\n`{cmd}` - {started}, nproc {mach['nproc']}, {mach['cpu']}\n\n{tables}\n"
+    )
+    run = {
+        "command": cmd,
+        "started": started,
+        "wall": wall,
+        "machine": mach,
+        "timeout": cfg.timeout,
+        "repeats": cfg.repeats,
+        "peers": list(cfg.peers),
+        "modes": list(cfg.modes),
+        "load": f"{load0} at the start, {_load()} at the end",
+        "suites": list(a.suites),
+    }
     (a.out / "run.json").write_text(json.dumps(run, indent=1))
     logging.info("wrote %s, %s%s", csv_path, md_path, f", {png_path}" if plotted else "")
     if not a.quick and not a.no_doc:

@@ -39,25 +39,42 @@ SCENARIOS: dict[str, ScenarioDef] = {
     s.name: s
     for s in [
         ScenarioDef(
-            "ReachAvoid", "ReachAvoid",
-            {"goal_bounds": (7, 8, 8, 9), "obstacle_bounds": (3, 5, 4, 6)}, 15, (1.0, 2.0, 0.0, 0.0),
+            "ReachAvoid",
+            "ReachAvoid",
+            {"goal_bounds": (7, 8, 8, 9), "obstacle_bounds": (3, 5, 4, 6)},
+            15,
+            (1.0, 2.0, 0.0, 0.0),
             note="examples/reach_avoid.py leaves the bounds commented out; we apply the "
-                 "u/x boxes of the other examples to both tools",
+            "u/x boxes of the other examples to both tools",
         ),
         ScenarioDef(
-            "EitherOr", "EitherOr",
-            {"goal": (7, 8, 8, 9), "target_one": (1, 2, 6, 7), "target_two": (7, 8, 4.5, 5.5),
-             "obstacle": (3, 5, 4, 6), "T_dwell": 5}, 20, (2.0, 2.0, 0.0, 0.0),
+            "EitherOr",
+            "EitherOr",
+            {
+                "goal": (7, 8, 8, 9),
+                "target_one": (1, 2, 6, 7),
+                "target_two": (7, 8, 4.5, 5.5),
+                "obstacle": (3, 5, 4, 6),
+                "T_dwell": 5,
+            },
+            20,
+            (2.0, 2.0, 0.0, 0.0),
         ),
         ScenarioDef("NarrowPassage", "NarrowPassage", {}, 25, (3.0, 3.6, 0.0, 0.0)),
         ScenarioDef(
-            "RandomMultitarget", "RandomMultitarget",
-            {"num_obstacles": 1, "num_groups": 5, "targets_per_group": 2, "seed": 0}, 15,
+            "RandomMultitarget",
+            "RandomMultitarget",
+            {"num_obstacles": 1, "num_groups": 5, "targets_per_group": 2, "seed": 0},
+            15,
             (5.0, 2.0, 0.0, 0.0),
         ),
         ScenarioDef("DoorPuzzle", "DoorPuzzle", {"N": 2}, 30, (6.0, 1.0, 0.0, 0.0), x_box=X_BOX_15),
         ScenarioDef(
-            "SteppingStones", "SteppingStones", {"num_stones": 15, "seed": 1}, 15, (2.0, 1.3, 0.0, 0.0),
+            "SteppingStones",
+            "SteppingStones",
+            {"num_stones": 15, "seed": 1},
+            15,
+            (2.0, 1.3, 0.0, 0.0),
         ),
     ]
 }

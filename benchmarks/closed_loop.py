@@ -66,8 +66,14 @@ from .report import machine
 
 ROOT = Path(__file__).resolve().parent.parent
 PROBLEMS = ("light_dark", "light_dark_far", "light_dark_disturbed", "linear", "integrator", "two_modes")
-_LISTING = {"rrt_timeout": 60, "delta_near": 2, "delta_drain": 0.5, "goal_bias": 0.25,
-            "min_num_of_steps": 3, "max_num_of_steps": 15}
+_LISTING = {
+    "rrt_timeout": 60,
+    "delta_near": 2,
+    "delta_drain": 0.5,
+    "goal_bias": 0.25,
+    "min_num_of_steps": 3,
+    "max_num_of_steps": 15,
+}
 
 
 @dataclass
@@ -96,9 +102,11 @@ def _linear() -> tuple[Any, np.ndarray]:
     x, u = stl.mk_variable(2), stl.mk_variable(2, name="u")
     A = np.array([[1.0, 0.1], [0.0, 0.98]])
     system = stl.mk_switched_sys(
-        [stl.mk_lbs(A=A, B=0.25 * np.eye(2), W=0.03 * np.eye(2), C=np.eye(2), V=0.15 * np.eye(2))])
-    goal = stl.logical_and(_p(x[0] >= 1.6, 0.1), _p(x[0] <= 2.4, 0.1), _p(x[1] >= 1.6, 0.1),
-                           _p(x[1] <= 2.4, 0.1), name="goal")
+        [stl.mk_lbs(A=A, B=0.25 * np.eye(2), W=0.03 * np.eye(2), C=np.eye(2), V=0.15 * np.eye(2))]
+    )
+    goal = stl.logical_and(
+        _p(x[0] >= 1.6, 0.1), _p(x[0] <= 2.4, 0.1), _p(x[1] >= 1.6, 0.1), _p(x[1] <= 2.4, 0.1), name="goal"
+    )
     safe = stl.logical_and(_p(x[0] <= 3, 0.05), _p(x[1] >= -0.5, 0.05), name="safe")
     formula = stl.logical_and(stl.always(0, 20, safe), stl.eventually(5, 20, stl.always(0, 3, goal)))
     problem = stl.Problem(system, _box(u, 1.0), stl.to_belief([0, 0], np.diag([0.05, 0.05])), formula)
@@ -113,11 +121,12 @@ def _integrator() -> tuple[Any, np.ndarray]:
     B[2, 0] = B[3, 1] = 1.0
     C = np.hstack([np.eye(2), np.zeros((2, 2))])
     system = stl.mk_switched_sys(
-        [stl.mk_lbs(A=A, B=B, W=np.diag([0.0, 0.0, 0.03, 0.03]), C=C, V=0.2 * np.eye(2))])
-    goal = stl.logical_and(_p(x[0] >= 7, 0.1), _p(x[0] <= 9, 0.1), _p(x[1] >= 7, 0.1),
-                           _p(x[1] <= 9, 0.1), name="goal")
-    avoid = stl.logical_or(_p(x[0] <= 3, 0.05), _p(x[0] >= 5, 0.05), _p(x[1] <= 4, 0.05),
-                           _p(x[1] >= 6, 0.05))
+        [stl.mk_lbs(A=A, B=B, W=np.diag([0.0, 0.0, 0.03, 0.03]), C=C, V=0.2 * np.eye(2))]
+    )
+    goal = stl.logical_and(
+        _p(x[0] >= 7, 0.1), _p(x[0] <= 9, 0.1), _p(x[1] >= 7, 0.1), _p(x[1] <= 9, 0.1), name="goal"
+    )
+    avoid = stl.logical_or(_p(x[0] <= 3, 0.05), _p(x[0] >= 5, 0.05), _p(x[1] <= 4, 0.05), _p(x[1] >= 6, 0.05))
     formula = stl.logical_and(stl.always(0, 20, avoid), stl.eventually(0, 20, stl.always(0, 2, goal)))
     prior = stl.to_belief([1, 1, 0, 0], np.diag([0.05, 0.05, 0.01, 0.01]))
     return stl.Problem(system, _box(u, 0.5), prior, formula), np.array([1.2, 0.9, 0.0, 0.0])
@@ -132,8 +141,7 @@ def _timed_solve(problem: Any, **kw: Any) -> tuple[Any, float]:
 def cases(names: tuple[str, ...], seeds: int) -> Iterator[Case]:
     """The execution settings of the benchmark, in order."""
     if {"light_dark", "light_dark_far", "light_dark_disturbed"} & set(names):
-        disturbed = stl.mk_switched_sys(
-            [stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.02 * np.eye(2))])
+        disturbed = stl.mk_switched_sys([stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=0.02 * np.eye(2))])
         for seed in range(seeds):
             problem = light_dark()
             plan, solve_s = _timed_solve(problem, **_LISTING, seed=seed)
@@ -142,14 +150,33 @@ def cases(names: tuple[str, ...], seeds: int) -> Iterator[Case]:
             for mode in problem.switched_system.system_modes:
                 mode.compute_finite_horizon_lqr(horizon=5, Q_final=np.eye(2), Q=np.eye(2), R=0.05 * np.eye(2))
             if "light_dark" in names:
-                yield Case(f"light_dark seed {seed}", problem, plan, light_dark_real_system(),
-                           LIGHT_DARK_REAL_INITIAL_STATE, solve_s=solve_s)
+                yield Case(
+                    f"light_dark seed {seed}",
+                    problem,
+                    plan,
+                    light_dark_real_system(),
+                    LIGHT_DARK_REAL_INITIAL_STATE,
+                    solve_s=solve_s,
+                )
             if "light_dark_far" in names:
-                yield Case(f"light_dark_far seed {seed}", problem, plan, light_dark_real_system(),
-                           np.array([1.0, 3.25]), solve_s=solve_s)
+                yield Case(
+                    f"light_dark_far seed {seed}",
+                    problem,
+                    plan,
+                    light_dark_real_system(),
+                    np.array([1.0, 3.25]),
+                    solve_s=solve_s,
+                )
             if "light_dark_disturbed" in names:
-                yield Case(f"light_dark_disturbed seed {seed}", problem, plan, disturbed,
-                           LIGHT_DARK_REAL_INITIAL_STATE, process_noise="real", solve_s=solve_s)
+                yield Case(
+                    f"light_dark_disturbed seed {seed}",
+                    problem,
+                    plan,
+                    disturbed,
+                    LIGHT_DARK_REAL_INITIAL_STATE,
+                    process_noise="real",
+                    solve_s=solve_s,
+                )
     builders: dict[str, Callable[[], tuple[Any, np.ndarray]]] = {"linear": _linear, "integrator": _integrator}
     for name in ("linear", "integrator"):
         if name in names:
@@ -158,15 +185,23 @@ def cases(names: tuple[str, ...], seeds: int) -> Iterator[Case]:
             if plan is None:
                 continue
             for clip in (False, True):
-                yield Case(f"{name} ({'clipped' if clip else 'unclipped'})", problem, plan,
-                           problem.switched_system, x0, clip=clip, solve_s=solve_s)
+                yield Case(
+                    f"{name} ({'clipped' if clip else 'unclipped'})",
+                    problem,
+                    plan,
+                    problem.switched_system,
+                    x0,
+                    clip=clip,
+                    solve_s=solve_s,
+                )
     if "two_modes" in names:
         built = stl.load_problem(ROOT / "examples" / "two_modes.toml").build()
         problem = getattr(built, "problem", built)
         plan, solve_s = _timed_solve(problem, rrt_timeout=10, seed=0)
         if plan is not None:
-            yield Case("two_modes", problem, plan, problem.switched_system, np.array([0.5, -0.5]),
-                       solve_s=solve_s)
+            yield Case(
+                "two_modes", problem, plan, problem.switched_system, np.array([0.5, -0.5]), solve_s=solve_s
+            )
 
 
 def _inside(pred: np.ndarray, hits: np.ndarray, runs: int) -> np.ndarray:
@@ -180,12 +215,28 @@ def _inside(pred: np.ndarray, hits: np.ndarray, runs: int) -> np.ndarray:
 
 def compare(case: Case, runs: int, seed: int = 0) -> dict[str, Any]:
     """Validate and predict one case; the comparison numbers as a row."""
-    rep = stl.validate(case.problem, case.plan, case.real_system, case.x0, runs=runs, seed=seed,
-                       clip_controls=case.clip, process_noise=case.process_noise, keep_trajectories=runs)
+    rep = stl.validate(
+        case.problem,
+        case.plan,
+        case.real_system,
+        case.x0,
+        runs=runs,
+        seed=seed,
+        clip_controls=case.clip,
+        process_noise=case.process_noise,
+        keep_trajectories=runs,
+    )
     t0 = time.perf_counter()
     pred: ClosedLoopPrediction = predict_closed_loop(
-        case.problem, case.plan, case.real_system, case.x0, control_domain="problem" if case.clip else None,
-        process_noise=case.process_noise, samples=20000, seed=seed)
+        case.problem,
+        case.plan,
+        case.real_system,
+        case.x0,
+        control_domain="problem" if case.clip else None,
+        process_noise=case.process_noise,
+        samples=20000,
+        seed=seed,
+    )
     predict_s = time.perf_counter() - t0
     H = np.array([c.h for c in pred.constraints])
     c = np.array([c.c for c in pred.constraints])
@@ -193,12 +244,20 @@ def compare(case: Case, runs: int, seed: int = 0) -> dict[str, Any]:
     states = np.array([real.get_state() for _, real in rep.executions])
     hits = {
         "state": np.sum(states @ H.T + c <= 0, axis=0),
-        "belief": np.sum([sim.get_mean() @ H.T + c + std_terms(H, z, sim.get_cov()) <= 0
-                          for sim, _ in rep.executions], axis=0),
+        "belief": np.sum(
+            [sim.get_mean() @ H.T + c + std_terms(H, z, sim.get_cov()) <= 0 for sim, _ in rep.executions],
+            axis=0,
+        ),
     }
-    row: dict[str, Any] = {"case": case.name, "steps": case.plan.num_of_steps, "runs": runs,
-                           "solve_s": case.solve_s, "validate_s": rep.elapsed, "predict_s": predict_s,
-                           "max_clip": float(pred.clip_probability.max()) if pred.num_of_steps else 0.0}
+    row: dict[str, Any] = {
+        "case": case.name,
+        "steps": case.plan.num_of_steps,
+        "runs": runs,
+        "solve_s": case.solve_s,
+        "validate_s": rep.elapsed,
+        "predict_s": predict_s,
+        "max_clip": float(pred.clip_probability.max()) if pred.num_of_steps else 0.0,
+    }
     if any(m.p and m.has_state_dependent_noise for m in case.problem.switched_system.system_modes):
         row["linearisation"] = linearisation(case, rep, hits, states, runs)
     for reading in ("state", "belief"):
@@ -273,12 +332,14 @@ def _pct(x: float) -> str:
 
 def table(rows: list[dict[str, Any]]) -> str:
     """The rows as a Markdown table."""
-    head = ("| case | steps | max clip P | per step: max \\|diff\\| state / belief | "
-            "per step: inside 95% CI, all (non-trivial) state / belief | "
-            "per predicate: max \\|diff\\| state / belief (max rate) | "
-            "per predicate: inside | success, true state: bound / sampled bound / estimate / measured "
-            "[95% CI] | success, belief: bound / sampled bound / estimate / measured [95% CI] | "
-            "predict (s) | validate (s) |")
+    head = (
+        "| case | steps | max clip P | per step: max \\|diff\\| state / belief | "
+        "per step: inside 95% CI, all (non-trivial) state / belief | "
+        "per predicate: max \\|diff\\| state / belief (max rate) | "
+        "per predicate: inside | success, true state: bound / sampled bound / estimate / measured "
+        "[95% CI] | success, belief: bound / sampled bound / estimate / measured [95% CI] | "
+        "predict (s) | validate (s) |"
+    )
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
     for r in rows:
         lines.append(
@@ -296,17 +357,22 @@ def table(rows: list[dict[str, Any]]) -> str:
             f"{_pct(r['belief_bound'])} / {_pct(r['belief_sampled_bound'])} / {_pct(r['belief_estimate'])} / "
             f"{_pct(r['belief_measured'])} "
             f"[{_pct(r['belief_ci'][0])}, {_pct(r['belief_ci'][1])}] | "
-            f"{r['predict_s']:.2f} | {r['validate_s']:.1f} |")
+            f"{r['predict_s']:.2f} | {r['validate_s']:.1f} |"
+        )
     return "\n".join(lines)
 
 
 def summary(rows: list[dict[str, Any]]) -> str:
     """Pooled lines: worst differences and whether every bound stayed below its measured rate."""
     out = []
-    for group, pick in (("light-dark (state-dependent noise)", lambda r: r["case"].startswith("light_dark")),
-                        ("constant noise, unclipped (exact)", lambda r: "unclipped" in r["case"]),
-                        ("constant noise, clipped / switching", lambda r: "(clipped)" in r["case"]
-                         or r["case"] == "two_modes")):
+    for group, pick in (
+        ("light-dark (state-dependent noise)", lambda r: r["case"].startswith("light_dark")),
+        ("constant noise, unclipped (exact)", lambda r: "unclipped" in r["case"]),
+        (
+            "constant noise, clipped / switching",
+            lambda r: "(clipped)" in r["case"] or r["case"] == "two_modes",
+        ),
+    ):
         sel = [r for r in rows if pick(r)]
         if not sel:
             continue
@@ -323,7 +389,8 @@ def summary(rows: list[dict[str, Any]]) -> str:
             f"non-trivial per-step pairs inside the 95% interval: state "
             f"{_pct(worst('step_state_inside_nontrivial', min))} (worst case), belief "
             f"{_pct(worst('step_belief_inside_nontrivial', min))}; success bound <= measured upper CI "
-            f"in {below}/{2 * len(sel)} (sampled bound: {below_s}/{2 * len(sel)})")
+            f"in {below}/{2 * len(sel)} (sampled bound: {below_s}/{2 * len(sel)})"
+        )
     return "\n".join(out)
 
 
@@ -346,8 +413,14 @@ def goal_cases(kinds: tuple[str, ...], size: str, solve_seed: int, time_limit: f
         else:
             _gains(problem)
             caps = problem.last_result.stats.caps_hit
-            yield Case("light_dark" + (f" (caps hit: {', '.join(caps)})" if caps else ""), problem, plan,
-                       light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE, solve_s=solve_s)
+            yield Case(
+                "light_dark" + (f" (caps hit: {', '.join(caps)})" if caps else ""),
+                problem,
+                plan,
+                light_dark_real_system(),
+                LIGHT_DARK_REAL_INITIAL_STATE,
+                solve_s=solve_s,
+            )
     for kind in kinds:
         if kind == "light_dark":
             continue
@@ -359,8 +432,14 @@ def goal_cases(kinds: tuple[str, ...], size: str, solve_seed: int, time_limit: f
             continue
         _gains(problem)
         caps = problem.last_result.stats.caps_hit
-        yield Case(kind + (f" (caps hit: {', '.join(caps)})" if caps else ""), problem, plan,
-                   pp.real_system(problem), pp.real_initial_state(kind, problem), solve_s=solve_s)
+        yield Case(
+            kind + (f" (caps hit: {', '.join(caps)})" if caps else ""),
+            problem,
+            plan,
+            pp.real_system(problem),
+            pp.real_initial_state(kind, problem),
+            solve_s=solve_s,
+        )
 
 
 def _jsonable(x: Any) -> Any:
@@ -387,9 +466,19 @@ def goal_row(
 
     ``seed`` seeds the executions, ``predict_seed`` the prediction's model samples (kept apart so
     that a second validation seed re-measures the same prediction)."""
-    rep = stl.validate(case.problem, case.plan, case.real_system, case.x0, runs=runs, seed=seed,
-                       clip_controls=case.clip, process_noise=case.process_noise, keep_trajectories=runs,
-                       predict=True, predict_options={"samples": samples, "seed": predict_seed})
+    rep = stl.validate(
+        case.problem,
+        case.plan,
+        case.real_system,
+        case.x0,
+        runs=runs,
+        seed=seed,
+        clip_controls=case.clip,
+        process_noise=case.process_noise,
+        keep_trajectories=runs,
+        predict=True,
+        predict_options={"samples": samples, "seed": predict_seed},
+    )
     pred = rep.predicted
     cmp = rep.prediction_comparison()
     assert pred is not None and cmp is not None
@@ -399,22 +488,34 @@ def goal_row(
     states = np.array([real.get_state() for _, real in rep.executions])
     hits = {
         "state": np.sum(states @ H.T + c <= 0, axis=0),
-        "belief": np.sum([sim.get_mean() @ H.T + c + std_terms(H, z, sim.get_cov()) <= 0
-                          for sim, _ in rep.executions], axis=0),
+        "belief": np.sum(
+            [sim.get_mean() @ H.T + c + std_terms(H, z, sim.get_cov()) <= 0 for sim, _ in rep.executions],
+            axis=0,
+        ),
     }
     row: dict[str, Any] = {
-        "case": case.name, "steps": case.plan.num_of_steps, "runs": runs, "solve_s": case.solve_s,
-        "seed": seed, "samples": pred.samples, "entries": comparison_entries(cmp),
-        "validate_s": rep.elapsed, "noise": _noise_kind(case.problem),
+        "case": case.name,
+        "steps": case.plan.num_of_steps,
+        "runs": runs,
+        "solve_s": case.solve_s,
+        "seed": seed,
+        "samples": pred.samples,
+        "entries": comparison_entries(cmp),
+        "validate_s": rep.elapsed,
+        "noise": _noise_kind(case.problem),
         "max_clip": float(pred.clip_probability.max()) if pred.num_of_steps else 0.0,
         "box_domain": _is_box(case.problem.control_domain),
-        "constraints": len(cmp["predicates"]), "outside": cmp["outside"], "compared": cmp["compared"],
-        "outside_names": [f"{name} ({r})" for name, v in cmp["predicates"].items() for r, e in v.items()
-                          if e["outside"]],
+        "constraints": len(cmp["predicates"]),
+        "outside": cmp["outside"],
+        "compared": cmp["compared"],
+        "outside_names": [
+            f"{name} ({r})" for name, v in cmp["predicates"].items() for r, e in v.items() if e["outside"]
+        ],
     }
     for reading in ("belief", "state"):
-        diffs = [abs(v[reading]["diff"]) for v in cmp["predicates"].values()
-                 if v[reading]["diff"] is not None]
+        diffs = [
+            abs(v[reading]["diff"]) for v in cmp["predicates"].values() if v[reading]["diff"] is not None
+        ]
         row[f"pred_{reading}_maxdiff"] = max(diffs) if diffs else float("nan")
         worst = max(cmp["predicates"].items(), key=lambda kv: abs(kv[1][reading]["diff"] or 0.0))
         row[f"pred_{reading}_worst"] = (worst[0], worst[1][reading])
@@ -438,13 +539,28 @@ def comparison_entries(cmp: dict[str, Any]) -> list[dict[str, Any]]:
         for name, v in cmp[group].items():
             for reading, e in v.items():
                 if e["outside"] is not None:
-                    out.append({"group": group, "name": name, "reading": reading, "predicted": e["predicted"],
-                                "measured": e["measured"], "outside": e["outside"]})
+                    out.append(
+                        {
+                            "group": group,
+                            "name": name,
+                            "reading": reading,
+                            "predicted": e["predicted"],
+                            "measured": e["measured"],
+                            "outside": e["outside"],
+                        }
+                    )
     for reading, e in cmp["success"].items():
         if e["outside"] is not None:  # a success rate: compared as its complement, a failure rate
-            out.append({"group": "success", "name": "formula", "reading": reading,
-                        "predicted": 1.0 - e["predicted"], "measured": 1.0 - e["measured"],
-                        "outside": e["outside"]})
+            out.append(
+                {
+                    "group": "success",
+                    "name": "formula",
+                    "reading": reading,
+                    "predicted": 1.0 - e["predicted"],
+                    "measured": 1.0 - e["measured"],
+                    "outside": e["outside"],
+                }
+            )
     return out
 
 
@@ -509,12 +625,19 @@ def calibration(rows: list[dict[str, Any]]) -> dict[str, Any]:
         groups = [(r["case"], r["entries"]) for r in sel] + [("**all**", [e for _, e in flat])]
         for name, es in groups:
             n_out = sum(e["outside"] for e in es)
-            (totals if name == "**all**" else per).append({
-                "case": name, "seed": seed, "compared": len(es), "outside": n_out,
-                "expected": sum(e["p_out"] for e in es), "min_p": min((e["p_two"] for e in es), default=1.0),
-                "p_below_05": sum(e["p_two"] < 0.05 for e in es), "holm": sum(e["holm"] for e in es),
-                "tail": poisson_binomial_tail([e["p_out"] for e in es], n_out),
-            })
+            (totals if name == "**all**" else per).append(
+                {
+                    "case": name,
+                    "seed": seed,
+                    "compared": len(es),
+                    "outside": n_out,
+                    "expected": sum(e["p_out"] for e in es),
+                    "min_p": min((e["p_two"] for e in es), default=1.0),
+                    "p_below_05": sum(e["p_two"] < 0.05 for e in es),
+                    "holm": sum(e["holm"] for e in es),
+                    "tail": poisson_binomial_tail([e["p_out"] for e in es], n_out),
+                }
+            )
     return {"per": per, "totals": totals}
 
 
@@ -527,9 +650,20 @@ def pooled(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         base = r["case"].split(" [seed")[0]
         for e in r["entries"]:
             key = (base, e["group"], e["name"], e["reading"])
-            a = acc.setdefault(key, {"case": base, "group": e["group"], "name": e["name"],
-                                     "reading": e["reading"], "predicted": e["predicted"],
-                                     "samples": r["samples"], "hits": 0, "runs": 0, "seeds_outside": 0})
+            a = acc.setdefault(
+                key,
+                {
+                    "case": base,
+                    "group": e["group"],
+                    "name": e["name"],
+                    "reading": e["reading"],
+                    "predicted": e["predicted"],
+                    "samples": r["samples"],
+                    "hits": 0,
+                    "runs": 0,
+                    "seeds_outside": 0,
+                },
+            )
             a["hits"] += round(e["measured"] * r["runs"])
             a["runs"] += r["runs"]
             a["seeds_outside"] += bool(e["outside"])
@@ -554,14 +688,18 @@ def pooled_lines(pool: list[dict[str, Any]], worst: int = 8) -> str:
 
 def calibration_table(cal: dict[str, Any]) -> str:
     """Markdown of :func:`calibration`."""
-    head = ("| problem | validation seed | compared | outside the Wilson 95% CI (literal) | expected if "
-            "exact | P[>= that many] | two-sample p < 0.05 | min two-sample p | Holm-rejected (all rates, "
-            "FWER 5%) |")
+    head = (
+        "| problem | validation seed | compared | outside the Wilson 95% CI (literal) | expected if "
+        "exact | P[>= that many] | two-sample p < 0.05 | min two-sample p | Holm-rejected (all rates, "
+        "FWER 5%) |"
+    )
     lines = [head, "|" + "---|" * (head.count(" | ") + 1)]
     for c in [*cal["per"], *cal["totals"]]:
-        lines.append(f"| {c['case']} | {c['seed']} | {c['compared']} | {c['outside']} | "
-                     f"{c['expected']:.2f} | "
-                     f"{c['tail']:.3f} | {c['p_below_05']} | {c['min_p']:.3g} | {c['holm']} |")
+        lines.append(
+            f"| {c['case']} | {c['seed']} | {c['compared']} | {c['outside']} | "
+            f"{c['expected']:.2f} | "
+            f"{c['tail']:.3f} | {c['p_below_05']} | {c['min_p']:.3g} | {c['holm']} |"
+        )
     return "\n".join(lines)
 
 
@@ -576,8 +714,10 @@ def _noclip_cell(r: dict[str, Any]) -> str:
     nc = r.get("noclip")
     if nc is None:
         return "-"
-    return (f"{nc['pred_belief_maxdiff']:.3f} / {nc['pred_state_maxdiff']:.3f}; "
-            f"{nc['outside']} / {nc['compared']}")
+    return (
+        f"{nc['pred_belief_maxdiff']:.3f} / {nc['pred_state_maxdiff']:.3f}; "
+        f"{nc['outside']} / {nc['compared']}"
+    )
 
 
 def _opt_pct(x: float | None) -> str:
@@ -586,12 +726,14 @@ def _opt_pct(x: float | None) -> str:
 
 def goal_table(rows: list[dict[str, Any]], skipped: list[str]) -> str:
     """The goal's table and a line per problem without a plan."""
-    head = ("| problem | steps | sensor noise | max clip P | constraints | worst per-constraint "
-            "\\|pred - meas\\| belief / state (max measured rate) | rates outside the 95% CI | "
-            "per step: max \\|diff\\| belief / state | "
-            "success, belief: bound / estimate / measured [95% CI] | "
-            "success, true state: bound / estimate / measured [95% CI] | "
-            "unclipped (--why): worst \\|pred - meas\\| belief / state; outside | validate (s) |")
+    head = (
+        "| problem | steps | sensor noise | max clip P | constraints | worst per-constraint "
+        "\\|pred - meas\\| belief / state (max measured rate) | rates outside the 95% CI | "
+        "per step: max \\|diff\\| belief / state | "
+        "success, belief: bound / estimate / measured [95% CI] | "
+        "success, true state: bound / estimate / measured [95% CI] | "
+        "unclipped (--why): worst \\|pred - meas\\| belief / state; outside | validate (s) |"
+    )
     lines = [head, "|" + "---|" * (head.count(" | ") + 1)]
     for r in rows:
         lines.append(
@@ -607,12 +749,15 @@ def goal_table(rows: list[dict[str, Any]], skipped: list[str]) -> str:
                 f"{_pct(r[f'{k}_measured'])} [{_pct(r[f'{k}_ci'][0])}, {_pct(r[f'{k}_ci'][1])}]"
                 for k in ("belief", "state")
             )
-            + f" | {_noclip_cell(r)} | {r['validate_s']:.1f} |")
+            + f" | {_noclip_cell(r)} | {r['validate_s']:.1f} |"
+        )
     out = "\n".join(lines)
     flagged = [
-        f"- {r['case']}: " + "; ".join(r["outside_names"])
+        f"- {r['case']}: "
+        + "; ".join(r["outside_names"])
         + (f"; unclipped: {'; '.join(r['noclip']['outside_names']) or 'none'}" if r.get("noclip") else "")
-        for r in rows if r["outside_names"]
+        for r in rows
+        if r["outside_names"]
     ]
     if flagged:
         out += "\n\nPer-constraint rates outside the interval:\n\n" + "\n".join(flagged)
@@ -658,80 +803,101 @@ def goal_main(a: argparse.Namespace, argv: list[str] | None) -> int:
             if a.why and row["outside_names"]:
                 row["noclip"] = goal_row(dataclasses.replace(case, clip=False), a.runs, seed=seed)
             rows.append(row)
-            print(f"{row['case']}: {row['steps']} steps, worst per-constraint |diff| belief "
-                  f"{row['pred_belief_maxdiff']:.3f} state {row['pred_state_maxdiff']:.3f}, outside "
-                  f"{row['outside']}/{row['compared']}, state success bound {_opt_pct(row['state_bound'])} "
-                  f"measured {_pct(row['state_measured'])} ({row['validate_s']:.0f} s)", flush=True)
+            print(
+                f"{row['case']}: {row['steps']} steps, worst per-constraint |diff| belief "
+                f"{row['pred_belief_maxdiff']:.3f} state {row['pred_state_maxdiff']:.3f}, outside "
+                f"{row['outside']}/{row['compared']}, state success bound {_opt_pct(row['state_bound'])} "
+                f"measured {_pct(row['state_measured'])} ({row['validate_s']:.0f} s)",
+                flush=True,
+            )
             if a.json:
                 Path(a.json).write_text(json.dumps(rows, default=_jsonable))
     cal = calibration(rows)
     if a.json:
         Path(a.json).write_text(json.dumps(rows, default=_jsonable))
-    table_md = (goal_table(rows, skipped) + "\n\nCalibration over all compared rates:\n\n"
-                + calibration_table(cal))
+    table_md = (
+        goal_table(rows, skipped) + "\n\nCalibration over all compared rates:\n\n" + calibration_table(cal)
+    )
     if len(seeds) > 1:
         pool = pooled(rows)
         n_rej = sum(a["holm"] for a in pool)
-        table_md += (f"\n\nThe seeds pooled ({len(pool)} rates, {n_rej} Holm-rejected); "
-                     "smallest two-sample p-values:\n\n" + pooled_lines(pool))
+        table_md += (
+            f"\n\nThe seeds pooled ({len(pool)} rates, {n_rej} Holm-rejected); "
+            "smallest two-sample p-values:\n\n" + pooled_lines(pool)
+        )
     print()
     print(table_md)
     if a.out != "-":
         mach = machine()
         args = sys.argv[1:] if argv is None else argv
-        text = "\n".join([
-            GOAL_HEADING,
-            "",
-            f"- command: `python -m benchmarks.closed_loop {' '.join(args)}`",
-            f"- date: {dt.datetime.now().astimezone().isoformat(timespec='seconds')}",
-            f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}; {mach['python']}",
-            f"- idstlpy revision: {mach['git']}",
-            f"- each problem solved once (seed {a.solve_seed}, the listing's sampler parameters, "
-            f"time limit {a.time_limit:g} s, perception size `{a.size}`), then `validate(runs={a.runs}, "
-            f"predict=True)` with each validation seed {seeds} (the prediction's samples: seed 0): "
-            "real system and true start of the perception suite (light-dark: the "
-            "paper's), LQR horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain; prediction "
-            "with its defaults (sensor_noise='expected', filter_sensitivity=True), 20000 model samples",
-            "- a constraint's rate is the fraction of runs that broke it at a step where the plan "
-            "satisfies its proposition (validate's); 'outside' counts predicted rates (per "
-            "constraint and proposition, belief and true state, and the two success estimates) "
-            "outside the measured Wilson 95% interval: about 1 in 20 is expected by chance when the "
-            "prediction is exact; '(ABOVE)' marks a success bound above the measured interval",
-            "- calibration: 'expected if exact' sums, over the compared rates, the chance that a rate "
-            "predicted exactly falls outside the Wilson interval of the runs (binomial at the predicted "
-            "rate); 'P[>= that many]' is the Poisson-binomial tail of the literal count (as if the rates "
-            "were independent, which they are not: faces, propositions and readings overlap); the "
-            "two-sample p-value is Fisher's exact test of the model's samples against the runs (the "
-            "predicted rate is a Monte Carlo estimate too); Holm's step-down over every compared rate "
-            "of every problem (one family, valid under any dependence) at family-wise level 5%",
-            "",
-            table_md,
-            "",
-        ])
+        text = "\n".join(
+            [
+                GOAL_HEADING,
+                "",
+                f"- command: `python -m benchmarks.closed_loop {' '.join(args)}`",
+                f"- date: {dt.datetime.now().astimezone().isoformat(timespec='seconds')}",
+                f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}; {mach['python']}",
+                f"- idstlpy revision: {mach['git']}",
+                f"- each problem solved once (seed {a.solve_seed}, the listing's sampler parameters, "
+                f"time limit {a.time_limit:g} s, perception size `{a.size}`), then `validate(runs={a.runs}, "
+                f"predict=True)` with each validation seed {seeds} (the prediction's samples: seed 0): "
+                "real system and true start of the perception suite (light-dark: the "
+                "paper's), LQR horizon 5, Q = I, R = 0.05 I, inputs clipped to the domain; prediction "
+                "with its defaults (sensor_noise='expected', filter_sensitivity=True), 20000 model samples",
+                "- a constraint's rate is the fraction of runs that broke it at a step where the plan "
+                "satisfies its proposition (validate's); 'outside' counts predicted rates (per "
+                "constraint and proposition, belief and true state, and the two success estimates) "
+                "outside the measured Wilson 95% interval: about 1 in 20 is expected by chance when the "
+                "prediction is exact; '(ABOVE)' marks a success bound above the measured interval",
+                "- calibration: 'expected if exact' sums, over the compared rates, the chance that a rate "
+                "predicted exactly falls outside the Wilson interval of the runs (binomial at the predicted "
+                "rate); 'P[>= that many]' is the Poisson-binomial tail of the literal count (as if the rates "
+                "were independent, which they are not: faces, propositions and readings overlap); the "
+                "two-sample p-value is Fisher's exact test of the model's samples against the runs (the "
+                "predicted rate is a Monte Carlo estimate too); Holm's step-down over every compared rate "
+                "of every problem (one family, valid under any dependence) at family-wise level 5%",
+                "",
+                table_md,
+                "",
+            ]
+        )
         write_goal_section(Path(a.out), text)
         print(f"\nwrote the goal section of {a.out}")
     return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.closed_loop", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.closed_loop",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--runs", type=int, default=1000)
     p.add_argument("--seeds", type=int, default=5, help="light-dark planner seeds 0..seeds-1")
     p.add_argument("--problems", default=",".join(PROBLEMS), help=f"comma-separated subset of {PROBLEMS}")
-    p.add_argument("--out", default=str(ROOT / "benchmarks" / "closed_loop_results.md"),
-                   help="Markdown file to write ('-' for none)")
-    p.add_argument("--goal", action="store_true",
-                   help="issue 15's goal: validate(predict=True) on light-dark and the perception suite")
+    p.add_argument(
+        "--out",
+        default=str(ROOT / "benchmarks" / "closed_loop_results.md"),
+        help="Markdown file to write ('-' for none)",
+    )
+    p.add_argument(
+        "--goal",
+        action="store_true",
+        help="issue 15's goal: validate(predict=True) on light-dark and the perception suite",
+    )
     p.add_argument("--kinds", default="", help="(--goal) comma-separated light_dark and perception kinds")
     p.add_argument("--size", default="full", choices=("small", "full"), help="(--goal) perception size")
     p.add_argument("--solve-seed", type=int, default=0, help="(--goal) the solver's seed")
     p.add_argument("--time-limit", type=float, default=120.0, help="(--goal) seconds per solve")
-    p.add_argument("--validate-seeds", default="0",
-                   help="(--goal) comma-separated validation seeds, each a full validate() of every plan")
+    p.add_argument(
+        "--validate-seeds",
+        default="0",
+        help="(--goal) comma-separated validation seeds, each a full validate() of every plan",
+    )
     p.add_argument("--json", default="", help="(--goal) write every row and compared rate to this file")
-    p.add_argument("--why", action="store_true",
-                   help="(--goal) re-run a problem with a flagged rate without clipping")
+    p.add_argument(
+        "--why", action="store_true", help="(--goal) re-run a problem with a flagged rate without clipping"
+    )
     a = p.parse_args(argv)
     if a.goal:
         return goal_main(a, argv)
@@ -743,9 +909,12 @@ def main(argv: list[str] | None = None) -> int:
     for case in cases(names, a.seeds):
         row = compare(case, a.runs)
         rows.append(row)
-        print(f"{row['case']}: per step max |diff| state {row['step_state_maxdiff']:.3f} belief "
-              f"{row['step_belief_maxdiff']:.3f}; success state bound {row['state_bound']:.3f} "
-              f"est {row['state_estimate']:.3f} measured {row['state_measured']:.3f}", flush=True)
+        print(
+            f"{row['case']}: per step max |diff| state {row['step_state_maxdiff']:.3f} belief "
+            f"{row['step_belief_maxdiff']:.3f}; success state bound {row['state_bound']:.3f} "
+            f"est {row['state_estimate']:.3f} measured {row['state_measured']:.3f}",
+            flush=True,
+        )
     md = table(rows)
     summ = summary(rows)
     lin = linearisation_table(rows)
@@ -759,41 +928,44 @@ def main(argv: list[str] | None = None) -> int:
     if a.out != "-":
         mach = machine()
         args = sys.argv[1:] if argv is None else argv
-        text = "\n".join([
-            "# Predicted vs measured closed loop",
-            "",
-            f"- command: `python -m benchmarks.closed_loop {' '.join(args)}`",
-            f"- date: {dt.datetime.now().astimezone().isoformat(timespec='seconds')}",
-            f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}; {mach['python']}",
-            f"- idstlpy revision: {mach['git']}",
-            "- prediction: `predict_closed_loop` defaults (sensor_noise='expected', "
-            "filter_sensitivity=True), 20000 Gaussian-model samples for the per-predicate and success "
-            "estimates; measured: "
-            "`validate` (Wilson 95% intervals), LQR horizon 5, Q = I, R = 0.05 I on light-dark, "
-            "the defaults elsewhere",
-            "",
-            md,
-            "",
-            summ,
-            "",
-            *(
-                [
-                    "## Linearisation of state-dependent sensor noise",
-                    "",
-                    "The same executions against the prediction under each linearisation: "
-                    "`sensor_noise` (`plan`: R at the planned mean; `mean`: at the predicted true-state "
-                    "mean; `expected`: E[R] over the predicted true state) and `+sens` "
-                    "(`filter_sensitivity`: the filter covariance's first-order variation carried along). "
-                    "Cells: per-step max |predicted - measured| probability for the true state / the "
-                    "executed belief; max error of the true state's mean / standard deviation.",
-                    "",
-                    lin,
-                    "",
-                ]
-                if lin
-                else []
-            ),
-        ])
+        text = "\n".join(
+            [
+                "# Predicted vs measured closed loop",
+                "",
+                f"- command: `python -m benchmarks.closed_loop {' '.join(args)}`",
+                f"- date: {dt.datetime.now().astimezone().isoformat(timespec='seconds')}",
+                f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}; {mach['python']}",
+                f"- idstlpy revision: {mach['git']}",
+                "- prediction: `predict_closed_loop` defaults (sensor_noise='expected', "
+                "filter_sensitivity=True), 20000 Gaussian-model samples for the per-predicate and success "
+                "estimates; measured: "
+                "`validate` (Wilson 95% intervals), LQR horizon 5, Q = I, R = 0.05 I on light-dark, "
+                "the defaults elsewhere",
+                "",
+                md,
+                "",
+                summ,
+                "",
+                *(
+                    [
+                        "## Linearisation of state-dependent sensor noise",
+                        "",
+                        "The same executions against the prediction under each linearisation: "
+                        "`sensor_noise` (`plan`: R at the planned mean; `mean`: at the predicted true-state "
+                        "mean; `expected`: E[R] over the predicted true state) and `+sens` "
+                        "(`filter_sensitivity`: the filter covariance's first-order variation "
+                        "carried along). "
+                        "Cells: per-step max |predicted - measured| probability for the true state / the "
+                        "executed belief; max error of the true state's mean / standard deviation.",
+                        "",
+                        lin,
+                        "",
+                    ]
+                    if lin
+                    else []
+                ),
+            ]
+        )
         Path(a.out).write_text(text)
         print(f"\nwrote {a.out}")
     return 0

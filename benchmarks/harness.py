@@ -21,8 +21,17 @@ __all__ = ["Worker"]
 logger = logging.getLogger(__name__)
 
 _WARMUP = (
-    "idstlpy", "idstlpy.scenarios", "stlpy.solvers", "stlpy.benchmarks", "gurobipy", "highspy", "pyscipopt",
-    "scipy.optimize", "benchmarks.peers", "benchmarks.stlpy_translate", "benchmarks.prstl_milp",
+    "idstlpy",
+    "idstlpy.scenarios",
+    "stlpy.solvers",
+    "stlpy.benchmarks",
+    "gurobipy",
+    "highspy",
+    "pyscipopt",
+    "scipy.optimize",
+    "benchmarks.peers",
+    "benchmarks.stlpy_translate",
+    "benchmarks.prstl_milp",
 )
 
 
@@ -53,8 +62,11 @@ def _loop(conn: Any) -> None:
             fn = getattr(importlib.import_module(mod_name), fn_name)
             out = fn(**kwargs)
         except Exception as exc:
-            out = {"status": "error", "detail": f"{type(exc).__name__}: {exc}",
-                   "traceback": traceback.format_exc(limit=4)}
+            out = {
+                "status": "error",
+                "detail": f"{type(exc).__name__}: {exc}",
+                "traceback": traceback.format_exc(limit=4),
+            }
         conn.send(out)
 
 

@@ -34,8 +34,9 @@ import numpy as np
 from idstlpy.scenarios import reach_avoid
 
 
-def previous_rule(conflicts: Sequence[Sequence[Any]], candidates: int, min_candidates: int,
-                  conflict_size: float) -> bool:
+def previous_rule(
+    conflicts: Sequence[Sequence[Any]], candidates: int, min_candidates: int, conflict_size: float
+) -> bool:
     """``switch_to_eager`` as of commit 3356fca: no early look, ``lazy_candidates`` at least."""
     if candidates < min_candidates:
         return False
@@ -70,8 +71,10 @@ def switch_ab(cells: list[str], repeats: int) -> None:
     rules = {"previous": previous_rule, "current": switch_to_eager}
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"nproc {os.cpu_count()}, load {load:.1f}, {time.strftime('%H:%M UTC', time.gmtime())}\n")
-    print("| cell | previous CPU s | current CPU s | current / previous | previous wall s | current wall s "
-          "| candidates (previous / current) | answers (previous / current) |")
+    print(
+        "| cell | previous CPU s | current CPU s | current / previous | previous wall s | current wall s "
+        "| candidates (previous / current) | answers (previous / current) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     try:
         for cell in cells:
@@ -79,7 +82,7 @@ def switch_ab(cells: list[str], repeats: int) -> None:
             wall: dict[str, list[float]] = {k: [] for k in rules}
             seen: dict[str, tuple[str, int]] = {}
             for r in range(repeats):
-                for tag in (("previous", "current") if r % 2 == 0 else ("current", "previous")):
+                for tag in ("previous", "current") if r % 2 == 0 else ("current", "previous"):
                     cegis.switch_to_eager = rules[tag]  # type: ignore[assignment]
                     problem = _problem(cell)
                     c0, w0 = time.process_time(), time.perf_counter()
@@ -88,14 +91,20 @@ def switch_ab(cells: list[str], repeats: int) -> None:
                     wall[tag].append(time.perf_counter() - w0)
                     answer = out.status
                     if out.found:
-                        answer += " (monitor ok)" if I.satisfies(out.trajectory, problem.stl_formula) \
+                        answer += (
+                            " (monitor ok)"
+                            if I.satisfies(out.trajectory, problem.stl_formula)
                             else " (MONITOR REJECTS)"
+                        )
                     seen[tag] = (answer, out.stats.candidates)
             p, c = statistics.median(cpu["previous"]), statistics.median(cpu["current"])
             wp, wc = statistics.median(wall["previous"]), statistics.median(wall["current"])
-            print(f"| {cell} | {p:.3f} | {c:.3f} | {c / p:.2f} | {wp:.3f} | {wc:.3f} | "
-                  f"{seen['previous'][1]} / {seen['current'][1]} | "
-                  f"{seen['previous'][0]} / {seen['current'][0]} |", flush=True)
+            print(
+                f"| {cell} | {p:.3f} | {c:.3f} | {c / p:.2f} | {wp:.3f} | {wc:.3f} | "
+                f"{seen['previous'][1]} / {seen['current'][1]} | "
+                f"{seen['previous'][0]} / {seen['current'][0]} |",
+                flush=True,
+            )
     finally:
         cegis.switch_to_eager = switch_to_eager
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -103,8 +112,11 @@ def switch_ab(cells: list[str], repeats: int) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m benchmarks.lp_path", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        prog="python -m benchmarks.lp_path",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     p.add_argument("--horizons", default="25,50,100,200")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--lazy-candidates", type=int, default=None)
@@ -130,8 +142,10 @@ def main(argv: list[str] | None = None) -> int:
             result = problem.solve_result(rrt_timeout=60, seed=0, **kw)
             times.append(time.perf_counter() - t0)
         steps = result.trajectory.num_of_steps if result.found else "-"
-        print(f"| {T} | {result.status} | {statistics.median(times):.3f} | {min(times):.3f} / "
-              f"{max(times):.3f} | {result.stats.candidates} | {steps} | {result.reason} |")
+        print(
+            f"| {T} | {result.status} | {statistics.median(times):.3f} | {min(times):.3f} / "
+            f"{max(times):.3f} | {result.stats.candidates} | {steps} | {result.reason} |"
+        )
     return 0
 
 

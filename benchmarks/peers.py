@@ -73,8 +73,13 @@ def verify_stlpy_solution(name: str, T: int, x: np.ndarray, u: np.ndarray) -> di
     xviol = float(max(np.max(xl[:, None] - x), np.max(x - xh[:, None]), 0.0))
     uviol = float(max(np.max(ul[:, None] - u), np.max(u - uh[:, None]), 0.0))
     ok = rob >= -TOL and dyn <= TOL and init <= TOL and xviol <= TOL and uviol <= TOL
-    return {"stlpy_robustness": rob, "dyn_residual": dyn, "x0_residual": init,
-            "box_violation": max(xviol, uviol), "verified_stlpy": bool(ok)}
+    return {
+        "stlpy_robustness": rob,
+        "dyn_residual": dyn,
+        "x0_residual": init,
+        "box_violation": max(xviol, uviol),
+        "verified_stlpy": bool(ok),
+    }
 
 
 # -- idstlpy on stlpy scenarios -----------------------------------------------------------------
@@ -93,11 +98,17 @@ def idstlpy_stlpy(name: str, T: int, time_limit: float, seed: int = 0) -> dict[s
     res = problem.solve_result(rrt_timeout=time_limit, time_limit=max(time_limit - build_s, 0.1), seed=seed)
     solve_s = _pc() - t1
     out: dict[str, Any] = {
-        "build_s": build_s, "solve_s": solve_s, "e2e_s": build_s + solve_s,
-        "detail": res.reason, "candidates": res.stats.candidates,
-        "counterexamples": res.stats.counterexamples, "bmc_depth": res.stats.bmc_depth,
-        "time_bmc": res.stats.time_bmc, "time_lp": res.stats.time_lp,
-        "translation": str(tr.stats.__dict__), "idstlpy_src": SOURCE_DIGEST,
+        "build_s": build_s,
+        "solve_s": solve_s,
+        "e2e_s": build_s + solve_s,
+        "detail": res.reason,
+        "candidates": res.stats.candidates,
+        "counterexamples": res.stats.counterexamples,
+        "bmc_depth": res.stats.bmc_depth,
+        "time_bmc": res.stats.time_bmc,
+        "time_lp": res.stats.time_lp,
+        "translation": str(tr.stats.__dict__),
+        "idstlpy_src": SOURCE_DIGEST,
     }
     if res.status == "found":
         traj = res.trajectory
@@ -106,8 +117,11 @@ def idstlpy_stlpy(name: str, T: int, time_limit: float, seed: int = 0) -> dict[s
         out["margin"] = float(res.margin)
         out["monitor"] = bool(I.satisfies(traj, problem.stl_formula))
         if N < T:
-            out.update(status="solved", verified=False,
-                       detail=f"plan has {N} < T = {T} steps: stlpy cannot evaluate it")
+            out.update(
+                status="solved",
+                verified=False,
+                detail=f"plan has {N} < T = {T} steps: stlpy cannot evaluate it",
+            )
             return out
         x = traj.get_mean()[: T + 1].T
         u = np.zeros((sysm.m, T + 1))
@@ -131,7 +145,12 @@ def _values_by_name(names: list[str], values: Any, prefix: str, shape: tuple[int
 
 
 def stlpy_micp(
-    name: str, T: int, backend: str, mode: str, time_limit: float, bigM: float = 1000.0,
+    name: str,
+    T: int,
+    backend: str,
+    mode: str,
+    time_limit: float,
+    bigM: float = 1000.0,
     threads: int = 0,
 ) -> dict[str, Any]:
     """stlpy's MICP for one scenario, solved by ``backend`` in ``mode``.
@@ -148,8 +167,9 @@ def stlpy_micp(
     t0 = _pc()
     spec, sysm, x0, T, d = build(name, T)
     spec.simplify()  # as stlpy's examples do: a shallower tree, fewer continuous z variables
-    solver = GurobiMICPSolver(spec, sysm, x0, T, M=bigM, robustness_cost=(mode == "robustness"),
-                              verbose=False)
+    solver = GurobiMICPSolver(
+        spec, sysm, x0, T, M=bigM, robustness_cost=(mode == "robustness"), verbose=False
+    )
     solver.AddControlBounds(*d.u_box)
     solver.AddStateBounds(*d.x_box)
     model = solver.model
@@ -159,9 +179,13 @@ def stlpy_micp(
     n, m, L = sysm.n, sysm.m, T + 1
     if backend == "gurobi":
         if model.NumVars > GUROBI_SIZE_LIMIT or model.NumConstrs > GUROBI_SIZE_LIMIT:
-            return {"status": "not_run", **size, "build_s": _pc() - t0,
-                    "detail": f"size-limited Gurobi licence: {model.NumVars} variables, "
-                              f"{model.NumConstrs} constraints > {GUROBI_SIZE_LIMIT}"}
+            return {
+                "status": "not_run",
+                **size,
+                "build_s": _pc() - t0,
+                "detail": f"size-limited Gurobi licence: {model.NumVars} variables, "
+                f"{model.NumConstrs} constraints > {GUROBI_SIZE_LIMIT}",
+            }
         build_s = _pc() - t0
         model.Params.TimeLimit = max(time_limit - build_s, 0.1)
         if threads:
@@ -173,8 +197,12 @@ def stlpy_micp(
         have = model.SolCount > 0
         x = solver.x.X if have else None
         u = solver.u.X if have else None
-        status_txt = {gp.GRB.OPTIMAL: "optimal", gp.GRB.INFEASIBLE: "infeasible",
-                      gp.GRB.TIME_LIMIT: "time limit", gp.GRB.INF_OR_UNBD: "inf_or_unbd"}.get(st, str(st))
+        status_txt = {
+            gp.GRB.OPTIMAL: "optimal",
+            gp.GRB.INFEASIBLE: "infeasible",
+            gp.GRB.TIME_LIMIT: "time limit",
+            gp.GRB.INF_OR_UNBD: "inf_or_unbd",
+        }.get(st, str(st))
         infeasible = st in (gp.GRB.INFEASIBLE, gp.GRB.INF_OR_UNBD)
         optimal = st == gp.GRB.OPTIMAL
     else:
@@ -233,8 +261,13 @@ def stlpy_micp(
                     u = _values_by_name(names, vals, "u", (m, L))
             else:
                 raise ValueError(f"unknown backend {backend!r}")
-    out: dict[str, Any] = {**size, "build_s": build_s, "solve_s": solve_s, "e2e_s": build_s + solve_s,
-                           "detail": f"solver status: {status_txt}"}
+    out: dict[str, Any] = {
+        **size,
+        "build_s": build_s,
+        "solve_s": solve_s,
+        "e2e_s": build_s + solve_s,
+        "detail": f"solver status: {status_txt}",
+    }
     if infeasible:
         out["status"] = "infeasible"
     elif have and (optimal or mode == "feasibility"):
@@ -264,12 +297,21 @@ def idstlpy_prstl(T: int, time_limit: float, seed: int = 0) -> dict[str, Any]:
     t1 = _pc()
     res = problem.solve_result(rrt_timeout=time_limit, time_limit=max(time_limit - build_s, 0.1), seed=seed)
     solve_s = _pc() - t1
-    out: dict[str, Any] = {"build_s": build_s, "solve_s": solve_s, "e2e_s": build_s + solve_s,
-                           "detail": res.reason, "candidates": res.stats.candidates,
-                           "idstlpy_src": SOURCE_DIGEST}
+    out: dict[str, Any] = {
+        "build_s": build_s,
+        "solve_s": solve_s,
+        "e2e_s": build_s + solve_s,
+        "detail": res.reason,
+        "candidates": res.stats.candidates,
+        "idstlpy_src": SOURCE_DIGEST,
+    }
     if res.found:
-        replay = I.rollout(problem.switched_system, problem.initial_state,
-                           res.trajectory.get_action(), res.trajectory.get_control())
+        replay = I.rollout(
+            problem.switched_system,
+            problem.initial_state,
+            res.trajectory.get_action(),
+            res.trajectory.get_control(),
+        )
         rob = I.robustness(replay, problem.stl_formula)
         out.update(status="solved", margin=rob, monitor=rob >= 0, verified=bool(rob >= 0))
     else:
@@ -296,8 +338,9 @@ def milp_prstl(T: int, time_limit: float) -> dict[str, Any]:
 
 
 # -- light-dark ---------------------------------------------------------------------------------
-def idstlpy_light_dark(seed: int, deadline: int = 240, hold: int = 40, rrt_timeout: float = 60.0,
-                       time_limit: float | None = None) -> dict[str, Any]:
+def idstlpy_light_dark(
+    seed: int, deadline: int = 240, hold: int = 40, rrt_timeout: float = 60.0, time_limit: float | None = None
+) -> dict[str, Any]:
     """The paper's listing ``light_dark().solve(60, 2, 0.5, 0.25, 3, 15)`` with one seed."""
     import idstlpy as I
     from idstlpy.scenarios import light_dark
@@ -308,16 +351,31 @@ def idstlpy_light_dark(seed: int, deadline: int = 240, hold: int = 40, rrt_timeo
     t1 = _pc()
     res = problem.solve_result(rrt_timeout, 2, 0.5, 0.25, 3, 15, seed=seed, time_limit=time_limit)
     solve_s = _pc() - t1
-    out: dict[str, Any] = {"build_s": build_s, "solve_s": solve_s, "e2e_s": build_s + solve_s,
-                           "detail": res.reason, "candidates": res.stats.candidates,
-                           "nodes": res.stats.nodes, "time_sampling": res.stats.time_sampling,
-                           "idstlpy_src": SOURCE_DIGEST}
+    out: dict[str, Any] = {
+        "build_s": build_s,
+        "solve_s": solve_s,
+        "e2e_s": build_s + solve_s,
+        "detail": res.reason,
+        "candidates": res.stats.candidates,
+        "nodes": res.stats.nodes,
+        "time_sampling": res.stats.time_sampling,
+        "idstlpy_src": SOURCE_DIGEST,
+    }
     if res.found:
-        replay = I.rollout(problem.switched_system, problem.initial_state,
-                           res.trajectory.get_action(), res.trajectory.get_control())
+        replay = I.rollout(
+            problem.switched_system,
+            problem.initial_state,
+            res.trajectory.get_action(),
+            res.trajectory.get_control(),
+        )
         rob = I.robustness(replay, problem.stl_formula)
-        out.update(status="solved", margin=rob, monitor=rob >= 0, verified=bool(rob >= 0),
-                   plan_steps=res.trajectory.num_of_steps)
+        out.update(
+            status="solved",
+            margin=rob,
+            monitor=rob >= 0,
+            verified=bool(rob >= 0),
+            plan_steps=res.trajectory.num_of_steps,
+        )
     else:
         out["status"] = {"infeasible": "infeasible", "budget_exhausted": "timeout"}[res.status]
     return out

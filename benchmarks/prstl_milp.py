@@ -47,14 +47,22 @@ def noisy_reach_avoid(T: int, eps: float = 0.05) -> I.Problem:
     lvl = 1 - eps
     mode = I.mk_lbs(A=np.eye(2), B=np.eye(2), W=0.05 * np.eye(2), C=np.eye(2), V=0.1 * np.eye(2))
     workspace = I.logical_and(
-        I.prob(x[0] >= 0) >= lvl, I.prob(x[0] <= 10) >= lvl,
-        I.prob(x[1] >= 0) >= lvl, I.prob(x[1] <= 10) >= lvl, name="workspace")
+        I.prob(x[0] >= 0) >= lvl,
+        I.prob(x[0] <= 10) >= lvl,
+        I.prob(x[1] >= 0) >= lvl,
+        I.prob(x[1] <= 10) >= lvl,
+        name="workspace",
+    )
     outside = I.logical_or(
-        I.prob(x[0] <= 3) >= lvl, I.prob(x[0] >= 5) >= lvl,
-        I.prob(x[1] <= 4) >= lvl, I.prob(x[1] >= 6) >= lvl)
+        I.prob(x[0] <= 3) >= lvl, I.prob(x[0] >= 5) >= lvl, I.prob(x[1] <= 4) >= lvl, I.prob(x[1] >= 6) >= lvl
+    )
     goal = I.logical_and(
-        I.prob(x[0] >= 7) >= lvl, I.prob(x[0] <= 8) >= lvl,
-        I.prob(x[1] >= 8) >= lvl, I.prob(x[1] <= 9) >= lvl, name="goal")
+        I.prob(x[0] >= 7) >= lvl,
+        I.prob(x[0] <= 8) >= lvl,
+        I.prob(x[1] >= 8) >= lvl,
+        I.prob(x[1] <= 9) >= lvl,
+        name="goal",
+    )
     spec = I.logical_and(I.always(0, T, I.logical_and(workspace, outside)), I.eventually(0, T, goal))
     return I.Problem(
         switched_system=I.mk_switched_sys([mode]),
@@ -118,8 +126,9 @@ class MILPEncoder:
                         row[self.u[k][j]] = -B[i, j]
                 self._row(row, 0.0, 0.0)
             for r in range(dom.H.shape[0]):  # H u + c <= 0
-                self._row({self.u[k][j]: dom.H[r, j] for j in range(self.m) if dom.H[r, j]},
-                          -np.inf, -dom.c[r])
+                self._row(
+                    {self.u[k][j]: dom.H[r, j] for j in range(self.m) if dom.H[r, j]}, -np.inf, -dom.c[r]
+                )
 
     def z(self, f: Any, k: int) -> Any:
         """Indicator of ``f`` at step ``k``: a column index, or the constant True / False."""
@@ -186,8 +195,9 @@ class MILPEncoder:
             for d in range(f.a, f.b + 1):
                 if k + d > self.N:
                     break
-                branches.append(self._and([self.z(f.right, k + d)]
-                                          + [self.z(f.left, k + j) for j in range(f.a, d)]))
+                branches.append(
+                    self._and([self.z(f.right, k + d)] + [self.z(f.left, k + j) for j in range(f.a, d)])
+                )
             return self._or(branches)
         if isinstance(f, STLRelease):
             all_right = self._and([self.z(f.right, k + d) for d in range(f.a, f.b + 1)])
@@ -195,8 +205,9 @@ class MILPEncoder:
             for d in range(f.a, f.b + 1):
                 if k + d > self.N:
                     break
-                branches.append(self._and([self.z(f.left, k + d)]
-                                          + [self.z(f.right, k + j) for j in range(f.a, d + 1)]))
+                branches.append(
+                    self._and([self.z(f.left, k + d)] + [self.z(f.right, k + j) for j in range(f.a, d + 1)])
+                )
             return self._or(branches)
         raise TypeError(f"cannot encode {type(f).__name__}")
 
@@ -221,8 +232,9 @@ class MILPEncoder:
         return A, np.array(lo), np.array(hi)
 
 
-def solve_prstl_milp(problem: I.Problem, N: int, time_limit: float = 60.0,
-                     t_start: float | None = None) -> dict[str, Any]:
+def solve_prstl_milp(
+    problem: I.Problem, N: int, time_limit: float = 60.0, t_start: float | None = None
+) -> dict[str, Any]:
     """Encode and solve; returns timings, status and the controls (``None`` without a plan)."""
     t0 = time.perf_counter() if t_start is None else t_start
     enc = MILPEncoder(problem, N)
@@ -238,9 +250,16 @@ def solve_prstl_milp(problem: I.Problem, N: int, time_limit: float = 60.0,
         options={"time_limit": float(max(time_limit - build_s, 0.1)), "disp": False},
     )
     solve_s = time.perf_counter() - t1
-    out: dict[str, Any] = {"build_s": build_s, "solve_s": solve_s, "e2e_s": build_s + solve_s,
-                           "nvars": len(enc.lb), "ncons": len(enc.rows), "nbin": int(sum(enc.integ)),
-                           "detail": f"scipy.milp status {res.status}: {res.message}", "controls": None}
+    out: dict[str, Any] = {
+        "build_s": build_s,
+        "solve_s": solve_s,
+        "e2e_s": build_s + solve_s,
+        "nvars": len(enc.lb),
+        "ncons": len(enc.rows),
+        "nbin": int(sum(enc.integ)),
+        "detail": f"scipy.milp status {res.status}: {res.message}",
+        "controls": None,
+    }
     if res.x is not None:
         out["controls"] = np.array([[res.x[c] for c in enc.u[k]] for k in range(N)])
         out["status"] = "solved"
@@ -251,4 +270,3 @@ def solve_prstl_milp(problem: I.Problem, N: int, time_limit: float = 60.0,
     else:
         out["status"] = "error"
     return out
-

@@ -190,11 +190,21 @@ def run_batch(
     elif mode == "drift":  # checked only when the belief leaves its predicted ellipse (no schedule)
         kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT}
     elif mode in CHECKED:  # drift, the plan checked once before (check_job)
-        kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT,
-              "risk_measure": "estimate" if mode == "checked_est" else "bound"}
+        kw = {
+            "replan": "on_risk",
+            "risk": RISK,
+            "check_every": plan.num_of_steps + 1,
+            "drift": DRIFT,
+            "risk_measure": "estimate" if mode == "checked_est" else "bound",
+        }
     elif mode in ("drift_start", "drift_start_cl"):  # drift; a plan predicted below the risk re-solved first
-        kw = {"replan": "on_risk", "risk": RISK, "check_every": plan.num_of_steps + 1, "drift": DRIFT,
-              "start_resolves": START_RESOLVES}
+        kw = {
+            "replan": "on_risk",
+            "risk": RISK,
+            "check_every": plan.num_of_steps + 1,
+            "drift": DRIFT,
+            "start_resolves": START_RESOLVES,
+        }
     elif mode == "every":
         kw = {"replan": "every", "every": every}
     if mode in ("on_risk_cl", "drift_start_cl", *CHECKED):  # re-solves against the predicted true state
@@ -323,13 +333,20 @@ def markdown(
         lines.append(f"- {row['kind']}: {row['goal']}")
     checks = [(row["kind"], mode, c) for row in rows for mode, c in sorted(row["checks"].items())]
     if checks:
-        lines += ["", "Start checks (`checked`, `checked_est`: once per plan; re-solves as guarantee "
-                  "status -> predicted, * adopted, ! cap hit):", ""]
+        lines += [
+            "",
+            "Start checks (`checked`, `checked_est`: once per plan; re-solves as guarantee "
+            "status -> predicted, * adopted, ! cap hit):",
+            "",
+        ]
         for kind, mode, c in checks:
-            tries = ", ".join(
-                f"{g} {st} -> {p:.4f}{'*' if a else ''}{'!' if cap else ''}"
-                for g, st, a, p, cap in c["replans"]
-            ) or "none (predicted above the risk)"
+            tries = (
+                ", ".join(
+                    f"{g} {st} -> {p:.4f}{'*' if a else ''}{'!' if cap else ''}"
+                    for g, st, a, p, cap in c["replans"]
+                )
+                or "none (predicted above the risk)"
+            )
             lines.append(
                 f"- {kind} {mode}: predicted {c['initial']:.4f} -> {c['predicted']:.4f} "
                 f"({c['steps']} steps); re-solves: {tries}; {c['seconds']:.1f} s"
@@ -411,8 +428,12 @@ def main(argv: list[str] | None = None) -> int:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--runs", type=int, default=50)
-    p.add_argument("--first", type=int, default=0,
-                   help="index of the first run (runs first .. first + runs - 1 of the seed stream)")
+    p.add_argument(
+        "--first",
+        type=int,
+        default=0,
+        help="index of the first run (runs first .. first + runs - 1 of the seed stream)",
+    )
     p.add_argument("--kinds", default="", help="comma-separated perception kinds (default: all, cheap first)")
     p.add_argument("--size", default="full", choices=pp.SIZES)
     p.add_argument("--solve-seed", type=int, default=0)

@@ -17,10 +17,34 @@ from typing import Any
 __all__ = ["machine", "write_csv", "markdown", "plot_scaling", "write_benchmarks_md", "merge_benchmarks_md"]
 
 CSV_FIELDS = [
-    "suite", "scenario", "T", "tool", "mode", "status", "verified", "repeats", "build_s", "solve_s",
-    "e2e_s", "e2e_runs", "stlpy_robustness", "monitor", "margin", "dyn_residual", "box_violation",
-    "nvars", "ncons", "nbin", "candidates", "counterexamples", "bmc_depth", "time_bmc", "time_lp",
-    "plan_steps", "translation", "detail",
+    "suite",
+    "scenario",
+    "T",
+    "tool",
+    "mode",
+    "status",
+    "verified",
+    "repeats",
+    "build_s",
+    "solve_s",
+    "e2e_s",
+    "e2e_runs",
+    "stlpy_robustness",
+    "monitor",
+    "margin",
+    "dyn_residual",
+    "box_violation",
+    "nvars",
+    "ncons",
+    "nbin",
+    "candidates",
+    "counterexamples",
+    "bmc_depth",
+    "time_bmc",
+    "time_lp",
+    "plan_steps",
+    "translation",
+    "detail",
 ]
 
 
@@ -42,10 +66,20 @@ def machine() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             versions.append(f"{pkg} (missing)")
     try:
-        rev = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                             cwd=Path(__file__).resolve().parent, check=False).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "src"], capture_output=True,
-                               text=True, cwd=Path(__file__).resolve().parent, check=False).stdout.strip()
+        rev = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            cwd=Path(__file__).resolve().parent,
+            check=False,
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--", "src"],
+            capture_output=True,
+            text=True,
+            cwd=Path(__file__).resolve().parent,
+            check=False,
+        ).stdout.strip()
         rev = (rev + (" + uncommitted changes in src/" if dirty else "")) or "unknown"
     except OSError:
         rev = "unknown"
@@ -125,27 +159,34 @@ def _index(rows: Sequence[dict[str, Any]]) -> dict[tuple, dict[str, Any]]:
     return {(r["suite"], r["scenario"], r["T"], r["tool"], r["mode"]): r for r in rows}
 
 
-def markdown(rows: Sequence[dict[str, Any]], timeout: float, peers: Sequence[str],
-             modes: Sequence[str]) -> str:
+def markdown(
+    rows: Sequence[dict[str, Any]], timeout: float, peers: Sequence[str], modes: Sequence[str]
+) -> str:
     """The Markdown tables of every suite present in ``rows``."""
     out: list[str] = []
     idx = _index(rows)
     digests = sorted({str(r["idstlpy_src"]) for r in rows if r.get("idstlpy_src")})
     if digests:
-        out.append(f"idstlpy sources measured (sha1 prefix of `src/idstlpy/**/*.py` as loaded by the "
-                   f"worker): {', '.join(digests)}\n")
+        out.append(
+            f"idstlpy sources measured (sha1 prefix of `src/idstlpy/**/*.py` as loaded by the "
+            f"worker): {', '.join(digests)}\n"
+        )
     reused = sorted({str(r["reused_from"]) for r in rows if r.get("reused_from")})
     if reused:
-        out.append(f"Peer rows reused from an earlier run: {', '.join(reused)} (same machine; the "
-                   "peers do not depend on idstlpy's code).\n")
+        out.append(
+            f"Peer rows reused from an earlier run: {', '.join(reused)} (same machine; the "
+            "peers do not depend on idstlpy's code).\n"
+        )
     st = [r for r in rows if r["suite"] == "stlpy"]
     if st:
         keys = sorted({(r["scenario"], r["T"]) for r in st}, key=lambda k: (_order(k[0]), k[1]))
         out.append("### stlpy scenarios: end-to-end seconds (median of repeats)\n")
-        out.append("Cells: end-to-end time (specification + encoding + solve) in seconds; "
-                   "`timeout >L` = no answer within the limit; `(incumbent)` = a verified solution was "
-                   "found but optimality not proven. `UNVERIFIED` would flag a solution rejected by "
-                   "stlpy's robustness or idstlpy's monitor.\n")
+        out.append(
+            "Cells: end-to-end time (specification + encoding + solve) in seconds; "
+            "`timeout >L` = no answer within the limit; `(incumbent)` = a verified solution was "
+            "found but optimality not proven. `UNVERIFIED` would flag a solution rejected by "
+            "stlpy's robustness or idstlpy's monitor.\n"
+        )
         cols = [(f"stlpy+{p}", m) for m in modes for p in peers]
         head = ["scenario", "T", "idstlpy", "idstlpy verified"]
         head += [f"{t.split('+')[1]} {m[:4]}" for t, m in cols]
@@ -162,8 +203,9 @@ def markdown(rows: Sequence[dict[str, Any]], timeout: float, peers: Sequence[str
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
         out.append("### stlpy scenarios: ratio idstlpy end-to-end / peer end-to-end\n")
-        out.append("Below 1 means idstlpy is faster (0.1 = 10x faster). `<x` / `>x`: a bound, one "
-                   "side timed out.\n")
+        out.append(
+            "Below 1 means idstlpy is faster (0.1 = 10x faster). `<x` / `>x`: a bound, one side timed out.\n"
+        )
         head = ["scenario", "T"] + [f"{t.split('+')[1]} {m[:4]}" for t, m in cols]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
@@ -174,23 +216,44 @@ def markdown(rows: Sequence[dict[str, Any]], timeout: float, peers: Sequence[str
             out.append("| " + " | ".join(cells) + " |")
         out.append("")
         out.append("### stlpy scenarios: build / solve split (seconds, median)\n")
-        head = ["scenario", "T", "tool", "mode", "status", "build", "solve", "e2e",
-                "MICP size (vars/cons/bin)", "detail"]
+        head = [
+            "scenario",
+            "T",
+            "tool",
+            "mode",
+            "status",
+            "build",
+            "solve",
+            "e2e",
+            "MICP size (vars/cons/bin)",
+            "detail",
+        ]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
         for r in sorted(st, key=lambda r: (_order(r["scenario"]), r["T"], r["tool"], r["mode"])):
             if r["status"] == "not_run":
                 continue
             size = f"{r.get('nvars')}/{r.get('ncons')}/{r.get('nbin')}" if r.get("nvars") else ""
-            out.append(f"| {r['scenario']} | {r['T']} | {r['tool']} | {r['mode']} | {r['status']} | "
-                       f"{_t(r.get('build_s'))} | {_t(r.get('solve_s'))} | {_t(r.get('e2e_s'))} | {size} | "
-                       f"{str(r.get('detail', ''))[:80]} |")
+            out.append(
+                f"| {r['scenario']} | {r['T']} | {r['tool']} | {r['mode']} | {r['status']} | "
+                f"{_t(r.get('build_s'))} | {_t(r.get('solve_s'))} | {_t(r.get('e2e_s'))} | {size} | "
+                f"{str(r.get('detail', ''))[:80]} |"
+            )
         out.append("")
     pr = [r for r in rows if r["suite"] == "prstl"]
     if pr:
         out.append("### PrSTL (noisy reach-avoid): idstlpy vs the chance-constrained MILP (HiGHS)\n")
-        head = ["T", "tool", "status", "verified (monitor)", "build", "solve", "e2e", "margin",
-                "idstlpy / MILP"]
+        head = [
+            "T",
+            "tool",
+            "status",
+            "verified (monitor)",
+            "build",
+            "solve",
+            "e2e",
+            "margin",
+            "idstlpy / MILP",
+        ]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
         for T in sorted({r["T"] for r in pr}):
@@ -201,16 +264,28 @@ def markdown(rows: Sequence[dict[str, Any]], timeout: float, peers: Sequence[str
                     continue
                 ratio = _ratio(ido, mil, timeout) if r is ido else ""
                 margin = r.get("margin")
-                out.append(f"| {T} | {r['tool']} | {r['status']} | {_verif(r)} | {_t(r.get('build_s'))} | "
-                           f"{_t(r.get('solve_s'))} | {_t(r.get('e2e_s'))} | "
-                           f"{'' if margin in (None, '') else f'{float(margin):.3g}'} | {ratio} |")
+                out.append(
+                    f"| {T} | {r['tool']} | {r['status']} | {_verif(r)} | {_t(r.get('build_s'))} | "
+                    f"{_t(r.get('solve_s'))} | {_t(r.get('e2e_s'))} | "
+                    f"{'' if margin in (None, '') else f'{float(margin):.3g}'} | {ratio} |"
+                )
         out.append("")
     ld = [r for r in rows if r["suite"] == "light_dark"]
     if ld:
-        out.append("### Light-dark (paper listing: rrt_timeout=60, delta_near=2, delta_drain=0.5, "
-                   "goal_bias=0.25, 3..15 steps)\n")
-        head = ["variant", "seeds", "success", "verified", "median solve (s)", "max solve (s)",
-                "median / 60 s", "median stretched / listing"]
+        out.append(
+            "### Light-dark (paper listing: rrt_timeout=60, delta_near=2, delta_drain=0.5, "
+            "goal_bias=0.25, 3..15 steps)\n"
+        )
+        head = [
+            "variant",
+            "seeds",
+            "success",
+            "verified",
+            "median solve (s)",
+            "max solve (s)",
+            "median / 60 s",
+            "median stretched / listing",
+        ]
         out.append("| " + " | ".join(head) + " |")
         out.append("|" + "---|" * len(head))
         med: dict[str, float] = {}
@@ -226,8 +301,10 @@ def markdown(rows: Sequence[dict[str, Any]], timeout: float, peers: Sequence[str
             m = med[variant]
             base = med.get("light_dark[listing]")
             stretch = f"{m / base:.3g}" if "stretched" in variant and base else ""
-            out.append(f"| {variant} | {len(rs)} | {len(ok)}/{len(rs)} | {len(ver)}/{len(ok)} | {_t(m)} | "
-                       f"{_t(max(times) if times else float('nan'))} | {m / 60:.3g} | {stretch} |")
+            out.append(
+                f"| {variant} | {len(rs)} | {len(ok)}/{len(rs)} | {len(ver)}/{len(ok)} | {_t(m)} | "
+                f"{_t(max(times) if times else float('nan'))} | {m / 60:.3g} | {stretch} |"
+            )
         out.append("")
     return "\n".join(out)
 
@@ -309,15 +386,21 @@ def plot_scaling(rows: Sequence[dict[str, Any]], path: Path, timeout: float) -> 
             if ok:
                 ax.plot(*zip(*ok, strict=True), color=color, ls=ls, marker="o", ms=4, label=label)
             if bad:
-                ax.plot(*zip(*bad, strict=True), color=color, ls="none", marker="x", ms=9,
-                        label=None if ok else f"{label} (timeout)")
+                ax.plot(
+                    *zip(*bad, strict=True),
+                    color=color,
+                    ls="none",
+                    marker="x",
+                    ms=9,
+                    label=None if ok else f"{label} (timeout)",
+                )
         ax.axhline(timeout, color="gray", lw=0.8, ls=":")
         ax.set_yscale("log")
         ax.set_title(panel)
         ax.set_xlabel("horizon T")
         ax.set_ylabel("end-to-end time (s)")
         ax.grid(True, which="both", alpha=0.3)
-    for ax in axes.ravel()[len(panels):]:
+    for ax in axes.ravel()[len(panels) :]:
         ax.axis("off")
     handles, labels = {}, {}
     for ax in axes.ravel():
@@ -340,10 +423,20 @@ KEPT_FILES = ("core_results.md", "robustness_results.md", "closed_loop_results.m
 re-appends a kept file's section when BENCHMARKS.md has lost it (neither its title nor a link)."""
 
 
-def write_benchmarks_md(path: Path, tables: str, command: str, mach: dict[str, str], timeout: float,
-                        repeats: int, plot_rel: str | None, started: str, wall: float,
-                        analysis: str | None, load: str | None = None,
-                        suites: Sequence[str] | None = None) -> None:
+def write_benchmarks_md(
+    path: Path,
+    tables: str,
+    command: str,
+    mach: dict[str, str],
+    timeout: float,
+    repeats: int,
+    plot_rel: str | None,
+    started: str,
+    wall: float,
+    analysis: str | None,
+    load: str | None = None,
+    suites: Sequence[str] | None = None,
+) -> None:
     """Refresh this runner's sections of BENCHMARKS.md and keep everyone else's.
 
     The file is re-read right before it is written (other scripts and people edit their own
@@ -353,38 +446,50 @@ def write_benchmarks_md(path: Path, tables: str, command: str, mach: dict[str, s
     (:data:`KEPT_FILES`) are re-appended if a regeneration ever lost them.
     """
     generated = {
-        "Run": "\n".join([
-            f"- command: `{command}`",
-            f"- started: {started}; wall time {wall / 60:.1f} min",
-            f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}",
-            f"- {mach['python']} on {mach['platform']}",
-            f"- packages: {mach['packages']}",
-            f"- idstlpy revision: {mach['git']}",
-            f"- time limit per run: {timeout:g} s (solver's own limit, plus a hard kill of the worker "
-            f"process); repeats: {repeats} (median; a timeout is not repeated)",
-        ] + ([f"- load average (1 min, 2 cores shared with other jobs): {load}"] if load else [])
-          + ([f"- suites run: {', '.join(suites)}; the Results tables of suites not run are kept from "
-              "their own earlier runs (each says so)"] if suites else [])),
-        "What is measured": "\n".join([
-            "- **stlpy scenarios** (stlpy 0.3 `stlpy.benchmarks`, parameters and `x0` of stlpy's example "
-            "scripts, `|u_i| <= 0.5` and the examples' state box for both tools). idstlpy gets the "
-            "specification translated *automatically* (`benchmarks/stlpy_translate.py`: stlpy's "
-            "expanded and/or trees are recognised as always / eventually / until, each predicate "
-            "`a'y - b >= 0` becomes a chance constraint with eps = 0.01 on a noise-free system with zero "
-            "initial covariance, so PrSTL reduces to STL; the state box becomes `G[0,T] box`). Every "
-            "idstlpy plan is checked by stlpy's own `spec.robustness(y, 0) >= -1e-6` on a fresh "
-            "specification, by a dynamics / bounds replay, and by `idstlpy.satisfies`.",
-            "- **stlpy's MICP** (`GurobiMICPSolver` builds the gurobipy model after `spec.simplify()`, "
-            "big-M = 1000): Gurobi only when the size-limited pip licence admits the model (<= 2000 "
-            "variables and constraints), otherwise written to MPS and solved with HiGHS (highspy) and "
-            "SCIP (pyscipopt). `feas` = `robustness_cost=False` (rho >= 0, no objective), `robu` = "
-            "stlpy's default `robustness_cost=True` (maximise rho). The examples' optional quadratic "
-            "running cost is left out (MIQP). Gurobi is driven with `model.optimize()` directly because "
-            "`GurobiMICPSolver.Solve()` drops an incumbent found before a time limit. Peer solutions are "
-            "verified the same way.",
-            "- Build time = specification + encoding (+ MPS write/read for the open solvers); solve time "
-            "= the solver call; end-to-end = both (process start-up and imports excluded for every tool).",
-        ]),
+        "Run": "\n".join(
+            [
+                f"- command: `{command}`",
+                f"- started: {started}; wall time {wall / 60:.1f} min",
+                f"- machine: nproc = {mach['nproc']}, CPU: {mach['cpu']}",
+                f"- {mach['python']} on {mach['platform']}",
+                f"- packages: {mach['packages']}",
+                f"- idstlpy revision: {mach['git']}",
+                f"- time limit per run: {timeout:g} s (solver's own limit, plus a hard kill of the worker "
+                f"process); repeats: {repeats} (median; a timeout is not repeated)",
+            ]
+            + ([f"- load average (1 min, 2 cores shared with other jobs): {load}"] if load else [])
+            + (
+                [
+                    f"- suites run: {', '.join(suites)}; the Results tables of suites not run are kept from "
+                    "their own earlier runs (each says so)"
+                ]
+                if suites
+                else []
+            )
+        ),
+        "What is measured": "\n".join(
+            [
+                "- **stlpy scenarios** (stlpy 0.3 `stlpy.benchmarks`, parameters and `x0` of stlpy's example "
+                "scripts, `|u_i| <= 0.5` and the examples' state box for both tools). idstlpy gets the "
+                "specification translated *automatically* (`benchmarks/stlpy_translate.py`: stlpy's "
+                "expanded and/or trees are recognised as always / eventually / until, each predicate "
+                "`a'y - b >= 0` becomes a chance constraint with eps = 0.01 on a noise-free system with zero "
+                "initial covariance, so PrSTL reduces to STL; the state box becomes `G[0,T] box`). Every "
+                "idstlpy plan is checked by stlpy's own `spec.robustness(y, 0) >= -1e-6` on a fresh "
+                "specification, by a dynamics / bounds replay, and by `idstlpy.satisfies`.",
+                "- **stlpy's MICP** (`GurobiMICPSolver` builds the gurobipy model after `spec.simplify()`, "
+                "big-M = 1000): Gurobi only when the size-limited pip licence admits the model (<= 2000 "
+                "variables and constraints), otherwise written to MPS and solved with HiGHS (highspy) and "
+                "SCIP (pyscipopt). `feas` = `robustness_cost=False` (rho >= 0, no objective), `robu` = "
+                "stlpy's default `robustness_cost=True` (maximise rho). The examples' optional quadratic "
+                "running cost is left out (MIQP). Gurobi is driven with `model.optimize()` directly because "
+                "`GurobiMICPSolver.Solve()` drops an incumbent found before a time limit. Peer solutions are "
+                "verified the same way.",
+                "- Build time = specification + encoding (+ MPS write/read for the open solvers); solve time "
+                "= the solver call; end-to-end = both (process start-up and imports excluded for "
+                "every tool).",
+            ]
+        ),
         "Results": tables.strip(),
     }
     if plot_rel:
@@ -399,9 +504,11 @@ def write_benchmarks_md(path: Path, tables: str, command: str, mach: dict[str, s
     os.replace(tmp, path)
 
 
-_HEADER = ("# Benchmarks\n\nGenerated by `python -m benchmarks` (see `benchmarks/`) for the sections it owns "
-           "(Run, What is measured, Results, Horizon scaling, Analysis); the other sections are written by "
-           "the scripts and people they name, and a regeneration keeps them.\n")
+_HEADER = (
+    "# Benchmarks\n\nGenerated by `python -m benchmarks` (see `benchmarks/`) for the sections it owns "
+    "(Run, What is measured, Results, Horizon scaling, Analysis); the other sections are written by "
+    "the scripts and people they name, and a regeneration keeps them.\n"
+)
 
 
 def _split(text: str, marker: str) -> tuple[str, list[tuple[str, str]]]:
@@ -416,7 +523,7 @@ def _split(text: str, marker: str) -> tuple[str, list[tuple[str, str]]]:
         if line.startswith("```"):
             fenced = not fenced
         if not fenced and line.startswith(marker):
-            sections.append((line[len(marker):].strip(), []))
+            sections.append((line[len(marker) :].strip(), []))
         elif sections:
             sections[-1][1].append(line)
         else:

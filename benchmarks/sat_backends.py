@@ -80,10 +80,14 @@ def main(argv: list[str] | None = None) -> None:
     queries = _queries(enc, np.random.default_rng(0), args.queries)
     clauses, nvars = enc.clauses, enc.num_vars
     enc.close()
-    print(f"encoding: {nvars} vars, {len(clauses)} clauses, built in {t_encode:.3f} s; "
-          f"{len(queries)} incremental queries\n")
-    backends = {name: (lambda n=name: run_pysat(n, clauses, queries))
-                for name in ("cadical195", "glucose4", "minisat22")}
+    print(
+        f"encoding: {nvars} vars, {len(clauses)} clauses, built in {t_encode:.3f} s; "
+        f"{len(queries)} incremental queries\n"
+    )
+    backends = {
+        name: (lambda n=name: run_pysat(n, clauses, queries))
+        for name in ("cadical195", "glucose4", "minisat22")
+    }
     backends["z3"] = lambda: run_z3(clauses, nvars, queries)
     rows = []
     reference = None

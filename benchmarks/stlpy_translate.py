@@ -104,8 +104,7 @@ class Translator:
             return self._pred_memo[key]
         if not (hasattr(leaf, "a") and hasattr(leaf, "b")):
             raise UntranslatableError(
-                f"{type(leaf).__name__} is not a linear predicate (nonlinear predicates are not "
-                "translated)"
+                f"{type(leaf).__name__} is not a linear predicate (nonlinear predicates are not translated)"
             )
         a = np.asarray(leaf.a, dtype=float).reshape(-1)
         b = float(np.asarray(leaf.b, dtype=float).reshape(-1)[0])
@@ -113,8 +112,7 @@ class Translator:
             raise UntranslatableError(f"predicate has dimension {a.shape[0]}, y has {self.C.shape[0]}")
         if self.D.size and np.any(np.abs(a @ self.D) > 0):
             raise UntranslatableError(
-                "a predicate reads the control input (a' D != 0); idstlpy predicates are over the "
-                "state only"
+                "a predicate reads the control input (a' D != 0); idstlpy predicates are over the state only"
             )
         h = -(a @ self.C)
         if not np.any(h):
@@ -236,9 +234,7 @@ HARD_WEIGHT = 1e7
 """Weight of the state box's predicates in robustness mode (``make_problem(..., hard_box=True)``)."""
 
 
-def box_formula(
-    x: Any, low: Any, high: Any, eps: float = EPS, weight: float = 1.0
-) -> STLAtomicProposition:
+def box_formula(x: Any, low: Any, high: Any, eps: float = EPS, weight: float = 1.0) -> STLAtomicProposition:
     """``low <= x <= high`` as one atomic proposition (infinite bounds are skipped).
 
     ``weight`` multiplies every predicate (``weight * (x_i - high_i) <= 0``): the same set,

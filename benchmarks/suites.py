@@ -103,24 +103,51 @@ def run_stlpy_suite(worker: Worker, cfg: Config) -> Iterator[dict[str, Any]]:
         failed_at: dict[tuple[str, str], int] = {}
         for T in _horizons(name, cfg):
             timed_out: list[tuple[str, str]] = []
-            infeasible = any(r.get("status") == "infeasible" for r in cfg.extra.get("known", [])
-                             if r.get("scenario") == name and r.get("T") == T)
+            infeasible = any(
+                r.get("status") == "infeasible"
+                for r in cfg.extra.get("known", [])
+                if r.get("scenario") == name and r.get("T") == T
+            )
             for tool, mode, target in tools:
-                base = {"suite": "stlpy", "scenario": name, "T": T, "tool": tool, "mode": mode,
-                        "example_T": SCENARIOS[name].example_T}
+                base = {
+                    "suite": "stlpy",
+                    "scenario": name,
+                    "T": T,
+                    "tool": tool,
+                    "mode": mode,
+                    "example_T": SCENARIOS[name].example_T,
+                }
                 if cfg.skip_after_timeout and (tool, mode) in failed_at:
-                    yield {**base, "status": "not_run", "repeats": 0,
-                           "detail": f"timed out at T = {failed_at[(tool, mode)]}"}
+                    yield {
+                        **base,
+                        "status": "not_run",
+                        "repeats": 0,
+                        "detail": f"timed out at T = {failed_at[(tool, mode)]}",
+                    }
                     continue
                 if tool == "idstlpy":
                     kwargs = {"name": name, "T": T, "time_limit": cfg.timeout}
                 else:
-                    kwargs = {"name": name, "T": T, "backend": tool.split("+")[1], "mode": mode,
-                              "time_limit": cfg.timeout, "threads": cfg.threads}
+                    kwargs = {
+                        "name": name,
+                        "T": T,
+                        "backend": tool.split("+")[1],
+                        "mode": mode,
+                        "time_limit": cfg.timeout,
+                        "threads": cfg.threads,
+                    }
                 t0 = time.perf_counter()
                 row = {**base, **_repeat(worker, target, kwargs, cfg, hard)}
-                logger.info("%-18s T=%-4d %-14s %-12s %-10s e2e %8.3f s  (%.1f s wall)", name, T, tool,
-                            mode, row["status"], row.get("e2e_s", float("nan")), time.perf_counter() - t0)
+                logger.info(
+                    "%-18s T=%-4d %-14s %-12s %-10s e2e %8.3f s  (%.1f s wall)",
+                    name,
+                    T,
+                    tool,
+                    mode,
+                    row["status"],
+                    row.get("e2e_s", float("nan")),
+                    time.perf_counter() - t0,
+                )
                 if row["status"] in ("timeout", "killed"):
                     timed_out.append((tool, mode))
                 if row["status"] == "infeasible":
@@ -144,14 +171,24 @@ def run_prstl_suite(worker: Worker, cfg: Config) -> Iterator[dict[str, Any]]:
         if cfg.run_peers:
             jobs.append(("cc-milp+highs", "benchmarks.peers:milp_prstl", {"T": T, "time_limit": cfg.timeout}))
         for tool, target, kwargs in jobs:
-            base = {"suite": "prstl", "scenario": "NoisyReachAvoid", "T": T, "tool": tool,
-                    "mode": "feasibility"}
+            base = {
+                "suite": "prstl",
+                "scenario": "NoisyReachAvoid",
+                "T": T,
+                "tool": tool,
+                "mode": "feasibility",
+            }
             if cfg.skip_after_timeout and tool in failed:
                 yield {**base, "status": "not_run", "repeats": 0, "detail": "timed out at a smaller T"}
                 continue
             row = {**base, **_repeat(worker, target, kwargs, cfg, hard)}
-            logger.info("NoisyReachAvoid    T=%-4d %-14s %-10s e2e %8.3f s", T, tool, row["status"],
-                        row.get("e2e_s", float("nan")))
+            logger.info(
+                "NoisyReachAvoid    T=%-4d %-14s %-10s e2e %8.3f s",
+                T,
+                tool,
+                row["status"],
+                row.get("e2e_s", float("nan")),
+            )
             if row["status"] in ("timeout", "killed"):
                 failed.add(tool)
             yield row
@@ -165,18 +202,41 @@ def run_light_dark_suite(worker: Worker, cfg: Config) -> Iterator[dict[str, Any]
     hard = (limit if limit is not None else 600.0) + cfg.grace
     for variant, deadline, hold in [("listing", 240, 40), ("stretched", 960, 160)]:
         for seed in range(cfg.light_dark_seeds):
-            out = worker.run("benchmarks.peers:idstlpy_light_dark",
-                             {"seed": seed, "deadline": deadline, "hold": hold, "time_limit": limit}, hard)
-            row = {"suite": "light_dark", "scenario": f"light_dark[{variant}]", "T": deadline + hold,
-                   "tool": "idstlpy", "mode": f"seed={seed}", "repeats": 1}
+            out = worker.run(
+                "benchmarks.peers:idstlpy_light_dark",
+                {"seed": seed, "deadline": deadline, "hold": hold, "time_limit": limit},
+                hard,
+            )
+            row = {
+                "suite": "light_dark",
+                "scenario": f"light_dark[{variant}]",
+                "T": deadline + hold,
+                "tool": "idstlpy",
+                "mode": f"seed={seed}",
+                "repeats": 1,
+            }
             row.update({k: v for k, v in out.items() if k != "traceback"})
-            logger.info("light_dark %-9s seed %d: %s in %.3f s", variant, seed, row.get("status"),
-                        row.get("e2e_s", float("nan")))
+            logger.info(
+                "light_dark %-9s seed %d: %s in %.3f s",
+                variant,
+                seed,
+                row.get("status"),
+                row.get("e2e_s", float("nan")),
+            )
             yield row
 
 
-_FLOATS = ("build_s", "solve_s", "e2e_s", "stlpy_robustness", "margin", "dyn_residual", "box_violation",
-           "time_bmc", "time_lp")
+_FLOATS = (
+    "build_s",
+    "solve_s",
+    "e2e_s",
+    "stlpy_robustness",
+    "margin",
+    "dyn_residual",
+    "box_violation",
+    "time_bmc",
+    "time_lp",
+)
 
 
 def load_rows(path: str, keep_tools: str) -> list[dict[str, Any]]:

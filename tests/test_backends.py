@@ -118,8 +118,12 @@ def test_scip_first_look_then_full_solve_on_the_cached_model():
     assert look.status == "optimal" and look.x is not None
     assert look.x[0] + look.x[1] >= 1 - 1e-9 and abs(look.x[2] - look.x[0] - look.x[1]) <= 1e-9
     # Infeasible by propagation alone (x + y = 3 over binaries): the look's answer is a proof.
-    assert scip.solve(replace(_model([0, 0], [[1, 1]], [3], [3], [0, 0], [1, 1], [1, 1]), first_look=True),
-                      10).status == "infeasible"
+    assert (
+        scip.solve(
+            replace(_model([0, 0], [[1, 1]], [3], [3], [0, 0], [1, 1], [1, 1]), first_look=True), 10
+        ).status
+        == "infeasible"
+    )
     # Integer-infeasible by parity (2x + 2y - 2w = 1), LP-feasible: the look may stop without a
     # plan, never with a wrong status, and the full solve on the same (cached) SCIP model
     # answers as a fresh back-end does; then bounds changed on a cached model are honoured.

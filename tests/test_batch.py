@@ -139,7 +139,9 @@ def test_sweep_file(tmp_path):
     jobs = sweep.jobs()
     assert len(jobs) == 2 * 2 * 3 * 2 and sweep.kind == "solve"
     assert jobs[0].overrides == {
-        "initial_belief.mean": [0.0, 2.5], "solver.goal_bias": 0.1, "solver.rrt_timeout": 1,
+        "initial_belief.mean": [0.0, 2.5],
+        "solver.goal_bias": 0.1,
+        "solver.rrt_timeout": 1,
     }
     seeds = [j.seed for j in jobs]
     assert len(set(seeds)) == len(seeds)
@@ -157,7 +159,7 @@ def test_sweep_file(tmp_path):
         ('problem = "{p}"\nkind = "optimize"\n', "sweep.toml:2: kind: must be one of"),
         ('problem = "{p}"\nseeds = 1\n', "sweep.toml:2: seeds: unknown key"),
         ('problem = "absent.toml"\n', "sweep.toml:1: problem: problem file"),
-        ('seed = 1\n', "missing required key 'problem'"),
+        ("seed = 1\n", "missing required key 'problem'"),
         ('problem = "{p}"\n[grid]\n"solver.goal_bias" = 0.5\n', "sweep.toml:3: grid.solver.goal_bias"),
         ('problem = "{p}"\n[grid]\n"solver.budget" = [1]\n', "solver.budget (override): unknown key"),
         ('problem = "{p}"\n[[cases]]\n"modes[0].V.scale" = "open(1)"\n', "calling 'open'"),
@@ -246,6 +248,7 @@ def test_process_pool_gives_identical_records(tmp_path, reference_records):
 
 def test_dask_local_cluster_gives_identical_records(reference_records):
     import distributed  # noqa: F401  (the dask extra is part of the test extras)
+
     executor = DaskExecutor(workers=2, processes=False)
     try:
         records = run_jobs(_jobs(), None, executor)
@@ -326,6 +329,7 @@ def test_cli_sweep(tmp_path, capsys):
 
 def test_dask_by_name_with_worker_processes(tmp_path, reference_records):
     import distributed  # noqa: F401  (the dask extra is part of the test extras)
+
     records = run_jobs(_jobs()[2:3], tmp_path, "dask", workers=1)
     assert records[0]["timing"]["backend"] == "dask"
     assert [comparable(r) for r in records] == reference_records[2:3]

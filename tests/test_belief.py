@@ -15,9 +15,7 @@ def _light_dark_noise(state):
 
 def test_isotropic_scalar_oracle():
     """A = I, W = 0, C = I, R = n(mean')^2 I: 1/s'^2 = 1/s^2 + 1/n(mean')^2."""
-    mode = mk_lbs(
-        A=np.eye(2), B=0.25 * np.eye(2), W=np.zeros((2, 2)), C=np.eye(2), V=_light_dark_noise
-    )
+    mode = mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=np.zeros((2, 2)), C=np.eye(2), V=_light_dark_noise)
     rng = np.random.default_rng(0)
     for _ in range(25):
         mean = rng.uniform(-1.0, 6.0, size=2)

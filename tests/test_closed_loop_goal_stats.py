@@ -39,8 +39,14 @@ def test_two_sample_p_holm_and_the_poisson_binomial_tail():
 
 
 def _row(case: str, seed: int, measured: float, outside: bool) -> dict:
-    entry = {"group": "predicates", "name": "f", "reading": "state", "predicted": 0.02,
-             "measured": measured, "outside": outside}
+    entry = {
+        "group": "predicates",
+        "name": "f",
+        "reading": "state",
+        "predicted": 0.02,
+        "measured": measured,
+        "outside": outside,
+    }
     return {"case": case, "seed": seed, "runs": 1000, "samples": 20000, "entries": [entry]}
 
 

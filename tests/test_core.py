@@ -422,7 +422,12 @@ def test_effort_on_the_light_dark_listing_keeps_the_execution_and_saves_effort()
     rates = []
     for result in (base, lean):
         report = stl.validate(
-            light_dark(), result.trajectory, light_dark_real_system(), start, runs=100, seed=0,
+            light_dark(),
+            result.trajectory,
+            light_dark_real_system(),
+            start,
+            runs=100,
+            seed=0,
             executor="serial",
         )
         rates.append((report.belief_success_rate, report.state_success_rate))

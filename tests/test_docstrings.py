@@ -142,9 +142,21 @@ CHECKED = list(_checked_callables())
 def test_the_walk_finds_the_paper_api():
     names = {name.rsplit(".", 1)[-1] for name, _, _ in CHECKED}
     for expected in (
-        "until", "eventually", "release", "always", "logical_and", "logical_or", "mk_variable",
-        "prob", "mk_lcs", "mk_lbs", "mk_switched_sys", "parse_formula", "SwitchedSystem",
-        "simulate", "STLAtomicProposition",
+        "until",
+        "eventually",
+        "release",
+        "always",
+        "logical_and",
+        "logical_or",
+        "mk_variable",
+        "prob",
+        "mk_lcs",
+        "mk_lbs",
+        "mk_switched_sys",
+        "parse_formula",
+        "SwitchedSystem",
+        "simulate",
+        "STLAtomicProposition",
     ):
         assert expected in names, expected
 

@@ -67,9 +67,7 @@ def test_matmul_inner_product(x):
 
 def test_comparisons_build_linear_predicates(x):
     p = x[0] >= -1
-    assert isinstance(p, stl.LinearPredicate) and not isinstance(
-        p, stl.ProbabilisticLinearPredicate
-    )
+    assert isinstance(p, stl.LinearPredicate) and not isinstance(p, stl.ProbabilisticLinearPredicate)
     np.testing.assert_allclose(p.h, [-1.0, 0.0])  # -x0 - 1 <= 0
     assert p.c == -1.0
     p = x[1] <= 4

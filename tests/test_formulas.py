@@ -30,9 +30,7 @@ def test_logical_and_returns_documented_types(xq):
     f = stl.logical_and(named, stl.eventually(0, 3, named))
     assert isinstance(f, stl.STLAnd) and len(f.children) == 2
     # state parts merge into one proposition, modes intersect
-    g = stl.logical_and(
-        _cp(x, 0, 1), q == 1, stl.logical_or(q == 0, q == 1), stl.always(0, 2, named)
-    )
+    g = stl.logical_and(_cp(x, 0, 1), q == 1, stl.logical_or(q == 0, q == 1), stl.always(0, 2, named))
     assert isinstance(g, stl.STLAnd)
     state = g.children[0]
     assert isinstance(state, stl.STLAtomicProposition) and state.modes == frozenset({1})
@@ -98,9 +96,7 @@ def test_str_uses_text_syntax(xq):
     x, q = xq
     safe = stl.logical_and(q == 0, stl.prob(x[0] >= -1) >= 1 - 0.01, name="free_space")
     target = stl.logical_and(stl.prob(x[0] <= 0.25) >= 0.95, name="target")
-    assert str(stl.until(safe, 0, 240, stl.always(0, 40, target))) == (
-        "(free_space U[0,240] G[0,40] target)"
-    )
+    assert str(stl.until(safe, 0, 240, stl.always(0, 40, target))) == ("(free_space U[0,240] G[0,40] target)")
     assert str(stl.eventually(1, 3, target)) == "F[1,3] target"
     assert str(stl.release(safe, 1, 2, target)) == "(free_space R[1,2] target)"
     assert str(safe & target) == "(free_space & target)"

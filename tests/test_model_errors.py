@@ -78,9 +78,7 @@ def test_system_non_finite_entries(which, bad):
 
 
 def test_switched_system_errors():
-    with pytest.raises(
-        stl.InvalidArgumentError, match="system_modes must contain at least one mode"
-    ):
+    with pytest.raises(stl.InvalidArgumentError, match="system_modes must contain at least one mode"):
         stl.mk_switched_sys([])
     with pytest.raises(stl.DimensionError, match=r"system_modes\[1\]"):
         stl.mk_switched_sys([stl.mk_lcs(I2, I2), stl.mk_lcs(np.eye(3), np.eye(3))])
@@ -250,13 +248,16 @@ def test_huge_interval_start_in_binary_operators(make):
         make(stl.TRUE, 10**20, 10**21, stl.TRUE)
 
 
-@pytest.mark.parametrize(("bound", "error", "match"), [
-    ("3", stl.InvalidTypeError, "b must be an integer, got str"),
-    (None, stl.InvalidTypeError, "b must be an integer, got NoneType"),
-    (True, stl.InvalidTypeError, "b must be an integer, got bool"),
-    (2.5, stl.InvalidArgumentError, "b must be a finite integer, got 2.5"),
-    (np.nan, stl.InvalidArgumentError, "b must be a finite integer"),
-])
+@pytest.mark.parametrize(
+    ("bound", "error", "match"),
+    [
+        ("3", stl.InvalidTypeError, "b must be an integer, got str"),
+        (None, stl.InvalidTypeError, "b must be an integer, got NoneType"),
+        (True, stl.InvalidTypeError, "b must be an integer, got bool"),
+        (2.5, stl.InvalidArgumentError, "b must be a finite integer, got 2.5"),
+        (np.nan, stl.InvalidArgumentError, "b must be a finite integer"),
+    ],
+)
 def test_interval_bound_types(bound, error, match):
     with pytest.raises(error, match=match):
         stl.eventually(0, bound, stl.TRUE)
@@ -274,15 +275,21 @@ def test_nested_horizon_beyond_the_cap_is_rejected():
         stl.always(0, 2**52, inner)
 
 
-@pytest.mark.parametrize(("text", "match"), [
-    ("F[0,99999999999999999999] g", r"interval end 99999999999999999999 is too large: it must be <= 2\*\*53"),
-    ("G[99999999999999999999,99999999999999999999] g", "interval start .* too large"),
-    ("F[0," + "9" * 5000 + "] g", r"\(5000 digits\) is too large"),
-    ("(g U[0,9007199254740993] g)", "interval end 9007199254740993 is too large"),
-    ("G[0,9007199254740992] F[0,1] g", "horizon .* exceeds MAX_BOUND"),
-    ("{q == 99999999999999999999999}", "mode .* too large"),
-    ("{P[x[99999999999999999999999] <= 0] >= 0.9}", "index .* too large"),
-])
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (
+            "F[0,99999999999999999999] g",
+            r"interval end 99999999999999999999 is too large: it must be <= 2\*\*53",
+        ),
+        ("G[99999999999999999999,99999999999999999999] g", "interval start .* too large"),
+        ("F[0," + "9" * 5000 + "] g", r"\(5000 digits\) is too large"),
+        ("(g U[0,9007199254740993] g)", "interval end 9007199254740993 is too large"),
+        ("G[0,9007199254740992] F[0,1] g", "horizon .* exceeds MAX_BOUND"),
+        ("{q == 99999999999999999999999}", "mode .* too large"),
+        ("{P[x[99999999999999999999999] <= 0] >= 0.9}", "index .* too large"),
+    ],
+)
 def test_huge_integers_in_formula_text(text, match):
     x = stl.mk_variable(1)
     g = stl.logical_and(stl.prob(x[0] >= 2) >= 0.9, name="g")

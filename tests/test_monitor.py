@@ -17,9 +17,7 @@ X = stl.mk_variable(2, name="x")
 def _traj(means, covs, actions) -> stl.ProbabilisticTSTrajectory:
     means = np.asarray(means, dtype=float)
     L = means.shape[0]
-    return stl.ProbabilisticTSTrajectory(
-        means, np.asarray(covs, dtype=float), actions, np.zeros((L - 1, 1))
-    )
+    return stl.ProbabilisticTSTrajectory(means, np.asarray(covs, dtype=float), actions, np.zeros((L - 1, 1)))
 
 
 def _oracle_trace(traj: stl.ProbabilisticTSTrajectory) -> Trace:
@@ -50,9 +48,7 @@ def atoms(draw, num_modes: int):
     if kind == 1:
         return stl.FALSE
     preds = draw(st.lists(chance_constraints(), min_size=0, max_size=2))
-    modes = draw(
-        st.one_of(st.none(), st.frozensets(st.integers(0, num_modes - 1), max_size=num_modes))
-    )
+    modes = draw(st.one_of(st.none(), st.frozensets(st.integers(0, num_modes - 1), max_size=num_modes)))
     return STLAtomicProposition(preds, modes)
 
 

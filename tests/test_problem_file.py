@@ -86,8 +86,12 @@ def test_light_dark_file_is_the_listing():
     np.testing.assert_array_equal(problem.initial_state.mean, ref.initial_state.mean)
     np.testing.assert_array_equal(problem.initial_state.cov, ref.initial_state.cov)
     assert solver == {
-        "rrt_timeout": 60, "delta_near": 2, "delta_drain": 0.5, "goal_bias": 0.25,
-        "min_num_of_steps": 3, "max_num_of_steps": 15,
+        "rrt_timeout": 60,
+        "delta_near": 2,
+        "delta_drain": 0.5,
+        "goal_bias": 0.25,
+        "min_num_of_steps": 3,
+        "max_num_of_steps": 15,
     }
     np.testing.assert_array_equal(execution.real_initial_state, [0.5, 2.75])
     real = execution.real_system.system_modes[0]
@@ -145,12 +149,24 @@ def _with_sensor(v: str | None, C: str = "[[1.0, 0.0], [0.0, 1.0]]") -> str:
         (None, stl.POLBSWithLinNoise, [0.0, 0.0], np.zeros((2, 2))),
         ("[[0.5, 0.0], [0.0, 0.25]]", stl.POLBSWithLinNoise, [1.0, 1.0], np.diag([0.5, 0.25])),
         ('"0.1*(5 - x[0])**2 + 0.001"', stl.POLBSWithNonLinNoise, [3.0, 0.0], (0.4 + 0.001) * np.eye(2)),
-        ('{ scale = 2.0, matrix = [[1.0, 0.0], [0.0, 3.0]] }', stl.POLBSWithLinNoise, [0.0, 0.0],
-         np.diag([2.0, 6.0])),
-        ('{ scale = "sqrt(abs(x[1])) + max(x[0], 0, -1)" }', stl.POLBSWithNonLinNoise, [2.0, -4.0],
-         4.0 * np.eye(2)),
-        ('{ scale = "exp(-x[0]) * min(1, x[1])", matrix = [[1.0], [2.0]] }',
-         stl.POLBSWithNonLinNoise, [0.0, 0.5], np.array([[0.5], [1.0]])),
+        (
+            "{ scale = 2.0, matrix = [[1.0, 0.0], [0.0, 3.0]] }",
+            stl.POLBSWithLinNoise,
+            [0.0, 0.0],
+            np.diag([2.0, 6.0]),
+        ),
+        (
+            '{ scale = "sqrt(abs(x[1])) + max(x[0], 0, -1)" }',
+            stl.POLBSWithNonLinNoise,
+            [2.0, -4.0],
+            4.0 * np.eye(2),
+        ),
+        (
+            '{ scale = "exp(-x[0]) * min(1, x[1])", matrix = [[1.0], [2.0]] }',
+            stl.POLBSWithNonLinNoise,
+            [0.0, 0.5],
+            np.array([[0.5], [1.0]]),
+        ),
     ],
 )
 def test_noise_forms(v, kind, at_x, expected):
@@ -232,9 +248,7 @@ def test_noise_expression_values(text, x, expected):
     assert noise.scale(np.array(x)) == pytest.approx(expected)
 
 
-_leaf = st.one_of(
-    st.integers(0, 9).map(str), st.sampled_from(["x[0]", "x[1]", "0.5", "2.25", "1e-2"])
-)
+_leaf = st.one_of(st.integers(0, 9).map(str), st.sampled_from(["x[0]", "x[1]", "0.5", "2.25", "1e-2"]))
 
 
 def _grow(inner):
@@ -345,15 +359,25 @@ MALFORMED = [
     ("A = [[1.0, 0.0], [0.0, 1.0]]\n", "", "modes[0]", 3, "missing required key 'A'"),
     ("mean = [0.0, 0.0]", "", "initial_belief", 11, "missing required key 'mean'"),
     ("low = [-1.0, -1.0]\n", "", "control_domain", 7, "missing required key 'low'"),
-    ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25, 0.0, 1.0], [0.0, 0.25]]", "modes[0].B", 5,
-     "different lengths"),
+    (
+        "B = [[0.25, 0.0], [0.0, 0.25]]",
+        "B = [[0.25, 0.0, 1.0], [0.0, 0.25]]",
+        "modes[0].B",
+        5,
+        "different lengths",
+    ),
     ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25, 0.0]]", "modes[0].B", 5, "shape (2, *)"),
     ("A = [[1.0, 0.0], [0.0, 1.0]]", "A = [[1.0, 0.0]]", "modes[0].A", 4, "must be square"),
     ("A = [[1.0, 0.0], [0.0, 1.0]]", 'A = "eye"', "modes[0].A", 4, "must be a matrix"),
     ("mean = [0.0, 0.0]", "mean = [0.0, 0.0, 0.0]", "initial_belief.mean", 12, "length 2"),
     ("mean = [0.0, 0.0]", 'mean = [0.0, "a"]', "initial_belief.mean", 12, "array of numbers"),
-    ("cov = [[0.01, 0.0], [0.0, 0.01]]", "cov = [[0.01, 0.5], [0.0, 0.01]]", "initial_belief.cov", 13,
-     "symmetric"),
+    (
+        "cov = [[0.01, 0.0], [0.0, 0.01]]",
+        "cov = [[0.01, 0.5], [0.0, 0.01]]",
+        "initial_belief.cov",
+        13,
+        "symmetric",
+    ),
     ("high = [1.0, 1.0]", "high = [1.0]", "control_domain.high", 9, "length 2"),
     ("high = [1.0, 1.0]", "high = [-2.0, 1.0]", "control_domain.low", 8, "<= high"),
     ("confidence = 0.9", "confidence = 0.2", "propositions.goal.confidence", 16, "[0.5, 1.0]"),
@@ -361,8 +385,13 @@ MALFORMED = [
     ("confidence = 0.9\n", "", "propositions.goal.constraints[0]", 16, "no confidence"),
     ('"x[1] <= 2"', "3", "propositions.goal.constraints[1]", 17, "must be a string"),
     ('"x[1] <= 2"', '{ exp = "x[0] <= 1" }', "propositions.goal.constraints[1].exp", 17, "unknown key"),
-    ("[propositions.goal]", "[propositions.goal]\nmodes = [1]", "propositions.goal.modes[0]", 16,
-     "out of range"),
+    (
+        "[propositions.goal]",
+        "[propositions.goal]\nmodes = [1]",
+        "propositions.goal.modes[0]",
+        16,
+        "out of range",
+    ),
     ("[propositions.goal]", "[propositions.goal]\nmodes = 0", "propositions.goal.modes", 16, "array"),
     ("[propositions.goal]", "[propositions.F]", "propositions.F", 15, "identifier other than"),
     ('formula = "F[0,10] goal"', 'formula = "F[0,10] gaol"', "formula", 1, "unknown proposition 'gaol'"),
@@ -372,23 +401,56 @@ MALFORMED = [
     ("[[modes]]", "[solver]\nmax_num_of_steps = 2.5\n\n[[modes]]", "solver.max_num_of_steps", 4, "integer"),
     ("[[modes]]", "[solver]\nbudget = 2\n\n[[modes]]", "solver.budget", 4, "unknown key 'budget'"),
     ("[[modes]]", "[validation]\nruns = 0\n\n[[modes]]", "validation.runs", 4, ">= 1"),
-    ("[[modes]]", "[execution]\nreal_initial_state = [1.0]\n\n[[modes]]", "execution.real_initial_state",
-     4, "length 2"),
-    ("[[modes]]", "[[execution.real_system]]\nA = [[1.0]]\nB = [[1.0]]\n\n[[modes]]",
-     "execution.real_system[0].A", 4, "shape (2, 2)"),
-    ("[[modes]]", "[execution.lqr]\nhorizon = 5\nQ = [[1.0]]\n\n[[modes]]", "execution.lqr.Q", 5,
-     "shape (2, 2)"),
-    ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25, 0.0], [0.0, 0.25]]\nV = [[1.0, 0.0], [0.0, 1.0]]",
-     "modes[0].V", 6, "needs an output matrix C"),
-    ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25, 0.0], [0.0, 0.25]]\nC = [[1.0, 0.0]]\nV = true",
-     "modes[0].V", 7, "must be a matrix, an expression string"),
-    ("B = [[0.25, 0.0], [0.0, 0.25]]",
-     "B = [[0.25, 0.0], [0.0, 0.25]]\nC = [[1.0, 0.0]]\nV = { scale = 1.0, shape = 2 }",
-     "modes[0].V.shape", 7, "unknown key"),
-    ("[propositions.goal]", '[propositions.goal]\nformula = "x"', "propositions.goal.formula", 16,
-     "top-level keys such as this one must come before the first [table]"),
-    ("high = [1.0, 1.0]", "high = [1.0, 1.0]\nA = [[1.0, 0.0]]\nb = [1.0]", "control_domain", 7,
-     "not both"),
+    (
+        "[[modes]]",
+        "[execution]\nreal_initial_state = [1.0]\n\n[[modes]]",
+        "execution.real_initial_state",
+        4,
+        "length 2",
+    ),
+    (
+        "[[modes]]",
+        "[[execution.real_system]]\nA = [[1.0]]\nB = [[1.0]]\n\n[[modes]]",
+        "execution.real_system[0].A",
+        4,
+        "shape (2, 2)",
+    ),
+    (
+        "[[modes]]",
+        "[execution.lqr]\nhorizon = 5\nQ = [[1.0]]\n\n[[modes]]",
+        "execution.lqr.Q",
+        5,
+        "shape (2, 2)",
+    ),
+    (
+        "B = [[0.25, 0.0], [0.0, 0.25]]",
+        "B = [[0.25, 0.0], [0.0, 0.25]]\nV = [[1.0, 0.0], [0.0, 1.0]]",
+        "modes[0].V",
+        6,
+        "needs an output matrix C",
+    ),
+    (
+        "B = [[0.25, 0.0], [0.0, 0.25]]",
+        "B = [[0.25, 0.0], [0.0, 0.25]]\nC = [[1.0, 0.0]]\nV = true",
+        "modes[0].V",
+        7,
+        "must be a matrix, an expression string",
+    ),
+    (
+        "B = [[0.25, 0.0], [0.0, 0.25]]",
+        "B = [[0.25, 0.0], [0.0, 0.25]]\nC = [[1.0, 0.0]]\nV = { scale = 1.0, shape = 2 }",
+        "modes[0].V.shape",
+        7,
+        "unknown key",
+    ),
+    (
+        "[propositions.goal]",
+        '[propositions.goal]\nformula = "x"',
+        "propositions.goal.formula",
+        16,
+        "top-level keys such as this one must come before the first [table]",
+    ),
+    ("high = [1.0, 1.0]", "high = [1.0, 1.0]\nA = [[1.0, 0.0]]\nb = [1.0]", "control_domain", 7, "not both"),
     ("mean = [0.0, 0.0]", "mean = [0.0, inf]", "initial_belief.mean", 12, "non-finite"),
 ]
 
@@ -579,8 +641,12 @@ def test_problem_file_is_a_package_without_cycles():
     [
         ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25], [0.25]]", "modes[0].B", 5),
         ("B = [[0.25, 0.0], [0.0, 0.25]]", "B = [[0.25, 0.0, 0.1], [0.0, 0.25, 0.1]]", "modes[0].B", 5),
-        ("[control_domain]",
-         "[[modes]]\nA = [[1.0, 0.0], [0.0, 1.0]]\nB = [[1.0], [1.0]]\n\n[control_domain]", "modes[1].B", 9),
+        (
+            "[control_domain]",
+            "[[modes]]\nA = [[1.0, 0.0], [0.0, 1.0]]\nB = [[1.0], [1.0]]\n\n[control_domain]",
+            "modes[1].B",
+            9,
+        ),
     ],
 )
 def test_wrong_B_shape_is_blamed_on_B(tmp_path, old, new, field, line):
@@ -621,7 +687,7 @@ def test_cov_as_a_vector_of_variances():
     np.testing.assert_array_equal(load_problem(text).build().problem.initial_state.cov, np.diag([0.01, 0.04]))
     one_d = (
         'formula = "F[0,5] goal"\n[[modes]]\nA = [[1.0]]\nB = [[1.0]]\n[control_domain]\nlow = [-1.0]\n'
-        'high = [1.0]\n[initial_belief]\nmean = [0.0]\ncov = [0.5]\n[propositions.goal]\nconfidence = 0.9\n'
+        "high = [1.0]\n[initial_belief]\nmean = [0.0]\ncov = [0.5]\n[propositions.goal]\nconfidence = 0.9\n"
         'constraints = ["x[0] >= 1"]\n'
     )
     np.testing.assert_array_equal(load_problem(one_d).build().problem.initial_state.cov, [[0.5]])
@@ -634,9 +700,18 @@ def test_every_solver_option_is_a_solver_key():
 
     # values other than the defaults where a default would not show the type plumbing
     values = {
-        "rrt_timeout": 5, "delta_near": 1.5, "min_num_of_steps": 2, "max_num_of_steps": 9, "seed": 3,
-        "time_limit": 30, "max_candidates": 7, "sampler_iterations": 100, "objective": "effort",
-        "effort_weights": [1.0, 2.0], "sat_backend": "minisat22", "milp_backend": "highs",
+        "rrt_timeout": 5,
+        "delta_near": 1.5,
+        "min_num_of_steps": 2,
+        "max_num_of_steps": 9,
+        "seed": 3,
+        "time_limit": 30,
+        "max_candidates": 7,
+        "sampler_iterations": 100,
+        "objective": "effort",
+        "effort_weights": [1.0, 2.0],
+        "sat_backend": "minisat22",
+        "milp_backend": "highs",
     }
     fields = {f.name: f.default for f in dataclasses.fields(stl.SolverOptions)}
     # every field: the given value, else its default (valid by construction); None stays unset

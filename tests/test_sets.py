@@ -120,9 +120,7 @@ def test_support_intersect_and_full_dimensional_class():
     np.testing.assert_allclose(low, [1, 0], atol=1e-9)
     np.testing.assert_allclose(high, [2, 1], atol=1e-9)
     assert isinstance(make_polytope([[1.0, 0.0], [-1.0, 0.0]], [0.0, 0.0]), stl.Polytope)
-    assert not isinstance(
-        make_polytope([[1.0, 0.0], [-1.0, 0.0]], [0.0, 0.0]), stl.FullDimensionalPolytope
-    )
+    assert not isinstance(make_polytope([[1.0, 0.0], [-1.0, 0.0]], [0.0, 0.0]), stl.FullDimensionalPolytope)
 
 
 # --------------------------------------------------------------------------------------------
@@ -134,9 +132,7 @@ def test_belief_cone_deterministic_equivalent_by_hand():
     cone = stl.BeliefCone([[1.0, 0.0]], [-1.0], [0.05])
     assert cone.contains([0.5, 0.0], np.diag([0.30**2, 4.0]))
     assert not cone.contains([0.5, 0.0], np.diag([0.31**2, 4.0]))
-    assert cone.margin([0.5, 0.0], np.diag([0.09, 4.0])) == pytest.approx(
-        0.5 - norm.ppf(0.95) * 0.3
-    )
+    assert cone.margin([0.5, 0.0], np.diag([0.09, 4.0])) == pytest.approx(0.5 - norm.ppf(0.95) * 0.3)
     # eps = 0.5: only the mean matters
     half = stl.BeliefCone([[1.0, 0.0]], [-1.0], [0.5])
     assert half.contains([1.0, 0.0], np.diag([100.0, 1.0]))

@@ -48,9 +48,7 @@ def atoms(draw) -> stl.STLAtomicProposition:
     if kind == "false":
         return stl.FALSE
     preds = draw(st.lists(chance_constraints(), max_size=3))
-    modes = draw(
-        st.one_of(st.none(), st.frozensets(st.integers(0, NUM_MODES - 1), max_size=NUM_MODES))
-    )
+    modes = draw(st.one_of(st.none(), st.frozensets(st.integers(0, NUM_MODES - 1), max_size=NUM_MODES)))
     return stl.STLAtomicProposition(preds, modes)
 
 
@@ -62,9 +60,7 @@ def _extend(children):
         return st.lists(children, min_size=2, max_size=3).map(cls)
 
     def temporal(kind):
-        return st.tuples(children, interval, children).map(
-            lambda t: kind(t[0], t[1][0], t[1][1], t[2])
-        )
+        return st.tuples(children, interval, children).map(lambda t: kind(t[0], t[1][0], t[1][1], t[2]))
 
     return st.one_of(
         binary(stl.STLAnd),

@@ -70,11 +70,28 @@ def test_anchored_plan_lp_moves_means_at_most_trust():
     required[target, -1] = True
     modes = np.concatenate([[-1], plan.get_action()]).astype(int)
     init = problem.initial_state
-    free = solve_plan_lp(problem.switched_system, problem.control_domain, init.mean, init.cov, abstraction,
-                         DiscretePlan(required, modes, L), 1.0, covs=plan.get_cov())
-    anchored = solve_plan_lp(problem.switched_system, problem.control_domain, init.mean, init.cov,
-                             abstraction, DiscretePlan(required, modes, L), 1.0, covs=plan.get_cov(),
-                             anchor=plan.get_mean(), trust=0.01)
+    free = solve_plan_lp(
+        problem.switched_system,
+        problem.control_domain,
+        init.mean,
+        init.cov,
+        abstraction,
+        DiscretePlan(required, modes, L),
+        1.0,
+        covs=plan.get_cov(),
+    )
+    anchored = solve_plan_lp(
+        problem.switched_system,
+        problem.control_domain,
+        init.mean,
+        init.cov,
+        abstraction,
+        DiscretePlan(required, modes, L),
+        1.0,
+        covs=plan.get_cov(),
+        anchor=plan.get_mean(),
+        trust=0.01,
+    )
     assert free.feasible and anchored.feasible and not anchored.exact
     assert np.abs(anchored.means - plan.get_mean()).max() <= 0.01 + 1e-7
     assert np.abs(free.means - plan.get_mean()).max() > 0.01

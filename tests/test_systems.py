@@ -57,9 +57,7 @@ def test_rollout_mean_is_affine_in_controls_and_records_plan():
     t1 = stl.rollout(system, b0, actions, u1)
     t2 = stl.rollout(system, b0, actions, u2)
     t12 = stl.rollout(system, b0, actions, 0.5 * u1 + 0.5 * u2)
-    np.testing.assert_allclose(
-        t12.get_mean(), 0.5 * t1.get_mean() + 0.5 * t2.get_mean(), atol=1e-12
-    )
+    np.testing.assert_allclose(t12.get_mean(), 0.5 * t1.get_mean() + 0.5 * t2.get_mean(), atol=1e-12)
     # constant noise: the covariance depends only on the mode sequence
     np.testing.assert_allclose(t1.get_cov(), t2.get_cov(), atol=1e-14)
     # hand-computed first step
@@ -81,23 +79,17 @@ def test_rollout_without_steps():
 
 
 def test_trajectory_index_errors_and_shapes():
-    traj = stl.ProbabilisticTSTrajectory(
-        np.zeros((3, 2)), np.zeros((3, 2, 2)), [0, 0], np.zeros((2, 1))
-    )
+    traj = stl.ProbabilisticTSTrajectory(np.zeros((3, 2)), np.zeros((3, 2, 2)), [0, 0], np.zeros((2, 1)))
     with pytest.raises(stl.OutOfRangeError, match="mean index 3"):
         traj.get_mean(3)
     with pytest.raises(stl.OutOfRangeError, match="action index 2"):
         traj.get_action(2)
     with pytest.raises(stl.DimensionError, match="covs must have shape"):
-        stl.ProbabilisticTSTrajectory(
-            np.zeros((3, 2)), np.zeros((3, 2, 3)), [0, 0], np.zeros((2, 1))
-        )
+        stl.ProbabilisticTSTrajectory(np.zeros((3, 2)), np.zeros((3, 2, 3)), [0, 0], np.zeros((2, 1)))
     with pytest.raises(stl.DimensionError, match="actions must have shape"):
         stl.ProbabilisticTSTrajectory(np.zeros((3, 2)), np.zeros((3, 2, 2)), [0], np.zeros((2, 1)))
     with pytest.raises(stl.InvalidArgumentError, match="finite"):
-        stl.ProbabilisticTSTrajectory(
-            np.full((1, 2), np.nan), np.zeros((1, 2, 2)), [], np.zeros((0, 1))
-        )
+        stl.ProbabilisticTSTrajectory(np.full((1, 2), np.nan), np.zeros((1, 2, 2)), [], np.zeros((0, 1)))
     real = stl.RealTrajectory(np.zeros((3, 2)), np.zeros((3, 1)), [1, 0], np.zeros((2, 2)))
     assert real.num_of_steps == 2 and real.get_action(0) == 1
     assert real.get_state().shape == (3, 2)
@@ -108,8 +100,13 @@ class _StateSpace:
     """The attributes idstlpy reads from python-control's ``StateSpace``."""
 
     def __init__(self, A, B, C, D, dt):
-        self.A, self.B, self.C, self.D, self.dt = (np.asarray(A), np.asarray(B), np.asarray(C),
-                                                   np.asarray(D), dt)
+        self.A, self.B, self.C, self.D, self.dt = (
+            np.asarray(A),
+            np.asarray(B),
+            np.asarray(C),
+            np.asarray(D),
+            dt,
+        )
 
 
 A_SS = np.array([[1.0, 0.1], [0.0, 1.0]])

@@ -9,9 +9,7 @@ import numpy as np
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 
 
-def as_matrix(
-    value: Any, name: str, shape: tuple[int | None, int | None] | None = None
-) -> np.ndarray:
+def as_matrix(value: Any, name: str, shape: tuple[int | None, int | None] | None = None) -> np.ndarray:
     """Return ``value`` as a finite 2-D float array, checking its shape.
 
     ``None`` entries in ``shape`` accept any size along that axis.
@@ -19,9 +17,7 @@ def as_matrix(
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise InvalidTypeError(
-            f"{name} must be a numeric matrix, got {type(value).__name__}"
-        ) from exc
+        raise InvalidTypeError(f"{name} must be a numeric matrix, got {type(value).__name__}") from exc
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
     if arr.ndim != 2:
@@ -43,9 +39,7 @@ def as_vector(value: Any, name: str, size: int | None = None) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise InvalidTypeError(
-            f"{name} must be a numeric vector, got {type(value).__name__}"
-        ) from exc
+        raise InvalidTypeError(f"{name} must be a numeric vector, got {type(value).__name__}") from exc
     if arr.ndim == 0:
         arr = arr.reshape(1)
     if arr.ndim == 2 and 1 in arr.shape:

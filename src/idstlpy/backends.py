@@ -536,4 +536,3 @@ def module_available(module: str) -> bool:
 
 
 register_backend(HighsBackend)
-

@@ -104,9 +104,7 @@ class LCS(DynamicalSystem):
         self.n = self.A.shape[0]
         self.B = as_matrix(B, "B", (self.n, None))
         if self.B.shape[1] == 0:
-            raise DimensionError(
-                f"B must have at least one column (m >= 1 inputs), got shape {self.B.shape}"
-            )
+            raise DimensionError(f"B must have at least one column (m >= 1 inputs), got shape {self.B.shape}")
         self.m = self.B.shape[1]
         self.W = np.zeros((self.n, 0))
         self.C = np.zeros((0, self.n))
@@ -230,9 +228,7 @@ class LCS(DynamicalSystem):
         """
         return self.A @ x + self.B @ u
 
-    def compute_finite_horizon_lqr(
-        self, horizon: int, Q_final: Any, Q: Any, R: Any
-    ) -> list[np.ndarray]:
+    def compute_finite_horizon_lqr(self, horizon: int, Q_final: Any, Q: Any, R: Any) -> list[np.ndarray]:
         """Finite-horizon discrete LQR gains used to track a plan (paper Section IV-E).
 
         Parameters
@@ -572,11 +568,7 @@ class POLBSWithNonLinNoise(POLBS):
         if len(shape) == 2 and shape[0] == self.p and shape[1] == self._cols and np.isfinite(arr).all():
             return arr  # the common case: the shape seen before, finite
         who = f"noise function V{self._where()}"
-        if (
-            arr.ndim != 2
-            or arr.shape[0] != self.p
-            or (self._cols is not None and arr.shape[1] != self._cols)
-        ):
+        if arr.ndim != 2 or arr.shape[0] != self.p or (self._cols is not None and arr.shape[1] != self._cols):
             want = f"({self.p}, {self._cols if self._cols is not None else 'r'})"
             raise NoiseFunctionError(
                 f"{who} must return a matrix of shape {want}, got shape {arr.shape} "
@@ -628,8 +620,7 @@ class SwitchedSystem(DynamicalSystem):
         for i, mode in enumerate(modes):
             if not isinstance(mode, LCS):
                 raise InvalidTypeError(
-                    f"system_modes[{i}] must be a system made by mk_lcs / mk_lbs, "
-                    f"got {type(mode).__name__}"
+                    f"system_modes[{i}] must be a system made by mk_lcs / mk_lbs, got {type(mode).__name__}"
                 )
         n, m = modes[0].n, modes[0].m
         for i, mode in enumerate(modes):
@@ -666,14 +657,8 @@ class SwitchedSystem(DynamicalSystem):
         OutOfRangeError
             When ``q`` is not a mode index.
         """
-        if (
-            isinstance(q, bool)
-            or not isinstance(q, int | np.integer)
-            or not 0 <= int(q) < self.num_modes
-        ):
-            raise OutOfRangeError(
-                f"mode {q!r} is out of range: the system has modes 0..{self.num_modes - 1}"
-            )
+        if isinstance(q, bool) or not isinstance(q, int | np.integer) or not 0 <= int(q) < self.num_modes:
+            raise OutOfRangeError(f"mode {q!r} is out of range: the system has modes 0..{self.num_modes - 1}")
         return self.system_modes[int(q)]
 
     def simulate(
@@ -857,9 +842,7 @@ def _as_floor(value: Any, p: int) -> np.ndarray:
     return 0.5 * (F + F.T)
 
 
-def mk_lbs(
-    A: Any, B: Any = None, W: Any = None, C: Any = None, V: Any = None, V_floor: Any = None
-) -> LBS:
+def mk_lbs(A: Any, B: Any = None, W: Any = None, C: Any = None, V: Any = None, V_floor: Any = None) -> LBS:
     """Linear belief system, observed when ``C`` is given (paper ``mk_lbs``).
 
     ``x' = A x + B u + W w`` and, with ``C``, ``y = C x + n(x) v`` (``w``, ``v`` standard normal).

@@ -130,9 +130,7 @@ class LinearExpression:
         try:
             arr = np.asarray(other, dtype=float)
         except (TypeError, ValueError) as exc:
-            raise InvalidTypeError(
-                f"cannot {op} a LinearExpression and {type(other).__name__}"
-            ) from exc
+            raise InvalidTypeError(f"cannot {op} a LinearExpression and {type(other).__name__}") from exc
         if arr.ndim > 1 or (arr.ndim == 1 and arr.shape[0] not in (1, len(self))):
             raise DimensionError(
                 f"cannot {op} an expression of size {len(self)} and a constant of shape {arr.shape}"
@@ -158,9 +156,7 @@ class LinearExpression:
             return LinearExpression(coef, self._const + other._const, self._variable)
         if isinstance(other, ConvexConstraint | DiscreteVariable):
             return NotImplemented
-        return LinearExpression(
-            self._coef, self._const + self._constant(other, "add"), self._variable
-        )
+        return LinearExpression(self._coef, self._const + self._constant(other, "add"), self._variable)
 
     __radd__ = __add__
 
@@ -236,19 +232,14 @@ class LinearExpression:
         return self._compare(other, less=False)
 
     def __lt__(self, other: Any) -> Any:
-        raise InvalidTypeError(
-            "use <= (closed half-spaces); strict < is not a linear predicate here"
-        )
+        raise InvalidTypeError("use <= (closed half-spaces); strict < is not a linear predicate here")
 
     def __gt__(self, other: Any) -> Any:
-        raise InvalidTypeError(
-            "use >= (closed half-spaces); strict > is not a linear predicate here"
-        )
+        raise InvalidTypeError("use >= (closed half-spaces); strict > is not a linear predicate here")
 
     def __eq__(self, other: object) -> bool:
         raise InvalidTypeError(
-            "equality on real-valued expressions is not a PrSTL predicate; "
-            "use two inequalities (<= and >=)"
+            "equality on real-valued expressions is not a PrSTL predicate; use two inequalities (<= and >=)"
         )
 
     __hash__ = object.__hash__
@@ -564,9 +555,7 @@ class _Probability:
 
     def __init__(self, pred: Any) -> None:
         if isinstance(pred, ProbabilisticLinearPredicate):
-            raise InvalidTypeError(
-                "prob() takes a LinearPredicate, got a chance constraint already"
-            )
+            raise InvalidTypeError("prob() takes a LinearPredicate, got a chance constraint already")
         if isinstance(pred, ConvexRegion):
             if pred.is_probabilistic:
                 raise InvalidTypeError("prob() takes linear predicates, got chance constraints")
@@ -582,8 +571,7 @@ class _Probability:
         p = as_float(level, "probability level (1 - eps)", 0.5, 1.0)
         eps = 1.0 - p
         out = [
-            ProbabilisticLinearPredicate(q.h, q.c, q.variable, min(max(eps, 0.0), 0.5))
-            for q in self.preds
+            ProbabilisticLinearPredicate(q.h, q.c, q.variable, min(max(eps, 0.0), 0.5)) for q in self.preds
         ]
         if len(out) == 1:
             return out[0]
@@ -595,9 +583,7 @@ class _Probability:
     __gt__ = __ge__
 
     def __le__(self, level: Any) -> Any:
-        raise InvalidTypeError(
-            "write prob(pred) >= 1 - eps; upper bounds on probability are not PrSTL"
-        )
+        raise InvalidTypeError("write prob(pred) >= 1 - eps; upper bounds on probability are not PrSTL")
 
     __lt__ = __le__
 
@@ -668,9 +654,7 @@ class JointChanceConstraint(ConvexConstraint):
         fixed: bool = False,
     ) -> None:
         if not isinstance(variable, RealValuedVariable):
-            raise InvalidTypeError(
-                f"variable must be a RealValuedVariable, got {type(variable).__name__}"
-            )
+            raise InvalidTypeError(f"variable must be a RealValuedVariable, got {type(variable).__name__}")
         H = np.atleast_2d(np.asarray(H, dtype=float))
         c = np.atleast_1d(np.asarray(c, dtype=float))
         if H.shape[0] == 0:
@@ -831,8 +815,7 @@ class _JointProbability:
                 )
             if region.dim != variable.size:
                 raise DimensionError(
-                    f"region has dimension {region.dim}, variable {variable.name} has size "
-                    f"{variable.size}"
+                    f"region has dimension {region.dim}, variable {variable.name} has size {variable.size}"
                 )
             self.H, self.c, self.variable = np.asarray(region.H), np.asarray(region.c), variable
         else:
@@ -851,9 +834,7 @@ class _JointProbability:
     __gt__ = __ge__
 
     def __le__(self, level: Any) -> Any:
-        raise InvalidTypeError(
-            "write prob_in(region) >= 1 - eps; upper bounds on probability are not PrSTL"
-        )
+        raise InvalidTypeError("write prob_in(region) >= 1 - eps; upper bounds on probability are not PrSTL")
 
     __lt__ = __le__
 
@@ -930,9 +911,7 @@ class DiscreteFormula:
         return f"DiscreteFormula({self})"
 
     def __bool__(self) -> bool:
-        raise InvalidTypeError(
-            "a discrete predicate has no truth value; use logical_and / logical_or"
-        )
+        raise InvalidTypeError("a discrete predicate has no truth value; use logical_and / logical_or")
 
 
 class DiscretePredicate(DiscreteFormula):
@@ -979,9 +958,7 @@ class ConvexRegion(ConvexConstraint):
             raise InvalidArgumentError("a convex region needs at least one predicate")
         for p in preds:
             if not isinstance(p, LinearPredicate):
-                raise InvalidTypeError(
-                    f"ConvexRegion takes linear predicates, got {type(p).__name__}"
-                )
+                raise InvalidTypeError(f"ConvexRegion takes linear predicates, got {type(p).__name__}")
         kinds = {isinstance(p, ProbabilisticLinearPredicate) for p in preds}
         if len(kinds) > 1:
             raise InvalidTypeError(

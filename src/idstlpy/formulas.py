@@ -204,9 +204,7 @@ class STLFormula:
                     f"<td><code>{html.escape(definition)}</code></td></tr>",
                 )
         table = (
-            "<table><tr><th>proposition</th><th>definition</th></tr>"
-            + "".join(rows.values())
-            + "</table>"
+            "<table><tr><th>proposition</th><th>definition</th></tr>" + "".join(rows.values()) + "</table>"
             if rows
             else ""
         )
@@ -273,13 +271,9 @@ class STLAtomicProposition(STLFormula):
         self.num_single = len(preds)
         preds = preds + tuple(f for j in jts for f in j.face_constraints)
         if len({id(p.variable) for p in preds}) > 1:
-            raise InvalidArgumentError(
-                "all chance constraints of a proposition must be over one variable"
-            )
+            raise InvalidArgumentError("all chance constraints of a proposition must be over one variable")
         if name is not None and (not isinstance(name, str) or not name.isidentifier()):
-            raise InvalidArgumentError(
-                f"name must be an identifier such as 'free_space', got {name!r}"
-            )
+            raise InvalidArgumentError(f"name must be an identifier such as 'free_space', got {name!r}")
         self.predicates: tuple[ProbabilisticLinearPredicate, ...] = preds
         self.modes: frozenset[int] | None = (
             None
@@ -530,9 +524,7 @@ def as_formula(value: Any, what: str = "argument") -> STLFormula:
             f"{what}: a deterministic predicate ({value}) is not a PrSTL formula; "
             "state a confidence with prob(pred) >= 1 - eps"
         )
-    raise InvalidTypeError(
-        f"{what} must be a PrSTL formula or predicate, got {type(value).__name__}"
-    )
+    raise InvalidTypeError(f"{what} must be a PrSTL formula or predicate, got {type(value).__name__}")
 
 
 def _operands(args: tuple[Any, ...], func: str) -> tuple[Any, ...]:
@@ -849,17 +841,11 @@ def format_formula(formula: STLFormula) -> str:
     if isinstance(formula, STLUntil):
         if isinstance(formula.left, STLAtomicProposition) and formula.left._constant is True:
             return f"F[{formula.a},{formula.b}] {format_formula(formula.right)}"
-        return (
-            f"({format_formula(formula.left)} U[{formula.a},{formula.b}] "
-            f"{format_formula(formula.right)})"
-        )
+        return f"({format_formula(formula.left)} U[{formula.a},{formula.b}] {format_formula(formula.right)})"
     if isinstance(formula, STLRelease):
         if isinstance(formula.left, STLAtomicProposition) and formula.left.is_false:
             return f"G[{formula.a},{formula.b}] {format_formula(formula.right)}"
-        return (
-            f"({format_formula(formula.left)} R[{formula.a},{formula.b}] "
-            f"{format_formula(formula.right)})"
-        )
+        return f"({format_formula(formula.left)} R[{formula.a},{formula.b}] {format_formula(formula.right)})"
     raise InvalidTypeError(f"cannot format {type(formula).__name__}: not a PrSTL formula")
 
 

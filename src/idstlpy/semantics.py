@@ -142,9 +142,7 @@ def _release(r1: np.ndarray, r2: np.ndarray, a: int, b: int) -> np.ndarray:
     return np.maximum(best, prefix)
 
 
-def formula_margins(
-    formula: STLFormula, atoms: Mapping[int, np.ndarray], length: int
-) -> np.ndarray:
+def formula_margins(formula: STLFormula, atoms: Mapping[int, np.ndarray], length: int) -> np.ndarray:
     """Margin of ``formula`` at every step of a trace, shape (length,).
 
     Parameters
@@ -192,9 +190,7 @@ def formula_margins(
     return rec(formula)
 
 
-def _trajectory_atoms(
-    traj: ProbabilisticTSTrajectory, formula: STLFormula
-) -> dict[int, np.ndarray]:
+def _trajectory_atoms(traj: ProbabilisticTSTrajectory, formula: STLFormula) -> dict[int, np.ndarray]:
     means, covs, actions = traj.get_mean(), traj.get_cov(), traj.get_action()
     return {id(ap): atom_margins(ap, means, covs, actions) for ap in formula.atomic_propositions()}
 

@@ -322,9 +322,7 @@ class Polytope:
             A :class:`FullDimensionalPolytope` when the intersection has interior.
         """
         if other.dim != self.dim:
-            raise DimensionError(
-                f"cannot intersect polytopes of dimensions {self.dim} and {other.dim}"
-            )
+            raise DimensionError(f"cannot intersect polytopes of dimensions {self.dim} and {other.dim}")
         return make_polytope(np.vstack([self.H, other.H]), np.concatenate([self.c, other.c]))
 
     def is_disjoint(self, other: Polytope) -> bool:

@@ -105,9 +105,7 @@ class FormulaSyntaxError(InvalidArgumentError):
         shown = ("..." if start else "") + line[start:end] + ("..." if end < len(line) else "")
         caret = position - start + (3 if start else 0)
         super().__init__(
-            f"formula syntax error at column {position + 1}: {detail}\n    {shown}\n    "
-            + " " * caret
-            + "^"
+            f"formula syntax error at column {position + 1}: {detail}\n    {shown}\n    " + " " * caret + "^"
         )
 
 
@@ -258,8 +256,7 @@ class _Parser:
                     return self.build(tok, cls, TRUE if tok.text == "F" else FALSE, a, b, body)
                 return self.named_atom()
             raise self.error(
-                "expected a formula: '(', '{', F[a,b], G[a,b] or a proposition name, "
-                f"got {self._show(tok)}"
+                f"expected a formula: '(', '{{', F[a,b], G[a,b] or a proposition name, got {self._show(tok)}"
             )
         finally:
             self.depth -= 1
@@ -388,9 +385,7 @@ class _Parser:
         tok = self.tok
         k = self.integer("mode")
         if self.num_modes is not None and k >= self.num_modes:
-            raise self.error(
-                f"mode {k} is out of range: the system has modes 0..{self.num_modes - 1}", tok
-            )
+            raise self.error(f"mode {k} is out of range: the system has modes 0..{self.num_modes - 1}", tok)
         return k
 
     def chance_constraint(self) -> ProbabilisticLinearPredicate | JointChanceConstraint:
@@ -471,9 +466,7 @@ class _Parser:
         itok = self.tok
         i = self.integer("index")
         if i >= var.size:
-            raise self.error(
-                f"index {i} is out of range for {var.name}, which has size {var.size}", itok
-            )
+            raise self.error(f"index {i} is out of range for {var.name}, which has size {var.size}", itok)
         self.expect("]")
         return i
 

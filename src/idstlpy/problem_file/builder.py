@@ -441,9 +441,7 @@ class _Builder:
             )
         for j, text in enumerate(texts):
             if not isinstance(text, str):
-                raise self.err(
-                    path + (j,), f"must be a string such as 'x[0] >= -1', got {sc.kind_of(text)}"
-                )
+                raise self.err(path + (j,), f"must be a string such as 'x[0] >= -1', got {sc.kind_of(text)}")
         if conf is None:
             raise self.err(
                 path[:-1], "has no confidence: set confidence for the proposition or the constraint"
