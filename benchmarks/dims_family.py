@@ -230,72 +230,97 @@ def _pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
 
+def _row(k: int, form: str, mode: str, rows: list[dict[str, Any]], cap: float) -> str:
+    found = [r for r in rows if r.get("status") == "found"]
+    ver = [r for r in found if r.get("verified")]
+    times = [float(r["time"]) if r.get("status") == "found" else float(cap) for r in rows]
+    cands = [int(r.get("candidates", 0)) for r in rows if "candidates" in r]
+    iters = [int(r.get("iterations", 0)) for r in rows if "iterations" in r]
+    rooms = [r["room"] for r in found if r.get("room") is not None]
+    statuses = sorted({str(r.get("status")) for r in rows if r.get("status") != "found"})
+    return (
+        f"| {k} ({2 * k}) | {form} | {mode} | {len(found)} ({len(ver)}) / {len(rows)} "
+        f"{'(' + ', '.join(statuses) + ')' if statuses else ''} | "
+        f"{statistics.median(times):.2f} | {_pct(times, 90):.2f} | "
+        f"{statistics.median(cands) if cands else 0:.0f}, {max(cands) if cands else 0} | "
+        f"{statistics.median(iters) if iters else 0:.0f} | "
+        f"{sum(int(r.get('abandoned', 0)) for r in rows)} | "
+        f"{statistics.median([r['steps'] for r in found]) if found else 0:.0f} | "
+        f"{min(rooms) if rooms else float('nan'):.2f} |"
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
+    import os
+
     from benchmarks.harness import Worker
 
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--joint-seeds", type=int, default=3, help="seeds of the joint search (slow)")
     ap.add_argument("--cap", type=float, default=120.0)
     ap.add_argument("--ks", default="1,2,3")
+    ap.add_argument("--forms", default="each,all")
     ap.add_argument("--modes", default="decoupled,joint")
     ap.add_argument("--out", default=str(Path(__file__).with_name("dims_results.md")))
     args = ap.parse_args(argv)
     ks = [int(v) for v in args.ks.split(",")]
+    forms = args.forms.split(",")
     modes = args.modes.split(",")
     lines = [
-        "| k (n) | planner | found (verified) / seeds | median s | p90 s | candidates (median, max) "
-        "| abandoned (total) | steps (median) | execution room (min) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| k (n) | formula | planner | found (verified) / seeds | median s | p90 s "
+        "| candidates (median, max) | sampler iterations (median) | abandoned (total) "
+        "| steps (median) | execution room (min) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     checks = []
     for k in ks:
-        c = check_instance(k)
-        checks.append(
-            f"- k = {k}: witness satisfies = {c['witness'][0]} (robustness {c['witness'][1]:.4f}); "
-            f"lazy satisfies = {c['lazy'][0]} (robustness {c['lazy'][1]:.4f})"
-        )
+        for form in forms if k > 1 else forms[:1]:
+            c = check_instance(k, form=form)
+            checks.append(
+                f"- k = {k}, {form}: witness satisfies = {c['witness'][0]} (robustness "
+                f"{c['witness'][1]:.4f}); lazy satisfies = {c['lazy'][0]} (robustness {c['lazy'][1]:.4f})"
+            )
+    loads = [os.getloadavg()[0]]
     with Worker() as worker:
         for k in ks:
-            for mode in modes:
-                rows = []
-                for seed in range(args.seeds):
-                    r = worker.run(
-                        "benchmarks.dims_family:solve_job",
-                        {"k": k, "seed": seed, "cap": args.cap, "decoupled": mode == "decoupled"},
-                        args.cap + 60.0,
-                    )
-                    rows.append(r)
-                    print(
-                        k,
-                        mode,
-                        seed,
-                        {key: r.get(key) for key in ("status", "verified", "time", "candidates")},
-                        flush=True,
-                    )
-                found = [r for r in rows if r.get("status") == "found"]
-                ver = [r for r in found if r.get("verified")]
-                times = [
-                    float(r.get("time", args.cap)) if r.get("status") == "found" else float(args.cap)
-                    for r in rows
-                ]
-                cands = [int(r.get("candidates", 0)) for r in rows if "candidates" in r]
-                rooms = [r["room"] for r in found if r.get("room") is not None]
-                lines.append(
-                    f"| {k} ({2 * k}) | {mode} | {len(found)} ({len(ver)}) / {len(rows)} | "
-                    f"{statistics.median(times):.2f} | {_pct(times, 90):.2f} | "
-                    f"{statistics.median(cands) if cands else 0:.0f}, {max(cands) if cands else 0} | "
-                    f"{sum(int(r.get('abandoned', 0)) for r in rows)} | "
-                    f"{statistics.median([r['steps'] for r in found]) if found else 0:.0f} | "
-                    f"{min(rooms) if rooms else float('nan'):.2f} |"
-                )
+            for form in forms if k > 1 else forms[:1]:
+                for mode in modes if k > 1 else modes[:1]:
+                    rows = []
+                    seeds = args.seeds if mode == "decoupled" else args.joint_seeds
+                    for seed in range(seeds):
+                        r = worker.run(
+                            "benchmarks.dims_family:solve_job",
+                            {
+                                "k": k,
+                                "seed": seed,
+                                "cap": args.cap,
+                                "decoupled": mode == "decoupled",
+                                "form": form,
+                            },
+                            args.cap + 60.0,
+                        )
+                        rows.append(r)
+                        brief = {key: r.get(key) for key in ("status", "verified", "time", "candidates")}
+                        print(k, form, mode, seed, brief, flush=True)
+                    loads.append(os.getloadavg()[0])
+                    lines.append(_row(k, form, mode, rows, args.cap))
     text = "\n".join(
         [
             "# Planning in more dimensions: k independent light-dark robots (issue 24)",
             "",
-            f"`PYTHONPATH=src python -m benchmarks.dims_family --seeds {args.seeds} --cap {args.cap:g} "
-            f"--ks {args.ks} --modes {args.modes}` ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            "2 cores shared with other jobs; times are wall clock, a solve that did not finish counts "
-            "as the cap).",
+            f"`PYTHONPATH=src python -m benchmarks.dims_family --seeds {args.seeds} --joint-seeds "
+            f"{args.joint_seeds} --cap {args.cap:g} --ks {args.ks} --forms {args.forms} "
+            f"--modes {args.modes}` "
+            f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}). Every solve in a child process "
+            "(`benchmarks/harness.py`), default options but `time_limit` = the cap (so the default "
+            "`guarantee='execution'`: every found plan's execution is predicted); times are wall clock "
+            "and a solve that did not finish counts as the cap. The machine has 2 cores shared with "
+            f"other jobs: 1-minute load average {min(loads):.1f}-{max(loads):.1f} during the run, so "
+            "the times are inflated; the work counters (candidates, iterations) are not. `decoupled`: "
+            "the default solver (`idstlpy.synthesis.decoupled`); `joint`: the same with the "
+            "decomposition switched off (the sampler on the whole belief). k = 1 does not split: one "
+            "row.",
             "",
             "Instances (independent check, `stl.rollout` + `stl.satisfies`):",
             "",
