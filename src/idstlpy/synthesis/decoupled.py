@@ -338,6 +338,25 @@ def _merge(into: SolveStats, sub: SolveStats) -> None:
             setattr(into, f.name, a + b)
 
 
+def _give_room(
+    problem: Any, options: Any, budget: Budget, stats: SolveStats, actions: np.ndarray, controls: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The room of the composed plan, measured (and given where an LP round can) on the whole
+    problem (:func:`.room.give_room`): the blocks' own rooms are about their own formulas."""
+    stats.execution_room = None
+    if not options.polish_rounds:
+        return actions, controls
+    from .room import give_room  # (room imports the plan LP; kept out of the import-time graph)
+
+    init, system = problem.initial_state, problem.switched_system
+    traj = rollout(system, init, actions, controls)
+    abstraction = Abstraction(problem.stl_formula, system.n)
+    scaling = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
+    rounds = 2 * max(options.polish_rounds, 4)
+    traj = give_room(problem, abstraction, scaling, traj, rounds, stats, budget.deadline)
+    return np.asarray(traj.get_action(), dtype=int), np.asarray(traj.get_control(), dtype=float)
+
+
 def solve_decoupled(
     problem: Any, options: Any, budget: Budget, stats: SolveStats, synthesize: Callable[..., Any]
 ) -> DecoupledPlan | None:
@@ -403,23 +422,7 @@ def solve_decoupled(
     for block, (c, last) in zip(blocks, parts, strict=True):
         controls[:, block.inputs] = _hold_input(mode, dom, block, last)
         controls[: c.shape[0], block.inputs] = c
-    actions = np.zeros(N, dtype=int)
-    # The room of the composed plan, measured (and given where one LP round can) on the whole
-    # problem: the blocks' own rooms are about their own formulas.
-    stats.execution_room = None
-    if options.polish_rounds:
-        from .room import give_room  # (room imports the plan LP; kept out of the import-time graph)
-
-        init = problem.initial_state
-        traj = rollout(problem.switched_system, init, actions, controls)
-        abstraction = Abstraction(problem.stl_formula, problem.switched_system.n)
-        scaling = Scaling.compute(problem.switched_system, dom, init.mean, init.cov, abstraction)
-        rounds = 2 * max(options.polish_rounds, 4)
-        traj = give_room(problem, abstraction, scaling, traj, rounds, stats, budget.deadline)
-        actions, controls = (
-            np.asarray(traj.get_action(), dtype=int),
-            np.asarray(traj.get_control(), dtype=float),
-        )
+    actions, controls = _give_room(problem, options, budget, stats, np.zeros(N, dtype=int), controls)
     separable = all(len(_blocks_of(f, blocks)) == 1 for f in _conjuncts(problem.stl_formula))
     how = (
         f"{len(blocks)} independent blocks planned one by one and composed"
