@@ -20,7 +20,7 @@ from idstlpy.batch import Job, comparable, run_job
 from idstlpy.batch.jobs import derived_seed, replan_summary
 from idstlpy.batch.records import plan_from_record
 from idstlpy.cli import EXIT_OK, EXIT_USAGE, main
-from idstlpy.execution.validation import _REPLAN_OPTIONS
+from idstlpy.execution.validation import REPLAN_OPTION_KEYS
 from idstlpy.problem_file import apply_overrides, load_problem, schema
 
 # test_replanning.py's noisy integrator as a file: LP-exact, solves in milliseconds.
@@ -114,7 +114,7 @@ def test_tables_are_validate_and_start_check_keywords():
 
 def test_the_keys_are_the_keywords_of_execute_and_start_check():
     # execute's `options` and start_check's are the file's [solver] table: not keys of their own
-    assert set(schema.REPLAN_OPTION_KEYS) == set(_REPLAN_OPTIONS) - {"options"}
+    assert set(schema.REPLAN_OPTION_KEYS) == set(REPLAN_OPTION_KEYS) - {"options"}
     executor = {"options", "clip_controls", "process_noise", "lqr_gains", "default_lqr", "policy"}
     params = inspect.signature(stl.start_check).parameters
     keywords = {k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}

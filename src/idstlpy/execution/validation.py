@@ -999,7 +999,7 @@ def _predict(
     return predicted
 
 
-_REPLAN_OPTIONS = frozenset(
+REPLAN_OPTION_KEYS = frozenset(
     {
         "risk",
         "every",
@@ -1016,7 +1016,8 @@ _REPLAN_OPTIONS = frozenset(
         "adopt",
     }
 )
-"""Keys ``replan_options`` accepts (the execution options are validate's own)."""
+"""Keys ``replan_options`` accepts (the execution options are validate's own); problem files'
+``[validation.replan_options]`` reads the same keys but ``options`` (their ``[solver]``)."""
 
 
 def _replan_options(
@@ -1029,10 +1030,10 @@ def _replan_options(
         )
     if options is not None and not isinstance(options, Mapping):
         raise InvalidTypeError(f"replan_options must be a mapping, got {type(options).__name__}")
-    unknown = sorted(set(options or {}) - _REPLAN_OPTIONS)
+    unknown = sorted(set(options or {}) - REPLAN_OPTION_KEYS)
     if unknown:
         raise InvalidArgumentError(
-            f"replan_options has unknown keys {unknown}; accepted: {sorted(_REPLAN_OPTIONS)}"
+            f"replan_options has unknown keys {unknown}; accepted: {sorted(REPLAN_OPTION_KEYS)}"
         )
     if num_of_steps is not None and num_of_steps != plan.num_of_steps:
         raise InvalidArgumentError(

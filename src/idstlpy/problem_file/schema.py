@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ..execution import validation as _validation
 from .locations import Context, FieldPath
 
 __all__ = [
@@ -66,20 +67,7 @@ LQR_KEYS = ("horizon", "Q_final", "Q", "R")
 VALIDATION_KEYS = ("runs", "seed", "predict", "replan", "replan_options", "start_check", "execution_target")
 REPLAN_POLICIES = ("none", "on_risk", "every")
 """``[validation] replan``: ``"none"`` is ``validate(replan=None)`` (TOML has no null)."""
-REPLAN_OPTION_KEYS = (
-    "risk",
-    "every",
-    "check_every",
-    "drift",
-    "start_resolves",
-    "risk_measure",
-    "risk_on",
-    "risk_samples",
-    "max_replans",
-    "adopt",
-    "replan_time_limit",
-    "solver_options",
-)
+REPLAN_OPTION_KEYS = tuple(sorted(_validation.REPLAN_OPTION_KEYS - {"options"}))
 """``[validation.replan_options]``: the keywords of ``execute`` (its ``options`` is ``[solver]``)."""
 START_CHECK_KEYS = (
     "risk",
