@@ -1633,6 +1633,22 @@ def _fill_intervals(ax: Any, problem: Any, i: int, out: Any) -> None:
     ax.set_ylim(y0, y1)
 
 
+def _run_line(
+    ax: Any, values: np.ndarray, color: str, lw: float, zorder: float, label: str, first: bool
+) -> Any:
+    """One execution's thin line against the step (labelled only for the first run)."""
+    (line,) = ax.plot(
+        np.arange(values.shape[0]),
+        values,
+        color=color,
+        lw=lw,
+        alpha=0.35,
+        zorder=zorder,
+        label=label if first else None,
+    )
+    return line
+
+
 def plot_time_series(
     problem: Any,
     plan: Any,
@@ -1797,28 +1813,15 @@ def plot_time_series(
             )
         out.runs_executed[i], out.runs_real[i] = [], []
         for r, (xs, xr) in enumerate(runs):
-            em = xs.get_mean()
-            (line,) = ax.plot(
-                np.arange(em.shape[0]),
-                em[:, i],
-                color="tab:orange",
-                lw=0.6,
-                alpha=0.35,
-                zorder=1.5,
-                label=f"executed beliefs ({len(runs)})" if row == 0 and r == 0 else None,
+            first = row == 0 and r == 0  # one legend entry per kind of line
+            out.runs_executed[i].append(
+                _run_line(
+                    ax, xs.get_mean()[:, i], "tab:orange", 0.6, 1.5, f"executed beliefs ({len(runs)})", first
+                )
             )
-            out.runs_executed[i].append(line)
-            rs = xr.get_state()
-            (line,) = ax.plot(
-                np.arange(rs.shape[0]),
-                rs[:, i],
-                color="tab:red",
-                lw=0.5,
-                alpha=0.35,
-                zorder=1.6,
-                label=f"true states ({len(runs)})" if row == 0 and r == 0 else None,
+            out.runs_real[i].append(
+                _run_line(ax, xr.get_state()[:, i], "tab:red", 0.5, 1.6, f"true states ({len(runs)})", first)
             )
-            out.runs_real[i].append(line)
         (out.start[i],) = ax.plot(
             [0],
             [mean[0, i]],
