@@ -53,6 +53,19 @@ def test_the_fallback_returns_a_plan_that_keeps_every_promise(solved):
     again = stl.rollout(problem.switched_system, problem.initial_state, plan.get_action(), plan.get_control())
     np.testing.assert_allclose(again.get_mean(), plan.get_mean(), atol=1e-9)
     assert stl.satisfies(again, problem.stl_formula)
+    # ... and by the independent oracles: their own Kalman roll-out, and the goal box's exact
+    # probability at the plan's last belief (the covariance stays diagonal here: isotropic modes).
+    from oracles.joint import box_probability
+    from oracles.rollout import ModeSpec, mlo_rollout
+
+    specs = [ModeSpec(md.A, md.B, md.W, md.C, md.noise) for md in problem.switched_system.system_modes]
+    trace = mlo_rollout(
+        specs, problem.initial_state.mean, problem.initial_state.cov, plan.get_action(), plan.get_control()
+    )
+    np.testing.assert_allclose([m for m, _ in trace.states], plan.get_mean(), atol=1e-9)
+    mean, cov = trace.states[-1]
+    assert abs(cov[0, 1]) < 1e-12
+    assert box_probability(np.array([4.0, 4.0]), np.array([5.0, 5.0]), mean, np.diag(cov)) >= 0.95
     # No warning that the plan falls short: it does not.
     assert not [w for w in caught if issubclass(w.category, stl.ExecutionTargetWarning)]
 
