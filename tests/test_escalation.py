@@ -97,3 +97,16 @@ def test_mlo_and_closed_loop_never_fall_back():
         warnings.simplefilter("ignore", stl.ExecutionTargetWarning)
         mlo = problem.solve_result(seed=0, guarantee="mlo")
     assert mlo.guarantee == "mlo" and "guarantee='closed_loop'" not in mlo.reason
+
+
+def test_a_plan_left_below_target_warns_once_and_says_what_was_tried():
+    from benchmarks.defaults_problems import drive_look_noisy
+
+    problem = drive_look_noisy()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = problem.solve_result(seed=0, time_limit=30)
+    assert result.status == "found" and result.meets_target is False
+    target = [w for w in caught if issubclass(w.category, stl.ExecutionTargetWarning)]
+    assert len(target) == 1
+    assert "guarantee='closed_loop'" in result.reason

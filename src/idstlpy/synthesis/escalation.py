@@ -54,10 +54,32 @@ def _combined(first: SolveStats, second: SolveStats) -> SolveStats:
 
 
 def _reissue(caught: list[warnings.WarningMessage], keep_target_warning: bool) -> None:
-    for w in caught:
-        if issubclass(w.category, ExecutionTargetWarning) and not keep_target_warning:
+    """Issue the held warnings again; of the execution-target warnings only the last, the one
+    about the plan returned (a joint-constraint re-solve may have replaced an earlier plan)."""
+    target = [i for i, w in enumerate(caught) if issubclass(w.category, ExecutionTargetWarning)]
+    keep = target[-1:] if keep_target_warning else []
+    for i, w in enumerate(caught):
+        if i in target and i not in keep:
             continue
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+
+
+def _below_target_advice(
+    first: SolveResult, options: SolverOptions, second: SolveResult | None
+) -> SolveResult:
+    """Say what was tried, and what may help, when the plan returned is below target."""
+    if second is not None:
+        outcome = "a plan below target too" if second.status == "found" else second.status
+        tip = (
+            f"a closed-loop solve (guarantee='closed_loop') in the time left ended {outcome}; "
+            f"more time may help (time_limit={4 * options.total_time_cap:.3g})"
+        )
+    else:
+        tip = (
+            f"no time was left for a closed-loop solve: try time_limit={4 * options.total_time_cap:.3g} "
+            "or guarantee='closed_loop'"
+        )
+    return dataclasses.replace(first, reason=f"{first.reason}; {tip}")
 
 
 def closed_loop_fallback(
@@ -95,9 +117,12 @@ def closed_loop_fallback(
         first = solve()
     below = first.status == "found" and first.meets_target is False
     left = options.total_time_cap - (time.perf_counter() - start)
-    if not below or left <= 0:
+    if not below:
         _reissue(caught, keep_target_warning=True)
         return first
+    if left <= 0:
+        _reissue(caught, keep_target_warning=True)
+        return _below_target_advice(first, options, None)
     logger.info("execution guarantee: only plans below target; trying guarantee='closed_loop'")
     with warnings.catch_warnings(record=True) as caught_second:
         warnings.simplefilter("always")
@@ -111,7 +136,9 @@ def closed_loop_fallback(
     if not holds:
         _reissue(caught, keep_target_warning=True)
         logger.info("closed-loop fallback: %s; the first plan stands", second.reason)
-        return dataclasses.replace(first, stats=_combined(first.stats, second.stats))
+        return dataclasses.replace(
+            _below_target_advice(first, options, second), stats=_combined(first.stats, second.stats)
+        )
     _reissue(caught, keep_target_warning=False)
     _reissue(caught_second, keep_target_warning=True)
     reason = (
