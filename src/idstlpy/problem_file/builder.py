@@ -488,7 +488,7 @@ class _Builder:
             if not isinstance(v, bool):
                 raise self.err(path, f"must be true or false, got {sc.kind_of(v)}")
             return v
-        if isinstance(default, str) or "str" in words:
+        if isinstance(default, str) or words & {"str", "Literal"}:
             if not isinstance(v, str):
                 raise self.err(path, f"must be a string, got {sc.kind_of(v)}")
             return v

@@ -48,22 +48,23 @@ def budget_advice(
         (for instance, a refutation that holds only for one risk allocation).
     """
     tips: list[str] = []
-    if "max_candidates" in reason and options.max_candidates is not None:
-        tips.append(
-            f"raise max_candidates (it was {options.max_candidates}; try {4 * options.max_candidates})"
-        )
+    stop, search, sampler = options.termination, options.search, options.sampler
+    if "max_candidates" in reason and stop.candidates is not None:
+        tips.append(f"raise max_candidates (it was {stop.candidates}; try {4 * stop.candidates})")
+    if "max_lp_calls" in reason and stop.lp_calls is not None:
+        tips.append(f"raise max_lp_calls (it was {stop.lp_calls}; try {4 * stop.lp_calls})")
     if "max_plan_length" in reason:
-        longer = 4 * options.max_plan_length
+        longer = 4 * search.max_plan_length
         if horizon is not None and horizon > 0:
             longer = min(longer, int(horizon) + 1)
-        tips.append(f"raise max_plan_length (it was {options.max_plan_length}; try {longer})")
+        tips.append(f"raise max_plan_length (it was {search.max_plan_length}; try {longer})")
     if sampler_abandoned:
-        per = options.iterations_per_candidate
+        per = sampler.iterations
         if "rrt_timeout" in stats.caps_hit:
             tips.append(
                 f"{sampler_abandoned} of {stats.candidates} candidates were abandoned when the "
-                f"sampler's wall-clock cap rrt_timeout={_g(options.rrt_timeout)} s ended their "
-                f"search: raise rrt_timeout (try {_g(4 * options.rrt_timeout)})"
+                f"sampler's wall-clock cap rrt_timeout={_g(sampler.rrt_timeout)} s ended their "
+                f"search: raise rrt_timeout (try {_g(4 * sampler.rrt_timeout)})"
             )
         else:
             tips.append(
@@ -73,10 +74,8 @@ def budget_advice(
             )
     # Work budgets first: they decide the search; the wall clock only caps it.
     if "time_limit" in stats.caps_hit:
-        tips.append(
-            f"raise time_limit (it was {_g(options.total_time_cap)} s; try "
-            f"time_limit={_g(4 * options.total_time_cap)})"
-        )
+        cap = stop.seconds if stop.seconds is not None else options.total_time_cap
+        tips.append(f"raise time_limit (it was {_g(cap)} s; try time_limit={_g(4 * cap)})")
     if not tips:
         return ""
     return "to search further: " + "; ".join(tips)

@@ -294,7 +294,8 @@ class _Run:
             self.below = checked
         if self.below_until is None:
             c = stats.candidates
-            self.below_until = c + max(BELOW_TARGET_MIN, int(np.ceil(BELOW_TARGET_EXTRA * c)))
+            extra = max(BELOW_TARGET_MIN, int(np.ceil(BELOW_TARGET_EXTRA * c)))
+            self.below_until = c if self.options.termination.first_found else c + extra
 
     def counts(self) -> str:
         s = self.stats
@@ -400,14 +401,12 @@ def _loop(run: _Run, problem: Any, options: SolverOptions) -> SolveResult:
         lazy_budget = 0 if options.objective is not None else options.lazy_candidates
         while True:
             budget.check("the proposer / teacher loop")
-            if options.max_candidates is not None and stats.candidates >= options.max_candidates:
-                return run.done(
-                    "budget_exhausted", f"max_candidates = {options.max_candidates} reached; {run.counts()}"
-                )
+            spent = options.termination.work_done(stats.candidates, stats.lp_calls)
+            if spent is not None:
+                return run.done("budget_exhausted", f"{spent}; {run.counts()}")
             if run.below_until is not None and stats.candidates >= run.below_until:
-                return run.done(
-                    "budget_exhausted", f"the search budget after a plan below target; {run.counts()}"
-                )
+                spent = "first_found" if options.termination.first_found else "the search budget"
+                return run.done("budget_exhausted", f"{spent} after a plan below target; {run.counts()}")
             if eager and switch_to_eager(
                 proposer.hard, stats.candidates, lazy_budget, options.lazy_conflict_size
             ):
@@ -514,7 +513,7 @@ def _optimise(
                 # The plan LP's optimum is over the controls of one set of requirements, with the
                 # execution margin kept: no claim about the problem (issue 25).
                 eligible = problem.switched_system.num_modes == 1
-                if eligible:
+                if eligible and not options.termination.first_found:
                     better_run = _global(run, proposer, abstraction, scaling, name, weights)
                     if better_run is not None:
                         new_traj, proven, new_bound, horizon = better_run
@@ -525,7 +524,7 @@ def _optimise(
                             how = "the eager MILP chose the plan, the LP timed it, the monitor agrees"
                         if proven and horizon:
                             optimal, scope, bound = True, "horizon", new_bound
-        else:
+        elif not options.termination.first_found:
             traj = refine(
                 problem,
                 abstraction,

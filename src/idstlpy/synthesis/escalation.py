@@ -96,7 +96,8 @@ def closed_loop_fallback(
     ----------
     problem : Problem
     options : SolverOptions
-        The options of the solve (``guarantee="execution"`` enables the fallback).
+        The options of the solve (``guarantee="execution"`` enables the fallback, unless its
+        termination stops at the first verified plan).
     start : float
         ``time.perf_counter()`` at the first line of ``solve``: both solves share one time cap.
     solve : callable () -> SolveResult
@@ -110,8 +111,8 @@ def closed_loop_fallback(
         The closed-loop plan when it satisfies the formula under the paper's semantics and meets
         the execution target; the first result otherwise. Its statistics count both solves.
     """
-    if options.guarantee != "execution":
-        return solve()
+    if options.target.guarantee != "execution" or options.termination.first_found:
+        return solve()  # first_found: the first verified plan is the answer, no second search
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         first = solve()

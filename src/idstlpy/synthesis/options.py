@@ -1,16 +1,26 @@
 """``SolverOptions``: the single, validated source of every solver parameter.
 
-Budgets that *decide* the search are counted in work (candidates, sampler iterations), so the
-same problem, options and seed give the same plan on any machine under any load. Wall-clock
-limits (``rrt_timeout`` per candidate, ``time_limit`` overall) are safety caps: when one is hit
-the result says so (``SolveStats.caps_hit``) and reproducibility is no longer promised.
+Budgets that *decide* the search are counted in work (candidates, LP calls, sampler iterations),
+so the same problem, options and seed give the same plan on any machine under any load.
+Wall-clock limits (``rrt_timeout`` per candidate, ``time_limit`` overall) are safety caps: when
+one is hit the result says so (``SolveStats.caps_hit``) and reproducibility is no longer promised.
+
+The options are given flat (the paper's keyword façade: ``problem.solve(rrt_timeout=...)``), and
+read in groups, one per part of the solver, each a frozen dataclass holding only what that part
+reads: :attr:`SolverOptions.sampler` (:class:`SamplerOptions`), :attr:`SolverOptions.search`
+(:class:`SearchOptions`: the proposer, the abstraction and the plan LP),
+:attr:`SolverOptions.eager` (:class:`EagerOptions`), :attr:`SolverOptions.objectives`
+(:class:`ObjectiveOptions`), :attr:`SolverOptions.target` (:class:`TargetOptions`) and when the
+solve stops, :attr:`SolverOptions.termination` (one :class:`Termination`, composable as OMPL's
+``PlannerTerminationCondition``: ``Termination.time(60) | Termination.work(candidates=500)``).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, replace
-from typing import Any
+from functools import cached_property
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -19,10 +29,31 @@ from ..backends import available_backends, default_milp_backend
 from ..errors import InvalidArgumentError, InvalidTypeError, OutOfRangeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 
-__all__ = ["GUARANTEES", "ITERATIONS_PER_SECOND", "SolverOptions"]
+__all__ = [
+    "GUARANTEES",
+    "ITERATIONS_PER_SECOND",
+    "OBJECTIVES",
+    "TIME_CAP_PER_RRT_TIMEOUT",
+    "EagerOptions",
+    "Guarantee",
+    "Objective",
+    "ObjectiveOptions",
+    "SamplerOptions",
+    "SearchOptions",
+    "SolverOptions",
+    "TargetOptions",
+    "Termination",
+]
 
-GUARANTEES = ("execution", "mlo", "closed_loop")
+Guarantee = Literal["execution", "mlo", "closed_loop"]
+"""What a returned plan promises (see :attr:`SolverOptions.guarantee`)."""
+Objective = Literal["effort", "time", "margin"]
+"""What an optimising solve optimises (see :attr:`SolverOptions.objective`)."""
+
+GUARANTEES: tuple[Guarantee, ...] = get_args(Guarantee)
 """The values of :attr:`SolverOptions.guarantee` (the first is the default)."""
+OBJECTIVES: tuple[Objective, ...] = get_args(Objective)
+"""The values of :attr:`SolverOptions.objective` besides ``None``."""
 
 ITERATIONS_PER_SECOND = 250
 """Sampler iterations per second of ``rrt_timeout`` when ``sampler_iterations`` is not given.
@@ -33,7 +64,14 @@ The paper's ``rrt_timeout`` is a time; the work budget derived from it is
 not the clock, ends a candidate's search: see BENCHMARKS.md.
 """
 
+TIME_CAP_PER_RRT_TIMEOUT = 10.0
+"""The overall wall-clock cap, when neither ``time_limit`` nor a :class:`Termination` clock is
+given, is this many times ``rrt_timeout`` (the paper's only time: 600 s for its 60 s)."""
+
 _MAX_SEED = 2**63 - 1
+
+# The flat keywords a Termination stands for (make / with_ expand `termination=` into them).
+_TERMINATION_KEYWORDS = ("time_limit", "max_candidates", "max_lp_calls", "first_found")
 
 
 def sat_backends() -> list[str]:
@@ -65,6 +103,282 @@ def _name(value: Any, name: str, choices: tuple[str, ...] | None = None) -> str:
             f"{name} must be one of {', '.join(choices)} (installed here); got {value!r}"
         )
     return value
+
+
+def _limit(a: int | None, b: int | None) -> int | None:
+    """The tighter of two optional work limits."""
+    if a is None:
+        return b
+    return a if b is None else min(a, b)
+
+
+@dataclass(frozen=True)
+class Termination:
+    """When a solve stops: the first of its conditions to hold ends it.
+
+    One object for what OMPL's ``PlannerTerminationCondition`` does: a wall-clock cap, work
+    budgets, stop at the first plan, combined with ``|`` (whichever comes first; the tighter of
+    two limits of the same kind)::
+
+        Termination.time(60) | Termination.work(candidates=500)
+        Termination.work(lp_calls=2000) | Termination.first()
+
+    Give it as ``problem.solve(termination=...)`` (or to :meth:`SolverOptions.make` /
+    :meth:`SolverOptions.with_`): it stands for the keywords ``time_limit``, ``max_candidates``,
+    ``max_lp_calls`` and ``first_found``, which it replaces (giving both is an error).
+    :attr:`SolverOptions.termination` is the condition a solve runs under, built from those
+    keywords; its clock is always set (``10 * rrt_timeout`` when none is given).
+
+    Work budgets decide the search (the same seed gives the same plan); the clock is a safety
+    cap (when it decides, ``SolveStats.caps_hit`` says so).
+
+    Parameters
+    ----------
+    seconds : float, optional
+        Wall-clock cap in seconds, counted from the first line of ``solve``.
+    candidates : int, optional
+        Stop before the proposer's candidate number ``candidates + 1`` (``max_candidates``).
+    lp_calls : int, optional
+        Stop before the next candidate once this many LPs were solved (``max_lp_calls``).
+    first_found : bool
+        Stop at the first verified plan: no search for a better one after it (the refinement of
+        an ``objective``; under ``guarantee="execution"``, the further search and the closed-loop
+        fallback for a plan that meets the execution target once one below it was found: that
+        plan is returned, flagged). The eager MILP, when it chooses the plan, still proves its
+        own optimum.
+    """
+
+    seconds: float | None = None
+    candidates: int | None = None
+    lp_calls: int | None = None
+    first_found: bool = False
+
+    def __post_init__(self) -> None:
+        put = object.__setattr__
+        if self.seconds is not None:
+            put(self, "seconds", as_float(self.seconds, "seconds", 0.0, low_open=True))
+        for key in ("candidates", "lp_calls"):
+            if getattr(self, key) is not None:
+                put(self, key, as_int(getattr(self, key), key, minimum=1))
+        if not isinstance(self.first_found, bool | np.bool_):
+            raise InvalidTypeError(f"first_found must be a bool, got {type(self.first_found).__name__}")
+        put(self, "first_found", bool(self.first_found))
+
+    @classmethod
+    def time(cls, seconds: float) -> Termination:
+        """Stop after ``seconds`` of wall-clock time (a safety cap).
+
+        Parameters
+        ----------
+        seconds : float
+            The cap, > 0.
+
+        Returns
+        -------
+        Termination
+        """
+        return cls(seconds=seconds)
+
+    @classmethod
+    def work(cls, *, candidates: int | None = None, lp_calls: int | None = None) -> Termination:
+        """Stop after an amount of work (reproducible: the same seed gives the same plan).
+
+        Parameters
+        ----------
+        candidates : int, optional
+            Discrete candidates the proposer may offer.
+        lp_calls : int, optional
+            LPs the solve may spend (checked before each candidate).
+
+        Returns
+        -------
+        Termination
+
+        Raises
+        ------
+        InvalidArgumentError
+            When neither is given.
+        """
+        if candidates is None and lp_calls is None:
+            raise InvalidArgumentError("Termination.work needs candidates or lp_calls")
+        return cls(candidates=candidates, lp_calls=lp_calls)
+
+    @classmethod
+    def first(cls) -> Termination:
+        """Stop at the first verified plan (see ``first_found``).
+
+        Returns
+        -------
+        Termination
+        """
+        return cls(first_found=True)
+
+    def __or__(self, other: Termination) -> Termination:
+        """Stop when either condition holds."""
+        if not isinstance(other, Termination):
+            return NotImplemented
+        seconds = self.seconds if other.seconds is None else other.seconds
+        if self.seconds is not None and other.seconds is not None:
+            seconds = min(self.seconds, other.seconds)
+        return Termination(
+            seconds,
+            _limit(self.candidates, other.candidates),
+            _limit(self.lp_calls, other.lp_calls),
+            self.first_found or other.first_found,
+        )
+
+    def work_done(self, candidates: int, lp_calls: int) -> str | None:
+        """Which work budget is spent, in the words of its keyword, or ``None``.
+
+        Checked by the loop before each candidate (a deterministic point of the search).
+
+        Parameters
+        ----------
+        candidates : int
+            Candidates proposed so far.
+        lp_calls : int
+            LPs solved so far.
+
+        Returns
+        -------
+        str or None
+            E.g. ``"max_candidates = 500 reached"``.
+        """
+        if self.candidates is not None and candidates >= self.candidates:
+            return f"max_candidates = {self.candidates} reached"
+        if self.lp_calls is not None and lp_calls >= self.lp_calls:
+            return f"max_lp_calls = {self.lp_calls} reached ({lp_calls} LPs solved)"
+        return None
+
+    def keywords(self) -> dict[str, Any]:
+        """The :class:`SolverOptions` keywords this condition stands for.
+
+        Returns
+        -------
+        dict
+            ``time_limit``, ``max_candidates``, ``max_lp_calls`` and ``first_found``.
+        """
+        return {
+            "time_limit": self.seconds,
+            "max_candidates": self.candidates,
+            "max_lp_calls": self.lp_calls,
+            "first_found": self.first_found,
+        }
+
+
+@dataclass(frozen=True)
+class SamplerOptions:
+    """What the belief-space sampler (:mod:`.sampler`) reads (see :class:`SolverOptions`).
+
+    Parameters
+    ----------
+    rrt_timeout : float
+        Wall-clock safety cap (s) on one candidate's search.
+    iterations : int
+        Iterations per candidate (the work budget that decides the search;
+        :attr:`SolverOptions.iterations_per_candidate`).
+    delta_near, delta_drain, goal_bias : float
+        The paper's radii of node choice and draining, and the goal bias.
+    min_num_of_steps, max_num_of_steps : int
+        Range of the number of steps of one extension.
+    shortcut_checks : int
+        Full re-checks the plan shortcutting may spend.
+    polish_rounds : int
+        Rounds of the room LP that polishes a sampled plan.
+    """
+
+    rrt_timeout: float
+    iterations: int
+    delta_near: float
+    delta_drain: float
+    goal_bias: float
+    min_num_of_steps: int
+    max_num_of_steps: int
+    shortcut_checks: int
+    polish_rounds: int
+
+
+@dataclass(frozen=True)
+class SearchOptions:
+    """What the discrete search reads: the proposer (:mod:`.proposer`), the abstraction's pruning
+    (:mod:`.abstraction`) and the plan LP (:mod:`.teacher`).
+
+    Parameters
+    ----------
+    max_plan_length : int
+        Longest plan (steps) the proposer may unroll.
+    max_pruning_lps : int
+        Cap on the abstraction's one-step reachability LPs.
+    sat_backend, lp_backend : str
+        The proposer's SAT solver and the LP back-end.
+    seed : int or None
+        Parent seed of every random stream.
+    """
+
+    max_plan_length: int
+    max_pruning_lps: int
+    sat_backend: str
+    lp_backend: str
+    seed: int | None
+
+
+@dataclass(frozen=True)
+class EagerOptions:
+    """When and with what the eager MILP (:mod:`.milp`) takes over.
+
+    Parameters
+    ----------
+    lazy_candidates : int
+        Candidates the lazy loop tries at least before the eager MILP may take over.
+    lazy_conflict_size : float
+        Median conflict size above which the lazy loop is deemed not to converge.
+    milp_backend : str
+        The MILP back-end (resolved: never ``"auto"``).
+    """
+
+    lazy_candidates: int
+    lazy_conflict_size: float
+    milp_backend: str
+
+
+@dataclass(frozen=True)
+class ObjectiveOptions:
+    """What the optimisation (:mod:`.objectives`) reads.
+
+    Parameters
+    ----------
+    objective : {None, "effort", "time", "margin"}
+        What to optimise (``None``: the first verified plan).
+    effort_weights : tuple of float or None
+        Per-input weights of ``"effort"`` (``None``: ones).
+    polish_rounds : int
+        Scales the refinement's rounds (``2 * max(polish_rounds, 4)``).
+    """
+
+    objective: Objective | None
+    effort_weights: tuple[float, ...] | None
+    polish_rounds: int
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        """``effort_weights`` as an array, shape (m,), or ``None`` (ones)."""
+        return None if self.effort_weights is None else np.asarray(self.effort_weights, dtype=float)
+
+
+@dataclass(frozen=True)
+class TargetOptions:
+    """What a returned plan promises, and the execution target it is held to.
+
+    Parameters
+    ----------
+    guarantee : {"execution", "mlo", "closed_loop"}
+        What the chance constraints constrain and a returned plan promises.
+    execution_target : ExecutionTarget
+        Least predicted success rates of the execution.
+    """
+
+    guarantee: Guarantee
+    execution_target: ExecutionTarget
 
 
 @dataclass(frozen=True)
@@ -149,6 +463,17 @@ class SolverOptions:
         :func:`~idstlpy.backends.default_milp_backend`: ``"scip"`` when the ``scip`` extra
         (``pyscipopt``) is installed, measured 2-20x faster on the eager MILPs of the
         benchmarks (BENCHMARKS.md), else ``"highs"``; the resolved name is kept here.
+    max_lp_calls : int, optional
+        Stop before the next candidate once this many LPs were solved (a work budget).
+    first_found : bool
+        Stop at the first verified plan (see :class:`Termination`).
+
+    Notes
+    -----
+    ``time_limit``, ``max_candidates``, ``max_lp_calls`` and ``first_found`` are the keywords of
+    one :class:`Termination` (:attr:`termination`); :meth:`make` and :meth:`with_` (and so
+    ``problem.solve``) also take it whole, as ``termination=``. Each part of the solver reads its
+    group: :attr:`sampler`, :attr:`search`, :attr:`eager`, :attr:`objectives`, :attr:`target`.
     """
 
     rrt_timeout: float = 60.0
@@ -167,13 +492,15 @@ class SolverOptions:
     max_pruning_lps: int = 400
     polish_rounds: int = 4
     shortcut_checks: int = 24
-    objective: str | None = None
+    objective: Literal["effort", "time", "margin"] | None = None
     effort_weights: tuple[float, ...] | None = None
-    guarantee: str = "execution"
+    guarantee: Literal["execution", "mlo", "closed_loop"] = "execution"
     execution_target: ExecutionTarget = DEFAULT_EXECUTION_TARGET
     sat_backend: str = "cadical195"
     lp_backend: str = "highs"
     milp_backend: str = "auto"
+    max_lp_calls: int | None = None
+    first_found: bool = False
 
     def __post_init__(self) -> None:
         put = object.__setattr__
@@ -190,7 +517,7 @@ class SolverOptions:
         put(self, "seed", _seed(self.seed))
         if self.time_limit is not None:
             put(self, "time_limit", as_float(self.time_limit, "time_limit", 0.0, low_open=True))
-        for key in ("max_candidates", "sampler_iterations"):
+        for key in ("max_candidates", "sampler_iterations", "max_lp_calls"):
             if getattr(self, key) is not None:
                 put(self, key, as_int(getattr(self, key), key, minimum=1))
         put(self, "lazy_candidates", as_int(self.lazy_candidates, "lazy_candidates", minimum=0))
@@ -200,7 +527,7 @@ class SolverOptions:
         put(self, "polish_rounds", as_int(self.polish_rounds, "polish_rounds", minimum=0))
         put(self, "shortcut_checks", as_int(self.shortcut_checks, "shortcut_checks", minimum=0))
         if self.objective is not None:
-            put(self, "objective", _name(self.objective, "objective", ("effort", "time", "margin")))
+            put(self, "objective", _name(self.objective, "objective", OBJECTIVES))
         if self.effort_weights is not None:
             try:
                 w = tuple(float(v) for v in np.asarray(self.effort_weights, dtype=float).reshape(-1))
@@ -222,6 +549,9 @@ class SolverOptions:
             "milp_backend",
             _name(self.milp_backend, "milp_backend", tuple(available_backends(integer=True))),
         )
+        if not isinstance(self.first_found, bool | np.bool_):
+            raise InvalidTypeError(f"first_found must be a bool, got {type(self.first_found).__name__}")
+        put(self, "first_found", bool(self.first_found))
 
     @classmethod
     def make(cls, **kw: Any) -> SolverOptions:
@@ -230,7 +560,9 @@ class SolverOptions:
         Parameters
         ----------
         **kw
-            Option name to value: any of the class's parameters (see :class:`SolverOptions`).
+            Option name to value: any of the class's parameters (see :class:`SolverOptions`),
+            or ``termination``: a :class:`Termination` standing for ``time_limit``,
+            ``max_candidates``, ``max_lp_calls`` and ``first_found``.
 
         Returns
         -------
@@ -239,15 +571,16 @@ class SolverOptions:
         Raises
         ------
         InvalidArgumentError
-            For an unknown keyword (the message names it and lists the known ones).
+            For an unknown keyword (the message names it and lists the known ones), or
+            ``termination`` given with one of the keywords it stands for.
         """
         known = {f.name for f in fields(cls)}
-        unknown = sorted(set(kw) - known)
+        unknown = sorted(set(kw) - known - {"termination"})
         if unknown:
             raise InvalidArgumentError(
                 f"unknown solver option(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
             )
-        return cls(**kw)
+        return cls(**_expand_termination(kw))
 
     def with_(self, **kw: Any) -> SolverOptions:
         """A validated copy with some options replaced.
@@ -255,7 +588,8 @@ class SolverOptions:
         Parameters
         ----------
         **kw
-            Option name to new value: any of the class's parameters (see :class:`SolverOptions`).
+            Option name to new value: any of the class's parameters (see :class:`SolverOptions`),
+            or ``termination`` (as in :meth:`make`; it replaces all four keywords it stands for).
 
         Returns
         -------
@@ -264,18 +598,21 @@ class SolverOptions:
         Raises
         ------
         InvalidArgumentError
-            For an unknown keyword (the message names it).
+            For an unknown keyword (the message names it), or ``termination`` given with one of
+            the keywords it stands for.
         """
         known = {f.name for f in fields(self)}
-        unknown = sorted(set(kw) - known)
+        unknown = sorted(set(kw) - known - {"termination"})
         if unknown:
             raise InvalidArgumentError(f"unknown solver option(s) {', '.join(unknown)}")
-        return replace(self, **kw)
+        return replace(self, **_expand_termination(kw))
 
     @property
     def total_time_cap(self) -> float:
         """The overall wall-clock cap in seconds (``time_limit`` or ``10 * rrt_timeout``)."""
-        return self.time_limit if self.time_limit is not None else 10.0 * self.rrt_timeout
+        if self.time_limit is not None:
+            return self.time_limit
+        return TIME_CAP_PER_RRT_TIMEOUT * self.rrt_timeout
 
     @property
     def iterations_per_candidate(self) -> int:
@@ -283,3 +620,63 @@ class SolverOptions:
         if self.sampler_iterations is not None:
             return self.sampler_iterations
         return max(1, math.ceil(ITERATIONS_PER_SECOND * self.rrt_timeout))
+
+    @cached_property
+    def termination(self) -> Termination:
+        """When the solve stops: its clock (:attr:`total_time_cap`, always set), its work
+        budgets (``max_candidates``, ``max_lp_calls``) and ``first_found``."""
+        return Termination(self.total_time_cap, self.max_candidates, self.max_lp_calls, self.first_found)
+
+    @cached_property
+    def sampler(self) -> SamplerOptions:
+        """What the belief-space sampler reads."""
+        return SamplerOptions(
+            self.rrt_timeout,
+            self.iterations_per_candidate,
+            self.delta_near,
+            self.delta_drain,
+            self.goal_bias,
+            self.min_num_of_steps,
+            self.max_num_of_steps,
+            self.shortcut_checks,
+            self.polish_rounds,
+        )
+
+    @cached_property
+    def search(self) -> SearchOptions:
+        """What the proposer, the abstraction's pruning and the plan LP read."""
+        return SearchOptions(
+            self.max_plan_length, self.max_pruning_lps, self.sat_backend, self.lp_backend, self.seed
+        )
+
+    @cached_property
+    def eager(self) -> EagerOptions:
+        """When and with what the eager MILP takes over."""
+        return EagerOptions(self.lazy_candidates, self.lazy_conflict_size, self.milp_backend)
+
+    @cached_property
+    def objectives(self) -> ObjectiveOptions:
+        """What the optimisation reads."""
+        return ObjectiveOptions(self.objective, self.effort_weights, self.polish_rounds)
+
+    @cached_property
+    def target(self) -> TargetOptions:
+        """The guarantee and the execution target."""
+        return TargetOptions(self.guarantee, self.execution_target)
+
+
+def _expand_termination(kw: dict[str, Any]) -> dict[str, Any]:
+    """``kw`` with a ``termination`` replaced by the keywords it stands for."""
+    if "termination" not in kw:
+        return kw
+    kw = dict(kw)
+    termination = kw.pop("termination")
+    if not isinstance(termination, Termination):
+        raise InvalidTypeError(f"termination must be a Termination, got {type(termination).__name__}")
+    both = sorted(set(kw) & set(_TERMINATION_KEYWORDS))
+    if both:
+        raise InvalidArgumentError(
+            f"termination stands for {', '.join(_TERMINATION_KEYWORDS)}: give it or {', '.join(both)}, "
+            "not both"
+        )
+    return {**kw, **termination.keywords()}

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelea
 from .abstraction import Abstraction, PruningReport
 from .bmc import BMCEncoder
 from .interfaces import Budget, Conflict, ProposerDry
+from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness
 from .results import SolveStats
 
@@ -93,7 +93,7 @@ class BMCProposer:
         abstraction: Abstraction,
         num_modes: int,
         report: PruningReport,
-        options: Any,
+        options: SolverOptions,
         budget: Budget,
         stats: SolveStats,
     ) -> None:
@@ -101,7 +101,7 @@ class BMCProposer:
         self.abs = abstraction
         self.num_modes = num_modes
         self.report = report
-        self.options = options
+        self.options = options.search
         self.budget = budget
         self.stats = stats
         self.H = formula.horizon

@@ -36,6 +36,7 @@ from ..belief import belief_step, rollout, rollout_arrays
 from ..sets import Polytope
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Refuted, Unknown, Verdict
+from .options import SolverOptions
 from .plan import DiscretePlan, evaluate_bool
 from .plan_lp import Scaling
 from .proposer import BMCProposer
@@ -179,13 +180,13 @@ class BeliefSampler:
         problem: Any,
         abstraction: Abstraction,
         proposer: BMCProposer,
-        options: Any,
+        options: SolverOptions,
     ) -> None:
         self.problem = problem
         self.system = problem.switched_system
         self.abs = abstraction
         self.proposer = proposer
-        self.opt = options
+        self.opt = options.sampler
         self.rng = np.random.default_rng(0)  # replaced by each run's own stream
         self.formula = problem.stl_formula
         U = problem.control_domain
@@ -197,7 +198,7 @@ class BeliefSampler:
         self.Uc_gentle = STEER_SHRINK * U.c - (1.0 - STEER_SHRINK) * (U.H @ self.u_center)
         # The steering looks at most STEER_LOOKAHEAD ahead: the gains cost O(h^2) time and memory
         # (max_num_of_steps = 10**9 must not allocate them).
-        lookahead = max(1, min(options.max_num_of_steps, STEER_LOOKAHEAD))
+        lookahead = max(1, min(self.opt.max_num_of_steps, STEER_LOOKAHEAD))
         self._gains = [self._steering_gains(mode, lookahead) for mode in self.system.system_modes]
         self._index = [self._controllability_index(mode, lookahead) for mode in self.system.system_modes]
         n, m, a = self.system.n, self.system.m, abstraction.num_atoms
@@ -878,13 +879,13 @@ class SamplerTeacher:
         problem: Any,
         abstraction: Abstraction,
         proposer: BMCProposer,
-        options: Any,
+        options: SolverOptions,
         scaling: Scaling,
         seeds: np.random.SeedSequence,
     ) -> None:
         self.problem = problem
         self.abs = abstraction
-        self.options = options
+        self.options = options.sampler
         self.scaling = scaling
         self.seeds = seeds
         self.sampler = BeliefSampler(problem, abstraction, proposer, options)
@@ -901,7 +902,7 @@ class SamplerTeacher:
         """Search belief space for ``plan`` within its work budget; shortcut and polish a find."""
         rng = np.random.default_rng(self.seeds.spawn(1)[0])
         cap = min(budget.deadline, time.perf_counter() + self.options.rrt_timeout)
-        budget_iters = self.options.iterations_per_candidate
+        budget_iters = self.options.iterations
         with stats.clock("time_sampling"):
             out = self.sampler.run(plan, budget_iters, rng, cap)
         stats.nodes += out.nodes
