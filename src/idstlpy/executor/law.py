@@ -148,6 +148,7 @@ class StepLaw:
     def plant(self, k: int, states: np.ndarray, inputs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The true states (S, n) after step ``k`` from ``states`` (S, n) under ``inputs`` (S, m)."""
         st = self.steps[k]
+        X: np.ndarray
         if st.real is not None:
             X = states @ st.real.A.T + inputs @ st.real.B.T
         else:

@@ -25,9 +25,10 @@ up: it calls the solver) is this object plus the drift and risk checks and the r
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..belief import GaussianBelief
 from ..dynamical_system import SwitchedSystem
@@ -35,6 +36,9 @@ from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..trajectory import ProbabilisticTSTrajectory
 from .law import StepLaw
 from .spec import ExecutorSpec
+
+if TYPE_CHECKING:  # the synthesis layer is above this one
+    from ..synthesis.problem import Problem
 
 __all__ = ["OnlineExecutor"]
 
@@ -78,7 +82,12 @@ class OnlineExecutor:
     """
 
     def __init__(
-        self, source: Any, plan: ProbabilisticTSTrajectory, *, steps: int | None = None, **options: Any
+        self,
+        source: Problem | SwitchedSystem | ExecutorSpec,
+        plan: ProbabilisticTSTrajectory,
+        *,
+        steps: int | None = None,
+        **options: Any,
     ) -> None:
         if plan is None:
             raise InvalidArgumentError(
@@ -157,7 +166,7 @@ class OnlineExecutor:
     @property
     def mean(self) -> np.ndarray:
         """The current filter mean, shape (n,) (read-only view)."""
-        view = self._mean[0]
+        view: np.ndarray = self._mean[0]
         view.flags.writeable = False
         return view
 
@@ -176,7 +185,7 @@ class OnlineExecutor:
 
     # -- the loop ------------------------------------------------------------------------------
 
-    def observe(self, observation: Any) -> None:
+    def observe(self, observation: ArrayLike | None) -> None:
         """Update the belief with the observation taken after the last input.
 
         Parameters
@@ -227,7 +236,7 @@ class OnlineExecutor:
         self._k = k + 1
         return self.law.steps[k].mode, U[0].copy()
 
-    def step(self, observation: Any = None) -> tuple[int, np.ndarray]:
+    def step(self, observation: ArrayLike | None = None) -> tuple[int, np.ndarray]:
         """Take the observation made after the last input and return the next mode and input.
 
         Parameters
@@ -261,7 +270,7 @@ class OnlineExecutor:
             )
         return self.command()
 
-    def _observation(self, k: int, observation: Any) -> np.ndarray | None:
+    def _observation(self, k: int, observation: ArrayLike | None) -> np.ndarray | None:
         mode = self.law.steps[k].model
         if not mode.p:
             if observation is not None:

@@ -84,9 +84,10 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, TypeGuard
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.special import ndtr, owens_t
 
 from .._checks import as_covariance, as_int, as_vector
@@ -101,12 +102,15 @@ from ..closed_loop import (
     real_modes_for,
     sqrt_psd,
 )
-from ..dynamical_system import SwitchedSystem
+from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from ..semantics import atom_margins
 from ..sets import Polytope
 from ..trajectory import ProbabilisticTSTrajectory
+
+if TYPE_CHECKING:  # the synthesis layer is above this one
+    from ..synthesis.problem import Problem
 
 __all__ = [
     "ClosedLoopPrediction",
@@ -129,7 +133,7 @@ _INTERSECTION_SLACK = 1e-9
 # Bivariate normal
 
 
-def bivariate_normal_cdf(h: Any, k: Any, rho: Any) -> np.ndarray:
+def bivariate_normal_cdf(h: ArrayLike, k: ArrayLike, rho: ArrayLike) -> np.ndarray:
     """``P[Z1 <= h, Z2 <= k]`` for standard normals with correlation ``rho`` (Owen's T).
 
     Parameters
@@ -313,7 +317,7 @@ class ClosedLoopPrediction:
     @property
     def n(self) -> int:
         """State dimension."""
-        return self.plan_means.shape[1]
+        return int(self.plan_means.shape[1])
 
     @property
     def joint_mean(self) -> np.ndarray:
@@ -328,7 +332,8 @@ class ClosedLoopPrediction:
     @property
     def state_mean(self) -> np.ndarray:
         """Mean of the true state, shape (L, n)."""
-        return self.plan_means + self.augmented_mean[:, : self.n]
+        out: np.ndarray = self.plan_means + self.augmented_mean[:, : self.n]
+        return out
 
     @property
     def state_cov(self) -> np.ndarray:
@@ -339,7 +344,8 @@ class ClosedLoopPrediction:
     def belief_mean(self) -> np.ndarray:
         """Mean of the executed belief's (random) mean, shape (L, n)."""
         n = self.n
-        return self.plan_means + self.augmented_mean[:, n : 2 * n]
+        out: np.ndarray = self.plan_means + self.augmented_mean[:, n : 2 * n]
+        return out
 
     @property
     def belief_mean_cov(self) -> np.ndarray:
@@ -364,7 +370,7 @@ class ClosedLoopPrediction:
         k = as_int(k, "k", minimum=0, maximum=L - 1)
         if j < k:
             return self.cross_cov(k, j).T
-        out = self.augmented_cov[k]
+        out: np.ndarray = self.augmented_cov[k]
         for i in range(k, j):
             out = self.transitions[i] @ out
         return out[: 2 * self.n, : 2 * self.n]
@@ -753,7 +759,7 @@ def _sample_rates(
     loop: ClosedLoopMoments,
     faces: _Faces,
     samples: int,
-    seed: Any,
+    seed: int | np.random.SeedSequence | None,
     formula: STLFormula,
     aps: list[STLAtomicProposition],
     mode_ok: np.ndarray,
@@ -821,7 +827,7 @@ def _formula_rate(
 # Public entry point
 
 
-def _is_problem(obj: Any) -> bool:
+def _is_problem(obj: object) -> TypeGuard[Problem]:
     """Whether ``obj`` is a problem (a model, a formula and a control domain).
 
     Read by its attributes, not its class: this module sits below the synthesis layer that
@@ -834,7 +840,11 @@ def _is_problem(obj: Any) -> bool:
     )
 
 
-def _resolve(problem_or_system: Any, formula: Any, control_domain: Any) -> tuple[SwitchedSystem, Any, Any]:
+def _resolve(
+    problem_or_system: Problem | SwitchedSystem,
+    formula: STLFormula | None,
+    control_domain: Polytope | None | str,
+) -> tuple[SwitchedSystem, STLFormula | None, Polytope | None]:
     if _is_problem(problem_or_system):
         system = problem_or_system.switched_system
         formula = problem_or_system.stl_formula if formula is None else formula
@@ -856,10 +866,10 @@ def _resolve(problem_or_system: Any, formula: Any, control_domain: Any) -> tuple
 
 
 def predict_closed_loop(
-    problem_or_system: Any,
+    problem_or_system: Problem | SwitchedSystem,
     plan: ProbabilisticTSTrajectory,
-    real_system: Any = None,
-    real_initial_state: Any = None,
+    real_system: SwitchedSystem | LCS | None = None,
+    real_initial_state: ArrayLike | None = None,
     *,
     formula: STLFormula | None = None,
     num_of_steps: int | None = None,
@@ -868,7 +878,7 @@ def predict_closed_loop(
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
     default_lqr: Mapping[str, Any] | None = None,
     initial_belief: GaussianBelief | None = None,
-    real_initial_cov: Any = None,
+    real_initial_cov: ArrayLike | None = None,
     sensor_noise: SensorNoise = "expected",
     filter_sensitivity: bool = True,
     samples: int = 4000,
