@@ -37,15 +37,18 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2
 
 from .._checks import as_seed_sequence
 from ..belief import GaussianBelief
+from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
-from ..executor import ExecutorSpec, OnlineExecutor
+from ..executor import ExecutorSpec, OnlineExecutor, PlantStep, ProcessNoise
 from ..formulas import FALSE, TRUE, STLFormula
 from ..progression import progress
 from ..synthesis.problem import Problem
+from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
 from .policy import ReplanPolicy
 from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
@@ -62,11 +65,11 @@ def executor_spec(
     problem: Problem,
     *,
     clip_controls: bool = True,
-    process_noise: Any = "model",
-    lqr_gains: Any = None,
+    process_noise: ProcessNoise = "model",
+    lqr_gains: GainsOverride = None,
     default_lqr: Mapping[str, Any] | None = None,
-    real_system: Any = None,
-    plant: Any = None,
+    real_system: SwitchedSystem | LCS | None = None,
+    plant: PlantStep | None = None,
 ) -> ExecutorSpec:
     """The :class:`~idstlpy.executor.ExecutorSpec` of ``execute``'s keywords (``clip_controls``:
     the problem's control domain, or none)."""
@@ -263,7 +266,7 @@ class ReplanningExecutor:
 
     # -- the loop ------------------------------------------------------------------------------
 
-    def observe(self, observation: Any) -> None:
+    def observe(self, observation: ArrayLike | None) -> None:
         """Update the belief with the observation taken after the last input
         (:meth:`idstlpy.OnlineExecutor.observe`).
 
@@ -287,7 +290,7 @@ class ReplanningExecutor:
         self._means.append(mean.copy())
         self._covs.append(cov.copy())
 
-    def step(self, observation: Any = None) -> tuple[int, np.ndarray]:
+    def step(self, observation: ArrayLike | None = None) -> tuple[int, np.ndarray]:
         """Take the observation made after the last input, check and re-plan as the policy asks,
         and return the next mode and input.
 

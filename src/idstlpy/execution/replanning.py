@@ -70,9 +70,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._checks import as_int, as_seed_sequence, as_vector
 from ..belief import GaussianBelief
+from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..executor import PlantStep, ProcessNoise
 from ..semantics import robustness
@@ -184,7 +186,7 @@ def _same(a: float, b: float) -> bool:
     return a == b or (math.isnan(a) and math.isnan(b))
 
 
-def _policy(policy: Any, legacy: Mapping[str, Any], caller: str) -> ReplanPolicy | None:
+def _policy(policy: ReplanPolicy | None, legacy: Mapping[str, Any], caller: str) -> ReplanPolicy | None:
     """The policy of ``caller``: ``policy``, or the deprecated keywords ``legacy`` (warned)."""
     unknown = sorted(set(legacy) - _POLICY_KEYWORDS)
     if unknown:
@@ -213,8 +215,8 @@ def _policy(policy: Any, legacy: Mapping[str, Any], caller: str) -> ReplanPolicy
 def execute(
     problem: Problem,
     plan: ProbabilisticTSTrajectory,
-    real_system: Any,
-    real_initial_state: Any,
+    real_system: SwitchedSystem | LCS | None,
+    real_initial_state: ArrayLike,
     seed: int | np.random.SeedSequence | None = None,
     *,
     policy: ReplanPolicy | None = None,

@@ -103,7 +103,7 @@ class Replan:
         return hash(self._key())
 
 
-def check_problem_plan(problem: Any, plan: Any, what: str) -> None:
+def check_problem_plan(problem: object, plan: object, what: str) -> None:
     """Raise a package error naming ``problem`` or ``plan`` when they cannot be executed."""
     if not isinstance(problem, Problem):
         raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")

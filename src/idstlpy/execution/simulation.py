@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._checks import as_int, as_vector
 from ..belief import GaussianBelief
@@ -38,7 +39,7 @@ def simulate(
     system: SwitchedSystem,
     reference_trajectory: ProbabilisticTSTrajectory,
     num_of_steps: int,
-    real_initial_state: Any,
+    real_initial_state: ArrayLike,
     real_system: SwitchedSystem | LCS | None,
     seed: int | np.random.Generator | np.random.SeedSequence | None = None,
     *,

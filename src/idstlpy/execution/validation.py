@@ -71,9 +71,10 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._checks import as_int, as_seed_sequence, as_vector
 from ..chance import joint_slack, slack, std_terms
@@ -87,6 +88,9 @@ from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .simulation import simulate
 
 if TYPE_CHECKING:  # the prediction is imported when asked for (validate(predict=True))
+    from ..dynamical_system import LCS, SwitchedSystem
+    from ..executor.law import StepLaw
+    from ..synthesis.problem import Problem
     from .prediction import ClosedLoopPrediction
 
 __all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory", "prior_starts"]
@@ -127,7 +131,9 @@ def wilson_interval(successes: int, trials: int, z: float = 1.959963984540054) -
     return max(0.0, center - half), min(1.0, center + half)
 
 
-def prior_starts(plan: ProbabilisticTSTrajectory, runs: int, seed: Any = None) -> np.ndarray:
+def prior_starts(
+    plan: ProbabilisticTSTrajectory, runs: int, seed: int | np.random.SeedSequence | None = None
+) -> np.ndarray:
     """True starts drawn from the plan's prior ``N(mean_0, cov_0)``, one row per run.
 
     The draws come from ``default_rng(SeedSequence(seed))`` in one call of shape (runs, n), so
@@ -556,17 +562,17 @@ def _margin_stats(values: Sequence[float]) -> dict[str, float]:
 
 @dataclass
 class _Payload:
-    system: Any  # SwitchedSystem, or None when rebuilt by the factory
-    formula: Any
-    factory: Callable[[], Any] | None
+    system: SwitchedSystem | None  # None when rebuilt by the factory
+    formula: STLFormula | None
+    factory: Callable[[], Problem] | None
     plan: ProbabilisticTSTrajectory
-    real_system: Any
+    real_system: SwitchedSystem | LCS | None
     real_initial_state: np.ndarray
     num_of_steps: int
     sim_options: dict[str, Any]
     keep: int
     # validate(replan=...): the problem and execute()'s re-plan options (None: simulate only)
-    problem: Any = None
+    problem: Problem | None = None
     replan: dict[str, Any] | None = None
     # runs executed together as arrays (the step law over a batch); False: one run at a time
     batched: bool = True
@@ -656,8 +662,10 @@ def _execute(
         if payload.replan is not None:
             from .replanning import ReplanPolicy, execute
 
+            of_run = problem if payload.system is None else payload.problem
+            assert of_run is not None  # validate(replan=...) puts the problem in the payload
             run = execute(
-                problem if payload.system is None else payload.problem,
+                of_run,
                 payload.plan,
                 payload.real_system,
                 x0,
@@ -739,7 +747,7 @@ class _RunStreams:
         return out
 
 
-def _draws_per_run(law: Any) -> int:
+def _draws_per_run(law: StepLaw) -> int:
     """The normals one run draws along the law's steps (process noise, then the sensor's)."""
     total = 0
     for st in law.steps:
@@ -752,7 +760,7 @@ def _draws_per_run(law: Any) -> int:
 
 def _execute_batch(
     payload: _Payload,
-    system: Any,
+    system: SwitchedSystem,
     formula: STLFormula,
     promises: list[np.ndarray],
     seeds: Sequence[np.random.SeedSequence],
@@ -920,7 +928,7 @@ def _run_batch(
     return _execute(pickle.loads(blob), seeds, first_index, starts)
 
 
-def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> bytes | None:
+def _serialise(payload: _Payload, problem_factory: Callable[[], Problem] | None) -> bytes | None:
     """Bytes loadable by ``pickle.loads`` in a worker, or None when the problem cannot travel."""
     try:
         return pickle.dumps(payload)
@@ -929,7 +937,8 @@ def _serialise(payload: _Payload, problem_factory: Callable[[], Any] | None) -> 
     try:
         import cloudpickle  # type: ignore[import-not-found, unused-ignore]
 
-        return cloudpickle.dumps(payload)
+        blob: bytes = cloudpickle.dumps(payload)
+        return blob
     except Exception as exc:  # noqa: BLE001
         logger.debug("validate: cloudpickle unavailable or failed (%s)", exc)
     if problem_factory is not None:
@@ -957,9 +966,9 @@ PREDICT_OPTIONS = ("sensor_noise", "filter_sensitivity", "samples", "seed", "clo
 
 
 def _predict(
-    problem: Any,
+    problem: Problem,
     plan: ProbabilisticTSTrajectory,
-    real_system: Any,
+    real_system: SwitchedSystem | LCS | None,
     real_initial_state: np.ndarray,
     steps: int,
     sim_options: Mapping[str, Any],
@@ -1021,7 +1030,10 @@ REPLAN_OPTION_KEYS = frozenset(
 
 
 def _replan_options(
-    replan: Any, options: Mapping[str, Any] | None, num_of_steps: Any, plan: ProbabilisticTSTrajectory
+    replan: str | None,
+    options: Mapping[str, Any] | None,
+    num_of_steps: int | None,
+    plan: ProbabilisticTSTrajectory,
 ) -> dict[str, Any]:
     """``execute``'s keywords for ``validate(replan=...)``, checked here (errors name the argument)."""
     if replan not in ("on_risk", "every"):
@@ -1043,10 +1055,10 @@ def _replan_options(
 
 
 def validate(
-    problem: Any,
+    problem: Problem,
     solution: ProbabilisticTSTrajectory,
-    real_system: Any,
-    real_initial_state: Any = None,
+    real_system: SwitchedSystem | LCS | None,
+    real_initial_state: ArrayLike | Literal["prior"] | None = None,
     runs: int = 100,
     seed: int | np.random.SeedSequence | None = None,
     executor: Executor | str | None = None,
@@ -1056,7 +1068,7 @@ def validate(
     process_noise: ProcessNoise = "model",
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
     default_lqr: Mapping[str, Any] | None = None,
-    problem_factory: Callable[[], Any] | None = None,
+    problem_factory: Callable[[], Problem] | None = None,
     max_workers: int = 2,
     keep_trajectories: int = 0,
     progress: Callable[[int, int], None] | None = None,
