@@ -460,7 +460,7 @@ def propagate(
     plan: ProbabilisticTSTrajectory,
     N: int,
     real_modes: list[LCS],
-    gains: dict[int, list[np.ndarray]],
+    gains: Mapping[int, Sequence[np.ndarray]],
     process_noise: str,
     z0: np.ndarray,
     S0: np.ndarray,
