@@ -9,9 +9,10 @@ processes one such product took 84 ms on two threads against 0.1 ms on one (a 10
 
 :func:`single_blas_thread` runs a block with every loaded OpenBLAS (numpy's and scipy's bundled
 copies, or a system one) limited to one thread and restores the previous counts afterwards. It
-finds the libraries among the process's loaded objects (``/proc/self/maps``) and calls their
-``*openblas_set_num_threads*`` entry points, as ``threadpoolctl`` does; where that is not possible
-(another operating system, another BLAS) it does nothing.
+finds the libraries among the process's loaded objects (``/proc/self/maps``, read once, after
+numpy and scipy's linear algebra are imported) and calls their ``*openblas_set_num_threads*``
+entry points, as ``threadpoolctl`` does; where that is not possible (another operating system,
+another BLAS) it does nothing.
 
 What it changes in the numbers: a product that OpenBLAS would have split over threads is the
 same sum in the same order on one thread, but LAPACK's blocked routines (``eigh``, ``solve``) may
@@ -30,6 +31,9 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import numpy  # noqa: F401  (loads numpy's OpenBLAS before the one look at the loaded libraries)
+import scipy.linalg  # noqa: F401  (and scipy's)
+
 __all__ = ["single_blas_thread"]
 
 logger = logging.getLogger(__name__)
@@ -46,29 +50,28 @@ _ENTRY_POINTS = (
 _lock = threading.Lock()
 _depth = 0
 _saved: list[tuple[object, object, int]] = []  # (get, set, previous count) per library
-_handles: dict[str, ctypes.CDLL | None] = {}
+_found: list[ctypes.CDLL] | None = None  # the libraries, looked up once (2-3 ms a look)
 
 
 def _loaded_openblas() -> list[ctypes.CDLL]:
-    """The OpenBLAS libraries this process has loaded (Linux; none elsewhere)."""
+    """The OpenBLAS libraries this process has loaded (Linux; none elsewhere), looked up once."""
+    global _found
+    if _found is not None:
+        return _found
+    _found = []
     if not sys.platform.startswith("linux"):
-        return []
+        return _found
     try:
         with open("/proc/self/maps", encoding="utf-8", errors="replace") as fh:
             paths = {line.split()[-1] for line in fh if "openblas" in line.lower() and ".so" in line}
     except OSError:
-        return []
-    out = []
+        return _found
     for path in sorted(paths):
-        if path not in _handles:
-            try:  # RTLD_NOLOAD: only a library already loaded (never load one)
-                _handles[path] = ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LOCAL)
-            except OSError:
-                _handles[path] = None
-        handle = _handles[path]
-        if handle is not None:
-            out.append(handle)
-    return out
+        try:  # RTLD_NOLOAD: only a library already loaded (never load one)
+            _found.append(ctypes.CDLL(path, mode=os.RTLD_NOLOAD | os.RTLD_LOCAL))
+        except OSError:
+            continue
+    return _found
 
 
 def _controls(lib: ctypes.CDLL) -> tuple[object, object] | None:

@@ -1,0 +1,137 @@
+"""predict_closed_loop's rates are pinned bit for bit: recorded before the prediction was sped up.
+
+``tests/data/prediction_reference.npz`` holds, for the cases below, every rate a prediction
+reports (success estimates, analytic and sampled bounds, per-constraint violations and per-step
+probabilities, per-proposition violations) and its moments, as computed at commit a01afad
+(before the prediction ran on one BLAS thread and was split into modules). The rates must be
+reproduced exactly (same bits, compared as integers). The moments are compared to 1e-9: the
+particle closure's regressed transitions (``F``, ``g``, ``Q``) hold a 1000-long sum that a
+multi-threaded OpenBLAS splits differently from one thread, so their last bits depend on the
+machine's BLAS thread count (they did before the change as well). Re-record only on a documented
+change of the numbers: ``PYTHONPATH=src python tests/test_prediction_reference.py --record``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import idstlpy as stl
+from idstlpy.scenarios import LIGHT_DARK_REAL_INITIAL_STATE, light_dark_real_system
+from idstlpy.sets import Polytope
+
+DATA = Path(__file__).parent / "data" / "prediction_reference.npz"
+
+
+def _cases() -> dict[str, tuple[Any, Any, tuple[Any, ...], dict[str, Any]]]:
+    """name -> (problem or system, plan, positional arguments after the plan, keywords)."""
+    out: dict[str, tuple[Any, Any, tuple[Any, ...], dict[str, Any]]] = {}
+    from benchmarks import dims_family, perception_problems
+
+    # the paper's listing (hold 10) and its hand-made witness: drive to the light, wait, hold
+    problem, (actions, controls) = perception_problems.build("listing", "small")
+    plan = stl.rollout(problem.switched_system, problem.initial_state, actions, controls)
+    cov0 = problem.initial_state.cov
+    # the planner's call (cegis._Run.predict): particles (state-dependent sensor), 1000 of each
+    planner = {"real_initial_cov": cov0, "samples": 1000, "particles": 1000}
+    out["listing_planner"] = (problem, plan, (), planner)
+    out["listing_gaussian"] = (problem, plan, (), {"closure": "gaussian", "samples": 2000, "seed": 3})
+    out["listing_real_system"] = (
+        problem,
+        plan,
+        (light_dark_real_system(), LIGHT_DARK_REAL_INITIAL_STATE),
+        {"samples": 1000, "particles": 500, "sensor_noise": "mean"},
+    )
+    # constant noise, inputs riding a box: the clip makes "auto" choose particles
+    x = stl.mk_variable(size=2, dtype=float)
+    box = stl.logical_and(
+        *(stl.prob(side) >= 0.9 for side in (x[0] >= -0.8, x[0] <= 0.8, x[1] >= -0.8, x[1] <= 0.8)),
+        name="box",
+    )
+    A = np.array([[1.0, 0.1], [0.0, 0.95]])
+    W = np.array([[0.05, 0.0], [0.02, 0.04]])
+    const = stl.mk_switched_sys(
+        [
+            stl.mk_lbs(A=A, B=0.25 * np.eye(2), W=W, C=np.eye(2), V=np.diag([0.3, 0.2])),
+            stl.mk_lbs(A=np.eye(2), B=0.25 * np.eye(2), W=W, C=np.array([[1.0, 0.0]]), V=np.array([[0.1]])),
+        ]
+    )
+    initial = stl.to_belief([0.3, -0.2], np.diag([0.2, 0.1]))
+    rng = np.random.default_rng(4)
+    actions = rng.integers(0, 2, size=20)
+    plan2 = stl.rollout(const, initial, actions, np.clip(rng.uniform(-1.2, 1.2, size=(20, 2)), -0.6, 0.6))
+    out["two_modes_clipped"] = (
+        const,
+        plan2,
+        (),
+        {
+            "formula": stl.always(0, 15, box),
+            "control_domain": Polytope.box([-0.6, -0.6], [0.6, 0.6]),
+            "samples": 1500,
+            "particles": 800,
+            "real_initial_cov": 0.05 * np.eye(2),
+        },
+    )
+    # 4-D: two light-dark robots (benchmarks/dims_family.py) and their witness, the planner's call
+    robots = dims_family.build(2, hold=5)
+    acts, ctrls = dims_family.witness(2, hold=5)
+    plan4 = stl.rollout(robots.switched_system, robots.initial_state, acts, ctrls)
+    out["robots_4d_planner"] = (
+        robots,
+        plan4,
+        (),
+        {"real_initial_cov": robots.initial_state.cov, "samples": 1000, "particles": 1000},
+    )
+    return out
+
+
+def _run(case: tuple[Any, Any, tuple[Any, ...], dict[str, Any]]) -> dict[str, np.ndarray]:
+    target, plan, args, options = case
+    pred = stl.predict_closed_loop(target, plan, *args, **options)
+    rates = [
+        pred.state_success_estimate,
+        pred.belief_success_estimate,
+        pred.state_success_bound,
+        pred.belief_success_bound,
+        pred.state_success_sampled_bound,
+        pred.belief_success_sampled_bound,
+    ]
+    for c in pred.constraints:
+        rates += [c.belief_violation, c.state_violation, *c.belief_probability, *c.state_probability]
+    for name in sorted(pred.proposition_violation):
+        rates += [pred.proposition_violation[name][r] for r in ("belief", "state")]
+    return {
+        "rates": np.array(rates, dtype=float),
+        "closure": np.array([pred.closure == "particles"]),
+        "augmented_mean": pred.augmented_mean,
+        "augmented_cov": pred.augmented_cov,
+        "filter_cov": pred.filter_cov,
+        "transitions": pred.transitions,
+        "noise_covs": pred.noise_covs,
+    }
+
+
+def _record() -> None:
+    arrays = {f"{name}/{key}": value for name, case in _cases().items() for key, value in _run(case).items()}
+    np.savez_compressed(DATA, **arrays)
+
+
+@pytest.mark.parametrize("name", sorted(_cases()))
+def test_prediction_reproduces_recorded_rates_bit_for_bit(name):
+    recorded = np.load(DATA)
+    got = _run(_cases()[name])
+    assert np.array_equal(got["closure"], recorded[f"{name}/closure"])
+    ref = recorded[f"{name}/rates"]
+    assert ref.shape == got["rates"].shape
+    # same bits (NaN rates included): compare the raw 64-bit words
+    assert np.array_equal(got["rates"].view(np.int64), ref.view(np.int64)), name
+    for key in ("augmented_mean", "augmented_cov", "filter_cov", "transitions", "noise_covs"):
+        np.testing.assert_allclose(got[key], recorded[f"{name}/{key}"], rtol=1e-9, atol=1e-12, err_msg=key)
+
+
+if __name__ == "__main__" and "--record" in sys.argv:
+    _record()
