@@ -15,6 +15,7 @@ state, :func:`predicted_state`) and the prediction of an execution
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -165,12 +166,21 @@ def sqrt_psd(S: np.ndarray) -> np.ndarray:
     return V * np.sqrt(np.maximum(w, 0.0))
 
 
+@functools.lru_cache(maxsize=16)
 def _cubature(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Points (P, n) and weights (P,) integrating against ``N(0, I)``.
+    """Points (P, n) and weights (P,) integrating against ``N(0, I)`` (read-only).
 
     Gauss-Hermite with 3 nodes per axis (exact for polynomials of degree 5 in each coordinate)
-    up to ``n = 4``; the degree-3 spherical rule (``2n`` points ``+-sqrt(n) e_i``) above.
+    up to ``n = 4``; the degree-3 spherical rule (``2n`` points ``+-sqrt(n) e_i``) above. Kept per
+    ``n``: the particle closure asks for it twice a step.
     """
+    pts, w = _cubature_rule(n)
+    pts.flags.writeable = False
+    w.flags.writeable = False
+    return pts, w
+
+
+def _cubature_rule(n: int) -> tuple[np.ndarray, np.ndarray]:
     if n <= 4:
         nodes = np.array([-np.sqrt(3.0), 0.0, np.sqrt(3.0)])
         weights = np.array([1 / 6, 2 / 3, 1 / 6])
