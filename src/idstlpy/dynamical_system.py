@@ -690,7 +690,8 @@ class SwitchedSystem(DynamicalSystem):
             Randomness of the disturbances and measurement noises.
         **options
             Keyword options of :func:`idstlpy.execution.simulation.simulate` (``control_domain``,
-            ``process_noise``, ``lqr_gains``, ``default_lqr``, ``initial_belief``, ``plant``); an
+            ``process_noise``, ``lqr_gains``, ``default_lqr``, ``initial_belief``, ``plant``,
+            ``spec``); an
             unknown keyword raises :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``).
 
         Returns
@@ -705,12 +706,11 @@ class SwitchedSystem(DynamicalSystem):
             raise InvalidArgumentError(
                 "no simulator is registered: import idstlpy (not only its model modules)"
             )
-        known = {
-            name
-            for name, par in inspect.signature(simulate).parameters.items()
-            if par.kind is inspect.Parameter.KEYWORD_ONLY
-        }
-        unknown = sorted(set(options) - known)
+        params = inspect.signature(simulate).parameters.values()
+        known = {par.name for par in params if par.kind is inspect.Parameter.KEYWORD_ONLY}
+        # a simulator taking **options checks them itself (its error names the keyword)
+        takes_more = any(par.kind is inspect.Parameter.VAR_KEYWORD for par in params)
+        unknown = [] if takes_more else sorted(set(options) - known)
         if unknown:
             raise InvalidTypeError(
                 f"simulate got an unexpected keyword argument {', '.join(map(repr, unknown))}; "

@@ -24,7 +24,7 @@ import traceback
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -487,10 +487,11 @@ def _validate(
 ) -> dict[str, Any]:
     """Execute the plan ``execution.runs`` times in this process; returns the report as data.
 
-    With ``[validation] replan``, every run re-plans (``validate(replan=...)``); its re-solves
+    With ``[validation] replan``, every run re-plans (``validate(policy=...)``); its re-solves
     use ``options`` (the file's ``[solver]``) with the table's ``solver_options``.
     """
-    from ..execution import validate
+    from ..execution import ReplanPolicy, validate
+    from ..execution.policy import ReplanTrigger
 
     # (The modes carry the file's tracking gains: run_job gave them before solving.)
     # A job's seed decides everything; otherwise the file's [validation] seed, else a child of
@@ -499,9 +500,10 @@ def _validate(
         vseed = derived_seed(seed, 1)
     else:
         vseed = execution.seed
-    replan_options = None
+    policy = None
     if execution.replan is not None:
-        replan_options = {**execution.replan_options, "options": options}
+        trigger = cast(ReplanTrigger, execution.replan)  # the file's checks took "on_risk" or "every"
+        policy = ReplanPolicy.from_keywords(trigger, options=options, **execution.replan_options)
     # "serial": the runs of one job stay in its worker (jobs are the unit of parallelism)
     report = validate(
         problem,
@@ -512,8 +514,7 @@ def _validate(
         seed=vseed,
         executor="serial",
         predict=execution.predict,
-        replan=execution.replan,
-        replan_options=replan_options,
+        policy=policy,
         execution_target=execution.execution_target,
     )
     data = report.as_dict()

@@ -15,7 +15,12 @@ Submodules (one job each; none is named like a function it defines):
   recursion and the tracking law;
 - :mod:`idstlpy.execution.simulation`: one execution (filter, tracking, projection on the
   control domain);
-- :mod:`idstlpy.execution.validation`: Monte Carlo, :class:`ValidationReport`, Wilson intervals;
+- :mod:`idstlpy.execution.validation`: :func:`validate`, the Monte Carlo's façade, whose parts
+  are :mod:`~idstlpy.execution.validation_spec` (its settings checked once: ``ValidationSpec``),
+  :mod:`~idstlpy.execution.starts` (the true starts), :mod:`~idstlpy.execution.batches`
+  (running batches of runs), :mod:`~idstlpy.execution.monitor` (a run's verdicts),
+  :mod:`~idstlpy.execution.intervals` (rates, Wilson intervals) and
+  :mod:`~idstlpy.execution.report` (:class:`ValidationReport`, its verdict);
 - :mod:`idstlpy.execution.policy`: :class:`ReplanPolicy` (when and how to re-plan);
 - :mod:`idstlpy.execution.resolving`: re-solves from a belief, :class:`Replan` (their record);
 - :mod:`idstlpy.execution.replanner`: :class:`ReplanningExecutor` (the online executor that

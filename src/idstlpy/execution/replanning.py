@@ -65,7 +65,7 @@ import logging
 import math
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -76,20 +76,21 @@ from .._checks import as_int, as_seed_sequence, as_vector
 from ..belief import GaussianBelief
 from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
-from ..executor import PlantStep, ProcessNoise
+from ..executor import ExecutorSpec
 from ..semantics import robustness
-from ..synthesis.options import SolverOptions
 from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .policy import Adopt, ReplanPolicy, RiskMeasure, RiskOn
+from .policy import ReplanPolicy
 from .replanner import ReplanningExecutor, executor_spec
 from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
 
 __all__ = [
+    "EXECUTOR_KEYWORDS",
     "ExecutionReport",
     "Replan",
     "ReplanPolicy",
     "ReplanningExecutor",
+    "START_CHECK_KEYWORDS",
     "StartCheck",
     "execute",
     "replan_seed",
@@ -212,6 +213,22 @@ def _policy(policy: ReplanPolicy | None, legacy: Mapping[str, Any], caller: str)
     return made if replan is not None else None
 
 
+EXECUTOR_KEYWORDS = frozenset({"clip_controls", "process_noise", "lqr_gains", "default_lqr", "plant"})
+"""The executor's keywords of :func:`execute` (and, but ``plant``, of :func:`start_check`)."""
+
+
+def _spec(problem: Problem, spec: Any, real_system: Any, options: Mapping[str, Any]) -> ExecutorSpec:
+    """``spec`` checked against the problem, or the spec of the executor's keywords ``options``."""
+    if spec is None:
+        return executor_spec(problem, real_system=real_system, **options)
+    if not isinstance(spec, ExecutorSpec):
+        raise InvalidTypeError(f"spec must be an ExecutorSpec, got {type(spec).__name__}")
+    given = sorted([*options, *(["real_system"] if real_system is not None else [])])
+    if given:
+        raise InvalidArgumentError(f"give either spec or {given}, not both (set them on the spec)")
+    return spec
+
+
 def execute(
     problem: Problem,
     plan: ProbabilisticTSTrajectory,
@@ -220,12 +237,8 @@ def execute(
     seed: int | np.random.SeedSequence | None = None,
     *,
     policy: ReplanPolicy | None = None,
-    clip_controls: bool = True,
-    process_noise: ProcessNoise = "model",
-    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
-    default_lqr: Mapping[str, Any] | None = None,
-    plant: PlantStep | None = None,
-    **deprecated: Any,
+    spec: ExecutorSpec | None = None,
+    **options: Any,
 ) -> ExecutionReport:
     """Execute a plan under real noise, re-planning from the executed belief as ``policy`` says.
 
@@ -250,18 +263,22 @@ def execute(
         recorded in :attr:`ExecutionReport.seed_entropy`.
     policy : ReplanPolicy, optional
         When and how to re-plan (module notes); None: never (the run is ``simulate``'s).
-    clip_controls, process_noise, lqr_gains, default_lqr
-        As in :func:`~idstlpy.execution.validation.validate`.
-    plant : callable, optional
-        A (nonlinear) plant as a step function ``(state, input, mode, rng) -> next_state``
-        moving the true state instead of ``real_system`` (which must then be None); see
-        :func:`~idstlpy.execution.simulation.simulate`. The risk checks predict with the model.
-    **deprecated
-        The re-planning keywords of earlier versions (``replan``, ``risk``, ``every``,
-        ``check_every``, ``drift``, ``start_resolves``, ``risk_measure``, ``risk_on``,
-        ``risk_samples``, ``max_replans``, ``adopt``, ``replan_time_limit``, ``options``,
-        ``solver_options``): still accepted, with a ``DeprecationWarning``; they make the policy
-        ``ReplanPolicy.from_keywords(...)`` (none without ``replan``).
+    spec : ExecutorSpec, optional
+        The executor as one object (its system must be the problem's), instead of
+        ``real_system`` (then None) and the executor's keywords below.
+    **options
+        The executor's keywords (:data:`EXECUTOR_KEYWORDS`; made into an ``ExecutorSpec``
+        here): ``clip_controls``, ``process_noise``, ``lqr_gains``, ``default_lqr`` as in
+        :func:`~idstlpy.execution.validation.validate`, and ``plant``, a (nonlinear) plant as
+        a step function ``(state, input, mode, rng) -> next_state`` moving the true state
+        instead of ``real_system`` (which must then be None; see
+        :func:`~idstlpy.execution.simulation.simulate`; the risk checks predict with the
+        model). Also the re-planning keywords of earlier versions (``replan``, ``risk``,
+        ``every``, ``check_every``, ``drift``, ``start_resolves``, ``risk_measure``,
+        ``risk_on``, ``risk_samples``, ``max_replans``, ``adopt``, ``replan_time_limit``,
+        ``options``, ``solver_options``): still accepted, with a ``DeprecationWarning``; they
+        make the policy ``ReplanPolicy.from_keywords(...)`` (none without ``replan``). Any
+        other keyword raises :class:`~idstlpy.errors.InvalidArgumentError` naming it.
 
     Returns
     -------
@@ -279,13 +296,11 @@ def execute(
     """
     t0 = time.perf_counter()
     check_problem_plan(problem, plan, "execute")
-    policy = _policy(policy, deprecated, "execute")
+    executor_kw = {k: v for k, v in options.items() if k in EXECUTOR_KEYWORDS}
+    policy = _policy(policy, {k: v for k, v in options.items() if k not in EXECUTOR_KEYWORDS}, "execute")
     ss = as_seed_sequence(seed)
-    system = problem.switched_system
-    x = as_vector(real_initial_state, "real_initial_state", system.n)
-    spec = executor_spec(problem, clip_controls=clip_controls, process_noise=process_noise,
-                         lqr_gains=lqr_gains, default_lqr=default_lqr, real_system=real_system,
-                         plant=plant)  # fmt: skip
+    x = as_vector(real_initial_state, "real_initial_state", problem.switched_system.n)
+    spec = _spec(problem, spec, real_system, executor_kw)
     runner = ReplanningExecutor(problem, plan, policy, seed=ss, spec=spec)
     states, observations = _run(runner, x, np.random.default_rng(ss))
     xi_b = runner.executed()
@@ -370,25 +385,29 @@ class StartCheck:
         return any(r.adopted for r in self.replans)
 
 
+START_CHECK_KEYWORDS = frozenset(
+    {
+        "risk",
+        "risk_measure",
+        "risk_on",
+        "risk_samples",
+        "adopt",
+        "replan_time_limit",
+        "options",
+        "solver_options",
+    }
+)
+"""The re-planning keywords of :func:`start_check` (the fields of its ``policy``)."""
+
+
 def start_check(
     problem: Problem,
     plan: ProbabilisticTSTrajectory,
     *,
-    risk: float = 0.9,
     resolves: int = 2,
     seed: int | np.random.SeedSequence = 0,
-    risk_measure: RiskMeasure = "bound",
-    risk_on: RiskOn = "both",
-    risk_samples: int = 1000,
-    adopt: Adopt = "better",
-    replan_time_limit: float = 30.0,
-    options: SolverOptions | None = None,
-    solver_options: Mapping[str, Any] | None = None,
-    clip_controls: bool = True,
-    process_noise: ProcessNoise = "model",
-    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
-    default_lqr: Mapping[str, Any] | None = None,
     policy: ReplanPolicy | None = None,
+    **options: Any,
 ) -> StartCheck:
     """Check a plan before it is executed; re-solve it while its predicted success is below ``risk``.
 
@@ -405,14 +424,24 @@ def start_check(
         The problem the plan solves.
     plan : ProbabilisticTSTrajectory
         The plan to check, ``N`` steps, starting at the problem's prior.
-    risk : float
-        The predicted success a plan needs to be followed as it is (in ``[0, 1]``).
     resolves : int
         Re-solves at most (>= 0).
     seed : int or SeedSequence
         Seed of the re-solves' seeds (re-solve ``i`` uses ``replan_seed(SeedSequence(seed), i)``).
+    policy : ReplanPolicy, optional
+        The check's settings as one object (its ``risk``, ``risk_measure``, ``risk_on``,
+        ``risk_samples``, ``adopt``, ``replan_time_limit`` and ``solver``), instead of the
+        keywords below (which must then keep their defaults).
+    **options
+        The keywords below (:data:`START_CHECK_KEYWORDS` and the executor's); any other raises
+        :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``) naming it.
+
+    Other Parameters
+    ----------------
+    risk : float
+        The predicted success a plan needs to be followed as it is (in ``[0, 1]``; default 0.9).
     risk_measure, risk_on, risk_samples, adopt, replan_time_limit
-        As the fields of :class:`ReplanPolicy`.
+        As the fields of :class:`ReplanPolicy` (same defaults).
     options : SolverOptions, optional
         The re-solves' options.
     solver_options : mapping, optional
@@ -421,10 +450,6 @@ def start_check(
         state.
     clip_controls, process_noise, lqr_gains, default_lqr
         The executor's, as in :func:`~idstlpy.execution.validation.validate`.
-    policy : ReplanPolicy, optional
-        The same settings as one object (its ``risk``, ``risk_measure``, ``risk_on``,
-        ``risk_samples``, ``adopt``, ``replan_time_limit`` and ``solver``), instead of the
-        keywords above (which must then keep their defaults).
 
     Returns
     -------
@@ -439,10 +464,14 @@ def start_check(
         When ``plan`` is None or an option is out of range (the message names it).
     """
     check_problem_plan(problem, plan, "check")
-    given = ReplanPolicy.from_keywords(
-        risk=risk, risk_measure=risk_measure, risk_on=risk_on, risk_samples=risk_samples, adopt=adopt,
-        replan_time_limit=replan_time_limit, options=options, solver_options=solver_options,
-    )  # fmt: skip
+    accepted = START_CHECK_KEYWORDS | (EXECUTOR_KEYWORDS - {"plant"})
+    unknown = sorted(set(options) - accepted)
+    if unknown:
+        raise InvalidTypeError(
+            f"start_check got an unexpected keyword argument {', '.join(map(repr, unknown))}; "
+            f"its options are {', '.join(sorted(accepted))}"
+        )
+    given = ReplanPolicy.from_keywords(**{k: v for k, v in options.items() if k in START_CHECK_KEYWORDS})
     if policy is not None:
         if not isinstance(policy, ReplanPolicy):
             raise InvalidTypeError(f"policy must be a ReplanPolicy, got {type(policy).__name__}")
@@ -451,8 +480,7 @@ def start_check(
         given = policy
     resolves = as_int(resolves, "resolves", minimum=0)
     ss = as_seed_sequence(seed, allow_none=False)
-    spec = executor_spec(problem, clip_controls=clip_controls, process_noise=process_noise,
-                         lqr_gains=lqr_gains, default_lqr=default_lqr)  # fmt: skip
+    spec = executor_spec(problem, **{k: v for k, v in options.items() if k in EXECUTOR_KEYWORDS})
     resolver = _Resolver(problem, _RiskModel.make(spec, given), given.solve_options(), given.adopt)
     belief = GaussianBelief(plan.get_mean(0).copy(), plan.get_cov(0).copy())
     current, p, _, records = resolver.check_start(

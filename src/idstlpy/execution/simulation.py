@@ -15,7 +15,6 @@ step law of :mod:`idstlpy.executor.law` (see there for the equations)::
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -25,14 +24,16 @@ from .._checks import as_int, as_vector
 from ..belief import GaussianBelief
 from ..dynamical_system import LCS, SwitchedSystem, register_simulator
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
-from ..executor import ExecutorSpec, OnlineExecutor, PlantStep, ProcessNoise
-from ..sets import Polytope
-from ..tracking import GainsOverride
+from ..executor import ExecutorSpec, OnlineExecutor
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
-__all__ = ["simulate"]
+__all__ = ["simulate", "EXECUTOR_OPTIONS"]
 
 logger = logging.getLogger(__name__)
+
+
+EXECUTOR_OPTIONS = ("control_domain", "process_noise", "lqr_gains", "default_lqr", "plant")
+"""The executor's keywords of :func:`simulate` (those of :meth:`ExecutorSpec.make` but the plant's)."""
 
 
 def simulate(
@@ -43,12 +44,9 @@ def simulate(
     real_system: SwitchedSystem | LCS | None,
     seed: int | np.random.Generator | np.random.SeedSequence | None = None,
     *,
-    control_domain: Polytope | None = None,
-    process_noise: ProcessNoise = "model",
-    lqr_gains: GainsOverride = None,
-    default_lqr: Mapping[str, Any] | None = None,
     initial_belief: GaussianBelief | None = None,
-    plant: PlantStep | None = None,
+    spec: ExecutorSpec | None = None,
+    **options: Any,
 ) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
     """Execute a plan on a plant with a Kalman filter and receding-horizon LQR tracking.
 
@@ -64,26 +62,30 @@ def simulate(
         True initial state.
     real_system : SwitchedSystem, LCS or None
         The linear system that moves the true state (one mode per planning mode, or a single
-        mode); None: the model itself, or the ``plant`` step function.
+        mode); None: the model itself, or the ``plant`` step function (or ``spec``'s plant).
     seed : int, Generator or SeedSequence, optional
         Randomness of the disturbances and measurement noises; the same seed gives the same run.
-    control_domain : Polytope, optional
-        Admissible inputs (shape ``m``); the corrected input is projected on it. ``None``
-        (the paper's listing) applies it unclipped.
-    process_noise : {"model", "real", "none"}
-        Disturbance added to the true state: the planning mode's ``W w`` (default), the real
-        mode's ``W w``, or none.
-    lqr_gains : mapping or sequence, optional
-        Per planning mode, a list of gains (m, n) overriding ``mode.lqr_gains``.
-    default_lqr : mapping, optional
-        Weights for modes without gains (see :data:`DEFAULT_LQR`).
     initial_belief : GaussianBelief, optional
         Filter prior; default the plan's first belief.
-    plant : callable, optional
-        A (nonlinear) plant as a step function ``(state (n,), input (m,), mode, rng) -> next
-        state (n,)``, instead of a linear ``real_system`` (which must then be None); it draws its
-        own disturbance from ``rng`` (the run's generator), ``process_noise="model"`` adds the
-        planning mode's ``W w`` after it, ``"none"`` nothing.
+    spec : ExecutorSpec, optional
+        The executor as one object (:meth:`idstlpy.executor.ExecutorSpec.make`: control domain,
+        process noise, tracking gains, plant), built once and reused over many runs; its system
+        must be ``system``. Exclusive with ``real_system`` and the keywords below.
+    **options
+        The executor's settings as keywords (made into an ``ExecutorSpec`` here):
+
+        - ``control_domain`` (Polytope, optional): admissible inputs (shape ``m``); the
+          corrected input is projected on it. ``None`` (the paper's listing) applies it unclipped.
+        - ``process_noise`` ({"model", "real", "none"}): disturbance added to the true state:
+          the planning mode's ``W w`` (default), the real mode's ``W w``, or none.
+        - ``lqr_gains`` (mapping or sequence, optional): per planning mode, a list of gains
+          (m, n) overriding ``mode.lqr_gains``.
+        - ``default_lqr`` (mapping, optional): weights for modes without gains (see
+          :data:`~idstlpy.tracking.DEFAULT_LQR`).
+        - ``plant`` (callable, optional): a (nonlinear) plant as a step function ``(state (n,),
+          input (m,), mode, rng) -> next state (n,)``, instead of a linear ``real_system`` (which
+          must then be None); it draws its own disturbance from ``rng`` (the run's generator),
+          ``process_noise="model"`` adds the planning mode's ``W w`` after it, ``"none"`` nothing.
 
     Returns
     -------
@@ -97,22 +99,35 @@ def simulate(
     ------
     InvalidArgumentError
         When ``reference_trajectory`` is None (no plan) or an option is invalid.
+    InvalidTypeError
+        For an unknown keyword (the message names it and lists the options) or an argument of
+        the wrong type.
     DimensionError
         When dimensions of the plan, the model and the real system disagree.
     """
-    if reference_trajectory is None:
+    N = _check_plan(system, reference_trajectory, num_of_steps)
+    x = as_vector(real_initial_state, "real_initial_state", system.n)
+    modes = reference_trajectory.get_action()[:N].tolist()
+    spec = _executor_spec(system, real_system, spec, options, modes)
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    executor = OnlineExecutor(spec, reference_trajectory, steps=N)
+    executor.reset(initial_belief)
+    return _run(executor, reference_trajectory, x, rng)
+
+
+def _check_plan(system: SwitchedSystem, ref: Any, num_of_steps: Any) -> int:
+    """The number of steps to execute, once the plan and the model are checked."""
+    if ref is None:
         raise InvalidArgumentError(
             "reference_trajectory is None: there is no plan to execute "
             "(Problem.solve returned None; see problem.last_result.reason)"
         )
-    if not isinstance(reference_trajectory, ProbabilisticTSTrajectory):
+    if not isinstance(ref, ProbabilisticTSTrajectory):
         raise InvalidTypeError(
-            "reference_trajectory must be a ProbabilisticTSTrajectory, "
-            f"got {type(reference_trajectory).__name__}"
+            f"reference_trajectory must be a ProbabilisticTSTrajectory, got {type(ref).__name__}"
         )
     if not isinstance(system, SwitchedSystem):
         raise InvalidTypeError(f"system must be a SwitchedSystem, got {type(system).__name__}")
-    ref = reference_trajectory
     n = system.n
     if ref.n != n:
         raise DimensionError(f"reference_trajectory has state dimension {ref.n}, the system has n = {n}")
@@ -121,27 +136,45 @@ def simulate(
         raise InvalidArgumentError(
             f"num_of_steps must be <= reference_trajectory.num_of_steps ({ref.num_of_steps}), got {N}"
         )
-    x = as_vector(real_initial_state, "real_initial_state", n)
-    spec = ExecutorSpec.make(
-        system,
-        control_domain=control_domain,
-        process_noise=process_noise,
-        lqr_gains=lqr_gains,
-        default_lqr=default_lqr,
-        real_system=real_system,
-        plant=plant,
-        modes=ref.get_action()[:N].tolist(),
-    )
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    executor = OnlineExecutor(spec, ref, steps=N)
-    executor.reset(initial_belief)
-    law = executor.law
+    return N
 
+
+def _executor_spec(
+    system: SwitchedSystem,
+    real_system: SwitchedSystem | LCS | None,
+    spec: ExecutorSpec | None,
+    options: dict[str, Any],
+    modes: list[int],
+) -> ExecutorSpec:
+    """``spec`` checked against ``system``, or the spec of the keyword ``options``."""
+    unknown = sorted(set(options) - set(EXECUTOR_OPTIONS))
+    if unknown:
+        raise InvalidTypeError(
+            f"simulate got an unexpected keyword argument {', '.join(map(repr, unknown))}; "
+            f"its options are {', '.join(sorted((*EXECUTOR_OPTIONS, 'initial_belief', 'spec')))}"
+        )
+    if spec is None:
+        return ExecutorSpec.make(system, real_system=real_system, modes=modes, **options)
+    if not isinstance(spec, ExecutorSpec):
+        raise InvalidTypeError(f"spec must be an ExecutorSpec, got {type(spec).__name__}")
+    if options or real_system is not None:
+        given = sorted([*options, *(["real_system"] if real_system is not None else [])])
+        raise InvalidArgumentError(f"give either spec or {given}, not both (set them on the spec)")
+    if spec.system is not system:
+        raise InvalidArgumentError("spec must be an ExecutorSpec of system (spec.system is another model)")
+    return spec
+
+
+def _run(
+    executor: OnlineExecutor, ref: ProbabilisticTSTrajectory, x: np.ndarray, rng: np.random.Generator
+) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
+    """Drive ``executor`` over its steps with the simulated plant from the true state ``x``."""
+    law, N, n = executor.law, executor.law.num_of_steps, x.shape[0]
     means = np.empty((N + 1, n))
     covs = np.empty((N + 1, n, n))
     states = np.empty((N + 1, n))
     observations = np.full((N + 1, law.p_max), np.nan)
-    controls = np.empty((N, system.m))
+    controls = np.empty((N, law.spec.system.m))
     means[0], covs[0], states[0] = executor.mean, executor.cov, x
     X = x[None, :]
     for k in range(N):
