@@ -20,7 +20,8 @@ from idstlpy.batch import Job, comparable, run_job
 from idstlpy.batch.jobs import derived_seed, replan_summary
 from idstlpy.batch.records import plan_from_record
 from idstlpy.cli import EXIT_OK, EXIT_USAGE, main
-from idstlpy.execution.replanning import EXECUTOR_KEYWORDS, START_CHECK_KEYWORDS
+from idstlpy.execution.precheck import START_CHECK_KEYWORDS
+from idstlpy.execution.replanner import EXECUTOR_KEYWORDS
 from idstlpy.execution.validation import REPLAN_OPTION_KEYS
 from idstlpy.problem_file import apply_overrides, load_problem, schema
 

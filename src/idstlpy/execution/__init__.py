@@ -26,16 +26,19 @@ Submodules (one job each; none is named like a function it defines):
 - :mod:`idstlpy.execution.replanner`: :class:`ReplanningExecutor` (the online executor that
   re-plans: one observation in, the next mode and input out);
 - :mod:`idstlpy.execution.replanning`: :func:`execute` (its loop with a simulated plant),
-  :func:`start_check`, :class:`ExecutionReport`, :class:`StartCheck`.
+  :class:`ExecutionReport`;
+- :mod:`idstlpy.execution.precheck`: :func:`start_check` (a plan checked, and re-solved, before
+  it is executed), :class:`StartCheck`.
 """
 
 from __future__ import annotations
 
 from ..tracking import finite_horizon_lqr
 from .policy import ReplanPolicy
+from .precheck import StartCheck, start_check
 from .prediction import ClosedLoopPrediction, ConstraintPrediction, predict_closed_loop
 from .replanner import ReplanningExecutor
-from .replanning import ExecutionReport, Replan, StartCheck, execute, start_check
+from .replanning import ExecutionReport, Replan, execute
 from .simulation import simulate
 from .validation import ValidationReport, validate, wilson_interval
 

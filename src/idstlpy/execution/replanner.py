@@ -56,9 +56,14 @@ from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan
 if TYPE_CHECKING:
     from .prediction import ClosedLoopPrediction
 
-__all__ = ["ReplanningExecutor", "executor_spec"]
+__all__ = ["EXECUTOR_KEYWORDS", "ReplanningExecutor", "executor_spec"]
 
 logger = logging.getLogger(__name__)
+
+
+EXECUTOR_KEYWORDS = frozenset({"clip_controls", "process_noise", "lqr_gains", "default_lqr", "plant"})
+"""The keywords of :func:`executor_spec` but ``real_system``: :func:`~idstlpy.execute`'s executor
+(and, but ``plant``, :func:`~idstlpy.start_check`'s)."""
 
 
 def executor_spec(

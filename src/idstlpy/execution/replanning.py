@@ -37,17 +37,6 @@ re-plan's index, so the same seed gives the same execution and the same re-plans
 wall-clock cap was hit: the record says so, as ``SolveStats.caps_hit`` does). A re-solve that
 finds no plan keeps the old one; every attempt is recorded.
 
-The start check
----------------
-Before the first step nothing has been observed, so whether a plan is good enough to start with
-depends on the problem and the plan only. :func:`start_check` predicts the plan's success from
-its start belief and, below ``risk``, re-solves the problem (at most ``resolves`` times, seeds
-derived from its own ``seed``), keeping the best-predicted plan. Call it once and execute its
-plan many times; or let ``ReplanPolicy(start_resolves=n)`` make the same check inside every run (its
-re-solve seeds then derive from the run's seed). It composes: a second call with
-``options=SolverOptions(guarantee="closed_loop")`` tries plans made against the predicted true
-state when MLO re-solves did not reach the risk.
-
 What is predicted
 -----------------
 The success probability of the remaining plan is predicted with the planning model only (the
@@ -72,8 +61,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from .._checks import as_int, as_seed_sequence, as_vector
-from ..belief import GaussianBelief
+from .._checks import as_seed_sequence, as_vector
 from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..executor import ExecutorSpec
@@ -81,8 +69,8 @@ from ..semantics import robustness
 from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .policy import ReplanPolicy
-from .replanner import ReplanningExecutor, executor_spec
-from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
+from .replanner import EXECUTOR_KEYWORDS, ReplanningExecutor, executor_spec
+from .resolving import Replan, check_problem_plan, replan_seed
 
 __all__ = [
     "EXECUTOR_KEYWORDS",
@@ -90,11 +78,8 @@ __all__ = [
     "Replan",
     "ReplanPolicy",
     "ReplanningExecutor",
-    "START_CHECK_KEYWORDS",
-    "StartCheck",
     "execute",
     "replan_seed",
-    "start_check",
 ]
 
 logger = logging.getLogger(__name__)
@@ -213,10 +198,6 @@ def _policy(policy: ReplanPolicy | None, legacy: Mapping[str, Any], caller: str)
     return made if replan is not None else None
 
 
-EXECUTOR_KEYWORDS = frozenset({"clip_controls", "process_noise", "lqr_gains", "default_lqr", "plant"})
-"""The executor's keywords of :func:`execute` (and, but ``plant``, of :func:`start_check`)."""
-
-
 def _spec(problem: Problem, spec: Any, real_system: Any, options: Mapping[str, Any]) -> ExecutorSpec:
     """``spec`` checked against the problem, or the spec of the executor's keywords ``options``."""
     if spec is None:
@@ -267,18 +248,22 @@ def execute(
         The executor as one object (its system must be the problem's), instead of
         ``real_system`` (then None) and the executor's keywords below.
     **options
-        The executor's keywords (:data:`EXECUTOR_KEYWORDS`; made into an ``ExecutorSpec``
-        here): ``clip_controls``, ``process_noise``, ``lqr_gains``, ``default_lqr`` as in
-        :func:`~idstlpy.execution.validation.validate`, and ``plant``, a (nonlinear) plant as
-        a step function ``(state, input, mode, rng) -> next_state`` moving the true state
-        instead of ``real_system`` (which must then be None; see
-        :func:`~idstlpy.execution.simulation.simulate`; the risk checks predict with the
-        model). Also the re-planning keywords of earlier versions (``replan``, ``risk``,
-        ``every``, ``check_every``, ``drift``, ``start_resolves``, ``risk_measure``,
-        ``risk_on``, ``risk_samples``, ``max_replans``, ``adopt``, ``replan_time_limit``,
-        ``options``, ``solver_options``): still accepted, with a ``DeprecationWarning``; they
-        make the policy ``ReplanPolicy.from_keywords(...)`` (none without ``replan``). Any
-        other keyword raises :class:`~idstlpy.errors.InvalidArgumentError` naming it.
+        The executor's keywords below (:data:`EXECUTOR_KEYWORDS`, made into an ``ExecutorSpec``
+        here) and the deprecated re-planning ones; any other raises
+        :class:`~idstlpy.errors.InvalidArgumentError` naming it.
+
+    Other Parameters
+    ----------------
+    clip_controls, process_noise, lqr_gains, default_lqr
+        As in :func:`~idstlpy.execution.validation.validate`.
+    plant : callable, optional
+        A (nonlinear) plant as a step function ``(state, input, mode, rng) -> next_state``
+        instead of ``real_system`` (then None; see :func:`~idstlpy.simulate`); the risk checks
+        predict with the model.
+    replan, risk, every, check_every, drift, start_resolves, risk_measure, risk_on, risk_samples
+        Deprecated (``DeprecationWarning``), as ``max_replans``, ``adopt``,
+        ``replan_time_limit``, ``options`` and ``solver_options``: the policy
+        ``ReplanPolicy.from_keywords(replan, ...)`` (none without ``replan``).
 
     Returns
     -------
@@ -286,13 +271,9 @@ def execute(
 
     Raises
     ------
-    InvalidTypeError
-        When ``problem`` is not a Problem, ``plan`` not a trajectory, or an option has the wrong
-        type.
-    InvalidArgumentError
-        When ``plan`` is None or an option is out of range (the message names it).
-    DimensionError
-        When dimensions of the plan, the model and the real system disagree.
+    InvalidTypeError, InvalidArgumentError, DimensionError
+        Naming the argument that is wrong (``plan`` None, an option of the wrong type or out of
+        range, dimensions of the plan, the model and the real system that disagree).
     """
     t0 = time.perf_counter()
     check_problem_plan(problem, plan, "execute")
@@ -303,6 +284,18 @@ def execute(
     spec = _spec(problem, spec, real_system, executor_kw)
     runner = ReplanningExecutor(problem, plan, policy, seed=ss, spec=spec)
     states, observations = _run(runner, x, np.random.default_rng(ss))
+    return _report(problem, runner, states, observations, ss, t0)
+
+
+def _report(
+    problem: Problem,
+    runner: ReplanningExecutor,
+    states: np.ndarray,
+    observations: np.ndarray,
+    ss: np.random.SeedSequence,
+    t0: float,
+) -> ExecutionReport:
+    """The report of a finished run (the original formula judged on the whole execution)."""
     xi_b = runner.executed()
     actions, controls = xi_b.get_action(), xi_b.get_control()
     xi_r = RealTrajectory(states, observations, actions, controls)
@@ -356,134 +349,3 @@ def _state_reading(
 ) -> ProbabilisticTSTrajectory:
     n = states.shape[1]
     return ProbabilisticTSTrajectory(states, np.zeros((states.shape[0], n, n)), actions, controls)
-
-
-@dataclass(frozen=True)
-class StartCheck:
-    """Outcome of :func:`start_check`.
-
-    Parameters
-    ----------
-    plan : ProbabilisticTSTrajectory
-        The plan to follow: the given one, or a re-solved plan predicted better.
-    predicted : float
-        Predicted success of ``plan`` from its start belief (the risk measure's).
-    initial_predicted : float
-        Predicted success of the plan given to the check.
-    replans : tuple of Replan
-        The re-solves made (reason ``"start"``, step 0), in order.
-    """
-
-    plan: ProbabilisticTSTrajectory = field(repr=False)
-    predicted: float
-    initial_predicted: float
-    replans: tuple[Replan, ...]
-
-    @property
-    def replaced(self) -> bool:
-        """Whether a re-solved plan replaced the given one."""
-        return any(r.adopted for r in self.replans)
-
-
-START_CHECK_KEYWORDS = frozenset(
-    {
-        "risk",
-        "risk_measure",
-        "risk_on",
-        "risk_samples",
-        "adopt",
-        "replan_time_limit",
-        "options",
-        "solver_options",
-    }
-)
-"""The re-planning keywords of :func:`start_check` (the fields of its ``policy``)."""
-
-
-def start_check(
-    problem: Problem,
-    plan: ProbabilisticTSTrajectory,
-    *,
-    resolves: int = 2,
-    seed: int | np.random.SeedSequence = 0,
-    policy: ReplanPolicy | None = None,
-    **options: Any,
-) -> StartCheck:
-    """Check a plan before it is executed; re-solve it while its predicted success is below ``risk``.
-
-    The plan's success is predicted from its start belief as :func:`execute` predicts it
-    (the planning model, the executor's gains and clipping, ``risk_measure`` and ``risk_on``).
-    Below ``risk``, the problem is re-solved (at most ``resolves`` times, solver seeds derived
-    from ``seed``) and a new plan is kept when predicted better (``adopt="better"``) or whenever
-    one is found (``"always"``). Nothing is observed before the first step, so the check is the
-    same for every execution: make it once, then execute its plan (module notes).
-
-    Parameters
-    ----------
-    problem : Problem
-        The problem the plan solves.
-    plan : ProbabilisticTSTrajectory
-        The plan to check, ``N`` steps, starting at the problem's prior.
-    resolves : int
-        Re-solves at most (>= 0).
-    seed : int or SeedSequence
-        Seed of the re-solves' seeds (re-solve ``i`` uses ``replan_seed(SeedSequence(seed), i)``).
-    policy : ReplanPolicy, optional
-        The check's settings as one object (its ``risk``, ``risk_measure``, ``risk_on``,
-        ``risk_samples``, ``adopt``, ``replan_time_limit`` and ``solver``), instead of the
-        keywords below (which must then keep their defaults).
-    **options
-        The keywords below (:data:`START_CHECK_KEYWORDS` and the executor's); any other raises
-        :class:`~idstlpy.errors.InvalidTypeError` (a ``TypeError``) naming it.
-
-    Other Parameters
-    ----------------
-    risk : float
-        The predicted success a plan needs to be followed as it is (in ``[0, 1]``; default 0.9).
-    risk_measure, risk_on, risk_samples, adopt, replan_time_limit
-        As the fields of :class:`ReplanPolicy` (same defaults).
-    options : SolverOptions, optional
-        The re-solves' options.
-    solver_options : mapping, optional
-        :class:`~idstlpy.SolverOptions` fields overriding ``options``:
-        ``solver_options={"guarantee": "closed_loop"}`` re-solves against the predicted true
-        state.
-    clip_controls, process_noise, lqr_gains, default_lqr
-        The executor's, as in :func:`~idstlpy.execution.validation.validate`.
-
-    Returns
-    -------
-    StartCheck
-
-    Raises
-    ------
-    InvalidTypeError
-        When ``problem`` is not a Problem, ``plan`` not a trajectory, or an option has the wrong
-        type.
-    InvalidArgumentError
-        When ``plan`` is None or an option is out of range (the message names it).
-    """
-    check_problem_plan(problem, plan, "check")
-    accepted = START_CHECK_KEYWORDS | (EXECUTOR_KEYWORDS - {"plant"})
-    unknown = sorted(set(options) - accepted)
-    if unknown:
-        raise InvalidTypeError(
-            f"start_check got an unexpected keyword argument {', '.join(map(repr, unknown))}; "
-            f"its options are {', '.join(sorted(accepted))}"
-        )
-    given = ReplanPolicy.from_keywords(**{k: v for k, v in options.items() if k in START_CHECK_KEYWORDS})
-    if policy is not None:
-        if not isinstance(policy, ReplanPolicy):
-            raise InvalidTypeError(f"policy must be a ReplanPolicy, got {type(policy).__name__}")
-        if given != ReplanPolicy():
-            raise InvalidArgumentError("give either policy or the keywords risk, risk_measure, ... not both")
-        given = policy
-    resolves = as_int(resolves, "resolves", minimum=0)
-    ss = as_seed_sequence(seed, allow_none=False)
-    spec = executor_spec(problem, **{k: v for k, v in options.items() if k in EXECUTOR_KEYWORDS})
-    resolver = _Resolver(problem, _RiskModel.make(spec, given), given.solve_options(), given.adopt)
-    belief = GaussianBelief(plan.get_mean(0).copy(), plan.get_cov(0).copy())
-    current, p, _, records = resolver.check_start(
-        plan, belief, given.risk, resolves, lambda i: replan_seed(ss, i)
-    )
-    return StartCheck(current, p, records[0].predicted if records else p, tuple(records))

@@ -95,7 +95,6 @@ from .validation_spec import (  # noqa: F401 - PREDICT_OPTIONS, REPLAN_OPTION_KE
     VALIDATE_OPTIONS,
     Dispatch,
     ValidationSpec,
-    check_options,
     policy_of,
 )
 
@@ -143,8 +142,7 @@ def validate(
     solution : ProbabilisticTSTrajectory
         The plan.
     real_system : SwitchedSystem or None
-        The system moving the true state (e.g. :func:`idstlpy.scenarios.light_dark_real_system`);
-        None with ``plant``.
+        The system moving the true state (e.g. ``scenarios.light_dark_real_system()``; or ``plant``).
     real_initial_state : array_like of shape (n,), "prior" or None
         A fixed true start for every run (the paper's listing passes ``[0.5, 2.75]``), or (None,
         ``"prior"``, the default) a true start per run drawn from the prior, the plan's first
@@ -154,9 +152,8 @@ def validate(
     seed : int or SeedSequence, optional
         Root of the run seeds; the same seed gives the identical report for any executor.
     executor : concurrent.futures.Executor, "serial" or None
-        Where runs execute: None, in-process when the runs are batched and few (``runs x steps
-        <= SMALL_WORK``), else a ``ProcessPoolExecutor(max_workers)`` made here; ``"serial"``:
-        in-process. The report is the same on every executor (module notes on pickling).
+        Where runs execute (the same report on any): None, in-process for few batched runs
+        (``runs x steps <= SMALL_WORK``), else a ``ProcessPoolExecutor(max_workers)``.
     **options
         The keywords below (:data:`~idstlpy.execution.validation_spec.VALIDATE_OPTIONS`), packed
         into a frozen :class:`~idstlpy.execution.validation_spec.ValidationSpec`; an unknown one
@@ -197,13 +194,12 @@ def validate(
         Naming the argument that is wrong.
     """
     t0 = time.perf_counter()
-    check_options(options)
+    opts = policy_of(options, 2)  # (unknown keywords named, deprecated ones warned about)
     spec, dispatch = ValidationSpec.make(
-        problem, solution, real_system, real_initial_state, runs, seed, executor, policy_of(options, 2)
+        problem, solution, real_system, real_initial_state, runs, seed, executor, opts
     )
     predicted = _predict(spec) if spec.predict else None
-    payload = spec.payload(batch_size(spec.num_of_steps, spec.executor.system.n, BATCH_RUNS))
-    results = _run(spec, dispatch, payload, t0)
+    results = _run(spec, dispatch, t0)
     report = build_report(spec, results, time.perf_counter() - t0, predicted)
     _warn_bound(report, predicted)
     return report
@@ -258,8 +254,9 @@ def _pool(
     return ProcessPoolExecutor(max_workers=dispatch.max_workers), blob, True
 
 
-def _run(spec: ValidationSpec, dispatch: Dispatch, payload: Payload, t0: float) -> list[dict[str, Any]]:
+def _run(spec: ValidationSpec, dispatch: Dispatch, t0: float) -> list[dict[str, Any]]:
     """Execute the runs in batches where ``dispatch`` says; their records in run order."""
+    payload = spec.payload(batch_size(spec.num_of_steps, spec.executor.system.n, BATCH_RUNS))
     runs, starts = spec.runs, spec.starts
     chunk = max(1, math.ceil(runs / (4 * dispatch.max_workers)))
     batches = [

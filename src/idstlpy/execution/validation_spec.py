@@ -219,32 +219,12 @@ class ValidationSpec:
         root = as_seed_sequence(seed)
         seeds = tuple(root.spawn(runs))
         system = problem.switched_system
-        spec = ExecutorSpec.make(
-            system,
-            control_domain=problem.control_domain if opts.get("clip_controls", True) else None,
-            process_noise=opts.get("process_noise", "model"),
-            lqr_gains=opts.get("lqr_gains"),
-            default_lqr=opts.get("default_lqr"),
-            real_system=real_system,
-            plant=opts.get("plant"),
-        )
         predict = bool(opts.get("predict", False))
-        if spec.plant_step is not None and predict:
-            raise InvalidArgumentError(
-                "predict needs a linear real_system: the prediction cannot follow a plant function"
-            )
+        spec = _executor_spec(problem, real_system, opts, predict)
         start, starts = true_starts(real_initial_state, solution, runs, root, system.n)
         # Validate the plan against the model and the start once, with one short run.
         simulate(system, solution, min(steps, 1), start, None, seed=0, spec=spec)
-        policy = opts.get("policy")
-        if policy is not None:
-            if not isinstance(policy, ReplanPolicy):
-                raise InvalidTypeError(f"policy must be a ReplanPolicy, got {type(policy).__name__}")
-            if num_of_steps is not None and num_of_steps != solution.num_of_steps:
-                raise InvalidArgumentError(
-                    "num_of_steps cannot be combined with replan: a re-planned run follows its plans to "
-                    "their end"
-                )
+        policy = _policy(opts.get("policy"), num_of_steps, solution)
         batched = opts.get("batched", True)
         if not isinstance(batched, bool):
             raise InvalidTypeError(f"batched must be True or False, got {type(batched).__name__}")
@@ -306,6 +286,39 @@ def _check_plan(problem: Any, solution: Any) -> None:
         raise InvalidTypeError(f"solution must be a ProbabilisticTSTrajectory, got {type(solution).__name__}")
 
 
+def _executor_spec(
+    problem: Problem, real_system: Any, opts: Mapping[str, Any], predict: bool
+) -> ExecutorSpec:
+    """The executor of ``validate``'s keywords (``clip_controls``: the problem's domain, or none)."""
+    spec = ExecutorSpec.make(
+        problem.switched_system,
+        control_domain=problem.control_domain if opts.get("clip_controls", True) else None,
+        process_noise=opts.get("process_noise", "model"),
+        lqr_gains=opts.get("lqr_gains"),
+        default_lqr=opts.get("default_lqr"),
+        real_system=real_system,
+        plant=opts.get("plant"),
+    )
+    if spec.plant_step is not None and predict:
+        raise InvalidArgumentError(
+            "predict needs a linear real_system: the prediction cannot follow a plant function"
+        )
+    return spec
+
+
+def _policy(policy: Any, num_of_steps: Any, solution: ProbabilisticTSTrajectory) -> ReplanPolicy | None:
+    if policy is None:
+        return None
+    if not isinstance(policy, ReplanPolicy):
+        raise InvalidTypeError(f"policy must be a ReplanPolicy, got {type(policy).__name__}")
+    if num_of_steps is not None and num_of_steps != solution.num_of_steps:
+        raise InvalidArgumentError(
+            "num_of_steps cannot be combined with a re-planning policy (replan): a re-planned run follows "
+            "its plans to their end"
+        )
+    return policy
+
+
 def _dispatch(executor: Any, opts: Mapping[str, Any]) -> Dispatch:
     max_workers = as_int(opts.get("max_workers", 2), "max_workers", minimum=1)
     if isinstance(executor, str) and executor != "serial":
@@ -345,7 +358,8 @@ def check_options(options: Mapping[str, Any]) -> None:
 
 
 def policy_of(options: Mapping[str, Any], stacklevel: int) -> dict[str, Any]:
-    """``options`` with the deprecated ``replan`` / ``replan_options`` made into ``policy`` (warned).
+    """``options`` checked (:func:`check_options`), the deprecated ``replan`` / ``replan_options``
+    made into ``policy`` (with a ``DeprecationWarning``).
 
     Parameters
     ----------
@@ -362,9 +376,10 @@ def policy_of(options: Mapping[str, Any], stacklevel: int) -> dict[str, Any]:
     Raises
     ------
     InvalidArgumentError, InvalidTypeError
-        For a bad ``replan`` or ``replan_options`` (the message names it), or when ``policy`` is
-        given too.
+        For an unknown keyword, a bad ``replan`` or ``replan_options`` (the message names it), or
+        when ``policy`` is given too.
     """
+    check_options(options)
     opts = dict(options)
     legacy = {k: opts.pop(k) for k in sorted(DEPRECATED_OPTIONS & set(opts))}
     if all(v is None for v in legacy.values()):  # (an explicit None changes nothing: no warning)
