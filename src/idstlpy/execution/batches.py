@@ -321,7 +321,8 @@ def serialise(payload: Payload, problem_factory: Callable[[], Any] | None) -> by
     try:
         import cloudpickle  # type: ignore[import-not-found, unused-ignore]
 
-        return cloudpickle.dumps(payload)
+        blob: bytes = cloudpickle.dumps(payload)
+        return blob
     except Exception as exc:  # noqa: BLE001
         logger.debug("validate: cloudpickle unavailable or failed (%s)", exc)
     if problem_factory is not None:

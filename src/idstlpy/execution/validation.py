@@ -89,7 +89,7 @@ from .monitor import face_slacks as _face_slacks  # noqa: F401 - the name of ear
 from .monitor import state_trajectory
 from .report import ValidationReport, build_report
 from .starts import prior_starts
-from .validation_spec import (  # noqa: F401 - PREDICT_OPTIONS, REPLAN_OPTION_KEYS: importable from here
+from .validation_spec import (
     PREDICT_OPTIONS,
     REPLAN_OPTION_KEYS,
     VALIDATE_OPTIONS,
@@ -104,7 +104,16 @@ if TYPE_CHECKING:  # the prediction is imported when asked for (validate(predict
     from ..trajectory import ProbabilisticTSTrajectory
     from .prediction import ClosedLoopPrediction
 
-__all__ = ["ValidationReport", "validate", "wilson_interval", "state_trajectory", "prior_starts"]
+__all__ = [
+    "PREDICT_OPTIONS",
+    "REPLAN_OPTION_KEYS",
+    "VALIDATE_OPTIONS",
+    "ValidationReport",
+    "prior_starts",
+    "state_trajectory",
+    "validate",
+    "wilson_interval",
+]
 
 logger = logging.getLogger(__name__)
 
