@@ -405,7 +405,11 @@ def rollout(system: Any, initial: GaussianBelief, actions: Sequence[int] | np.nd
 
 
 def rollout_arrays(
-    modes: Sequence[Any], mean0: np.ndarray, cov0: np.ndarray, actions: np.ndarray, controls: np.ndarray
+    modes: Sequence[Any] | np.ndarray,
+    mean0: np.ndarray,
+    cov0: np.ndarray,
+    actions: np.ndarray,
+    controls: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The MLO roll-out on plain arrays (no validation): the one loop every part calls.
 

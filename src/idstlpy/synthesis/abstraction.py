@@ -93,17 +93,19 @@ class Abstraction:
             return np.zeros(0)
         if not cov.any():
             # Zero covariance (STL, and every noise-free plan): every standard-deviation term is 0.
-            return -(mean @ self.H.T + self.c)
+            zero: np.ndarray = -(mean @ self.H.T + self.c)
+            return zero
         # The lazy loop labels the same covariance schedule candidate after candidate: the
         # standard-deviation terms depend on the covariance alone, so they are kept by its bytes.
-        cache = self.__dict__.setdefault("_std_terms", {})
+        cache: dict[tuple[tuple[int, ...], bytes], np.ndarray] = self.__dict__.setdefault("_std_terms", {})
         key = (cov.shape, cov.tobytes())
         terms = cache.get(key)
         if terms is None:
             if len(cache) >= 1 << 14:
                 cache.clear()
             terms = cache[key] = std_terms(self.H, self.z, cov)
-        return -(mean @ self.H.T + self.c + terms)
+        slack: np.ndarray = -(mean @ self.H.T + self.c + terms)
+        return slack
 
     def truth(self, mean: np.ndarray, cov: np.ndarray, arrival_mode: int) -> np.ndarray:
         """Which propositions hold for belief ``N(mean, cov)`` reached with ``arrival_mode``.
@@ -140,7 +142,7 @@ class Abstraction:
 
     def _mode_truth(self, arrival_mode: int) -> np.ndarray:
         """Which propositions a belief reached with ``arrival_mode`` may satisfy (cached per mode)."""
-        cache = self.__dict__.setdefault("_mode_truths", {})
+        cache: dict[int, np.ndarray] = self.__dict__.setdefault("_mode_truths", {})
         got = cache.get(arrival_mode)
         if got is None:
             got = np.ones(self.num_atoms, dtype=bool)
@@ -153,7 +155,7 @@ class Abstraction:
 
     def region(self, i: int) -> Polytope:
         """Mean region of proposition ``i`` at zero covariance (whole space without faces; cached)."""
-        cache = self.__dict__.setdefault("_regions", {})
+        cache: dict[int, Polytope] = self.__dict__.setdefault("_regions", {})
         if i not in cache:
             ap = self.atoms[i]
             if not ap.predicates:
@@ -164,7 +166,7 @@ class Abstraction:
 
     def bounds(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         """Bounding box ``(low, high)`` of proposition ``i``'s mean region (cached; infinite where open)."""
-        cache = self.__dict__.setdefault("_bounds", {})
+        cache: dict[int, tuple[np.ndarray, np.ndarray]] = self.__dict__.setdefault("_bounds", {})
         if i not in cache:
             r = self.region(i)
             if not r.H.shape[0] or r.is_empty():
@@ -176,7 +178,7 @@ class Abstraction:
     def radius(self, i: int) -> float:
         """Chebyshev radius of proposition ``i``'s mean region (cached; ``inf`` without faces, and
         for a region holding balls as large as the Chebyshev LP's cap: an unbounded one)."""
-        cache = self.__dict__.setdefault("_radii", {})
+        cache: dict[int, float] = self.__dict__.setdefault("_radii", {})
         if i not in cache:
             r = self.region(i)
             radius = np.inf if not r.H.shape[0] or r.is_empty() else r.chebyshev_center()[1]

@@ -26,7 +26,7 @@ import copy
 import dataclasses
 import logging
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -35,6 +35,9 @@ from ..expressions import JointChanceConstraint, ProbabilisticLinearPredicate
 from ..formulas import STLAtomicProposition, STLFormula, map_atoms, map_joints
 from .options import SolverOptions
 from .results import SolveResult
+
+if TYPE_CHECKING:  # problem.py imports this module's callers
+    from .problem import Problem
 
 __all__ = ["NO_PROOF", "after_solve", "prove_infeasible", "reallocate", "refine_allocation", "relax_joints"]
 
@@ -100,11 +103,11 @@ def reallocate(formula: STLFormula, means: np.ndarray, covs: np.ndarray) -> STLF
 
 
 def refine_allocation(
-    problem: Any,
+    problem: Problem,
     options: SolverOptions,
     start: float,
     result: SolveResult,
-    solve: Callable[[Any, SolverOptions, float], SolveResult],
+    solve: Callable[[Problem, SolverOptions, float], SolveResult],
 ) -> SolveResult:
     """Re-solve once with the risk re-allocated to the faces the found plan needed.
 
@@ -180,11 +183,11 @@ def relax_joints(formula: STLFormula) -> STLFormula:
 
 
 def prove_infeasible(
-    problem: Any,
+    problem: Problem,
     options: SolverOptions,
     start: float,
     result: SolveResult,
-    solve: Callable[[Any, SolverOptions, float], SolveResult],
+    solve: Callable[[Problem, SolverOptions, float], SolveResult],
 ) -> SolveResult:
     """Turn a downgraded ``infeasible`` into a proof when the necessary relaxation is infeasible.
 
@@ -226,11 +229,11 @@ def prove_infeasible(
 
 
 def after_solve(
-    problem: Any,
+    problem: Problem,
     options: SolverOptions,
     start: float,
     result: SolveResult,
-    solve: Callable[[Any, SolverOptions, float], SolveResult],
+    solve: Callable[[Problem, SolverOptions, float], SolveResult],
 ) -> SolveResult:
     """What a solve with joint chance constraints does after the CEGIS loop.
 

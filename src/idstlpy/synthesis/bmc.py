@@ -79,7 +79,7 @@ class BMCEncoder:
         self.clauses: list[list[int]] = []
         self.T = self._new()
         self.clauses.append([self.T])
-        self._gates: dict[tuple, int] = {}
+        self._gates: dict[tuple[object, ...], int] = {}
         H = self.H
         self.alive = [self.T] + [self._new() for _ in range(H + 1)]  # alive[H+1] = "longer than H"
         for k in range(H + 1):

@@ -28,11 +28,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
 from .interfaces import Budget
+
+if TYPE_CHECKING:
+    from ..dynamical_system import LCS, SwitchedSystem
+    from ..sets import Polytope
+
+Modes: TypeAlias = "Sequence[LCS] | np.ndarray"
+"""A system's modes: ``SwitchedSystem.system_modes`` (an object array of LCS) or a list of them."""
 
 __all__ = ["CovarianceFloor", "HullSystem", "covariance_floor", "floor_step", "hull_system"]
 
@@ -92,7 +99,7 @@ def _common_upper(mats: Sequence[np.ndarray]) -> tuple[np.ndarray, str]:
     return mu * np.eye(n), f"{mu:.3g} I"
 
 
-def _information(mode: Any) -> np.ndarray | None:
+def _information(mode: LCS) -> np.ndarray | None:
     """``C' F^{-1} C`` with ``F`` the mode's noise floor; zero when blind; ``None`` when unbounded."""
     n = mode.A.shape[0]
     if mode.p == 0:
@@ -112,7 +119,8 @@ def _information(mode: Any) -> np.ndarray | None:
     keep = ~small
     Ck = v[:, keep].T @ C  # (r, n)
     J = Ck.T @ (Ck / w[keep][:, None])
-    return 0.5 * (J + J.T)
+    info: np.ndarray = 0.5 * (J + J.T)
+    return info
 
 
 def floor_step(A: np.ndarray, W_lo: np.ndarray, J_hi: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -145,7 +153,7 @@ def floor_step(A: np.ndarray, W_lo: np.ndarray, J_hi: np.ndarray, P: np.ndarray)
 
 
 def covariance_floor(
-    modes: Sequence[Any], cov0: np.ndarray, steps: int, budget: Budget | None = None
+    modes: Modes, cov0: np.ndarray, steps: int, budget: Budget | None = None
 ) -> CovarianceFloor | None:
     """The covariance floor over every switching sequence (see the module docstring).
 
@@ -211,8 +219,8 @@ class HullSystem:
         State dimension and ``M m``.
     """
 
-    system_modes: list[Any]
-    control_domain: Any
+    system_modes: list[_HullMode]
+    control_domain: Polytope
     n: int
     m: int
 
@@ -223,7 +231,7 @@ class _HullMode:
     B: np.ndarray
 
 
-def hull_system(system: Any, control_domain: Any) -> HullSystem | None:
+def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem | None:
     """The hull relaxation of ``system`` (see :class:`HullSystem`), or ``None`` when it is not
     sound (the modes' ``A`` differ, or ``0`` is outside the control domain).
 

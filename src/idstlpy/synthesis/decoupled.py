@@ -38,11 +38,12 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ..belief import rollout, to_belief
 from ..dynamical_system import LBS, LCS, POLBS, POLBSWithNonLinNoise, mk_lbs, mk_lcs, mk_switched_sys
@@ -52,7 +53,11 @@ from ..sets import Polytope
 from .abstraction import Abstraction
 from .interfaces import Budget
 from .plan_lp import Scaling
-from .results import SolveStats
+from .results import SolveResult, SolveStats
+
+if TYPE_CHECKING:  # (importing Problem at run time would close an import cycle)
+    from .options import SolverOptions
+    from .problem import Problem
 
 __all__ = ["ENABLED", "Block", "DecoupledPlan", "solve_decoupled", "split"]
 
@@ -113,7 +118,7 @@ class _Union:
             i = self.parent[i]
         return i
 
-    def link(self, idx: Any) -> None:
+    def link(self, idx: Sequence[int] | np.ndarray) -> None:
         idx = [int(i) for i in idx]
         for j in idx[1:]:
             a, b = self.find(idx[0]), self.find(j)
@@ -132,7 +137,7 @@ def _link_matrix(uf: _Union, M: np.ndarray, tol: float = 0.0) -> None:
             uf.link([i, j])
 
 
-def _probe_points(problem: Any) -> list[np.ndarray]:
+def _probe_points(problem: Problem) -> list[np.ndarray]:
     """A fixed set of states around the prior at growing scales (deterministic)."""
     init = problem.initial_state
     mean = np.asarray(init.mean, dtype=float)
@@ -144,7 +149,7 @@ def _probe_points(problem: Any) -> list[np.ndarray]:
     return pts
 
 
-def split(problem: Any) -> list[Block] | None:
+def split(problem: Problem) -> list[Block] | None:
     """The independent groups of ``problem`` (see the module docstring), or ``None`` when it does
     not split into two or more."""
     system = problem.switched_system
@@ -238,14 +243,14 @@ class _BlockNoise:
     ):
         self.V, self.ref, self.states, self.outputs = V, ref, states, outputs
 
-    def __call__(self, xg: Any) -> np.ndarray:
+    def __call__(self, xg: ArrayLike) -> np.ndarray:
         xg = np.asarray(xg, dtype=float)
         x = np.broadcast_to(self.ref, (*xg.shape[:-1], self.ref.shape[0])).copy()
         x[..., self.states] = xg
         return np.asarray(np.asarray(self.V(x))[..., self.outputs, :])
 
 
-def _sub_problem(problem: Any, block: Block) -> Any:
+def _sub_problem(problem: Problem, block: Block) -> Problem:
     """The problem of one block: its coordinates, inputs, outputs, faces and conjuncts."""
     mode = problem.switched_system.system_modes[0]
     s, i, o = block.states, block.inputs, block.outputs
@@ -293,7 +298,7 @@ def _sub_domain(dom: Polytope, block: Block) -> Polytope:
     return Polytope(dom.H[np.ix_(block.rows, block.inputs)], dom.c[block.rows])
 
 
-def _hold_input(mode: Any, dom: Polytope, block: Block, mean: np.ndarray) -> np.ndarray:
+def _hold_input(mode: LCS, dom: Polytope, block: Block, mean: np.ndarray) -> np.ndarray:
     """The block's input after its plan ends: the one that keeps its mean where the plan left it
     (least squares of ``B u = (I - A) mean``) when the control domain admits it, else the domain's
     steering centre. Shape (m_g,)."""
@@ -339,7 +344,12 @@ def _merge(into: SolveStats, sub: SolveStats) -> None:
 
 
 def _give_room(
-    problem: Any, options: Any, budget: Budget, stats: SolveStats, actions: np.ndarray, controls: np.ndarray
+    problem: Problem,
+    options: SolverOptions,
+    budget: Budget,
+    stats: SolveStats,
+    actions: np.ndarray,
+    controls: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The room of the composed plan, measured (and given where an LP round can) on the whole
     problem (:func:`.room.give_room`): the blocks' own rooms are about their own formulas."""
@@ -358,7 +368,11 @@ def _give_room(
 
 
 def solve_decoupled(
-    problem: Any, options: Any, budget: Budget, stats: SolveStats, synthesize: Callable[..., Any]
+    problem: Problem,
+    options: SolverOptions,
+    budget: Budget,
+    stats: SolveStats,
+    synthesize: Callable[[Problem, SolverOptions, float], SolveResult],
 ) -> DecoupledPlan | None:
     """Solve each independent block on its own and compose the plans (``None``: not applicable,
     or a block not found; the caller then searches the joint problem).

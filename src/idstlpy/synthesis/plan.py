@@ -10,11 +10,15 @@ constraints that matter.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
+
+if TYPE_CHECKING:  # the abstraction imports this module
+    from ..trajectory import ProbabilisticTSTrajectory
+    from .abstraction import Abstraction
 
 __all__ = ["DiscretePlan", "evaluate_bool", "extract_witness", "trajectory_plan"]
 
@@ -246,7 +250,9 @@ def _cover(lo: np.ndarray, hi: np.ndarray, L: int) -> np.ndarray:
     return np.cumsum(edges[:L]) > 0
 
 
-def trajectory_plan(formula: STLFormula, abstraction: Any, traj: Any) -> DiscretePlan | None:
+def trajectory_plan(
+    formula: STLFormula, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
+) -> DiscretePlan | None:
     """The requirements a belief trajectory meets, as the discrete plan of its earliest witness.
 
     Labels every step of ``traj`` with the propositions its belief satisfies (``abstraction.truth``)

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -22,10 +22,14 @@ from .._version import software_info
 from ..errors import InvalidArgumentError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
 from ..trajectory import ProbabilisticTSTrajectory
+from .options import GUARANTEES, Guarantee, Objective
+
+if TYPE_CHECKING:
+    from ..executor.predict import ClosedLoopPrediction
 
 __all__ = ["RESULT_SCHEMA", "PredictedExecution", "SolveResult", "SolveStats", "Status", "load_result"]
 
-GUARANTEE_NAMES = ("execution", "mlo", "closed_loop")
+GUARANTEE_NAMES: tuple[Guarantee, ...] = GUARANTEES
 
 Status = Literal["found", "infeasible", "budget_exhausted"]
 STATUSES: tuple[str, ...] = ("found", "infeasible", "budget_exhausted")
@@ -196,7 +200,7 @@ class PredictedExecution:
     closure: str = "gaussian"
 
     @classmethod
-    def from_prediction(cls, prediction: Any, target: ExecutionTarget) -> PredictedExecution:
+    def from_prediction(cls, prediction: ClosedLoopPrediction, target: ExecutionTarget) -> PredictedExecution:
         """Summarise a :class:`~idstlpy.executor.predict.ClosedLoopPrediction` against ``target``.
 
         Parameters
@@ -379,12 +383,12 @@ class SolveResult:
     margin: float = float("nan")
     stats: SolveStats = field(default_factory=SolveStats)
     formula: str = ""
-    objective: str | None = None
+    objective: Objective | None = None
     objective_value: float = float("nan")
     objective_bound: float = float("nan")
     optimal: bool = False
     optimal_scope: str = ""
-    guarantee: str = "execution"
+    guarantee: Guarantee = "execution"
     predicted: ProbabilisticTSTrajectory | None = None
     software: dict[str, str | None] = field(default_factory=software_info)
     closest: ProbabilisticTSTrajectory | None = None
@@ -526,7 +530,7 @@ class SolveResult:
             return float("nan") if v is None else float(v)
 
         return cls(
-            status,  # type: ignore[arg-type]
+            status,
             traj,
             str(data.get("reason", "")),
             num("margin"),
