@@ -1,8 +1,8 @@
 """``validate`` reproduces, bit for bit, the reports recorded before its split (issue 22).
 
 ``tests/data/validate_reference.npz`` holds, for a few cases on the paper's light-dark problem (a
-hand-made plan: no solver involved) and a noisy integrator with a step-function plant (its runs fail in part), what
-``validate`` reported at commit a2950d8 (one 1375-line module, 23 keyword parameters): every
+hand-made plan: no solver involved) and a noisy integrator with a step-function plant (some of its
+runs fail), what ``validate`` reported at commit a2950d8 (one 1375-line module, 23 keyword parameters): every
 run's belief and true-state margins, the violation counts per proposition and predicate, and the
 kept executions' arrays. The cases cover a fixed and a drawn true start, the batched and the
 one-run-at-a-time paths, unclipped inputs with the real system's noise, a shortened horizon and a
