@@ -312,7 +312,7 @@ def run_batch(
     return execute_runs(pickle.loads(blob), seeds, first_index, starts)
 
 
-def serialise(payload: Payload, problem_factory: Callable[[], Any] | None) -> bytes | None:
+def serialise(payload: Payload, problem_factory: Callable[[], Problem] | None) -> bytes | None:
     """Bytes loadable by ``pickle.loads`` in a worker, or None when the problem cannot travel."""
     try:
         return pickle.dumps(payload)

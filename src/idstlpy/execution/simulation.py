@@ -115,7 +115,7 @@ def simulate(
     return _run(executor, reference_trajectory, x, rng)
 
 
-def _check_plan(system: SwitchedSystem, ref: Any, num_of_steps: Any) -> int:
+def _check_plan(system: SwitchedSystem, ref: object, num_of_steps: object) -> int:
     """The number of steps to execute, once the plan and the model are checked."""
     if ref is None:
         raise InvalidArgumentError(

@@ -9,9 +9,8 @@ way.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._checks import as_int, as_seed_sequence, as_vector
 from ..errors import InvalidArgumentError
@@ -58,7 +57,11 @@ def _sqrt_psd(cov: np.ndarray) -> np.ndarray:
 
 
 def true_starts(
-    real_initial_state: Any, plan: ProbabilisticTSTrajectory, runs: int, root: np.random.SeedSequence, n: int
+    real_initial_state: ArrayLike | str | None,
+    plan: ProbabilisticTSTrajectory,
+    runs: int,
+    root: np.random.SeedSequence,
+    n: int,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """``validate``'s reading of ``real_initial_state``: the nominal start and the runs' starts.
 

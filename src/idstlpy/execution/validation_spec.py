@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from .._checks import as_int, as_seed_sequence
 from ..dynamical_system import LCS, SwitchedSystem
@@ -110,7 +111,7 @@ class Dispatch:
 
     executor: Executor | str | None = None
     max_workers: int = 2
-    problem_factory: Callable[[], Any] | None = None
+    problem_factory: Callable[[], Problem] | None = None
     progress: Callable[[int, int], None] | None = None
 
 
@@ -178,13 +179,13 @@ class ValidationSpec:
     @classmethod
     def make(
         cls,
-        problem: Any,
-        solution: Any,
-        real_system: Any,
-        real_initial_state: Any,
-        runs: Any,
-        seed: Any,
-        executor: Any,
+        problem: Problem,
+        solution: ProbabilisticTSTrajectory,
+        real_system: SwitchedSystem | LCS | None,
+        real_initial_state: ArrayLike | str | None,
+        runs: int,
+        seed: int | np.random.SeedSequence | None,
+        executor: Executor | str | None,
         options: Mapping[str, Any],
     ) -> tuple[ValidationSpec, Dispatch]:
         """Check ``validate``'s arguments (errors name the argument) and resolve them once.
@@ -275,7 +276,7 @@ class ValidationSpec:
         return tuple(list(self.executor.gains[q]) for q in range(self.executor.system.num_modes))
 
 
-def _check_plan(problem: Any, solution: Any) -> None:
+def _check_plan(problem: object, solution: object) -> None:
     if not isinstance(problem, Problem):
         raise InvalidTypeError(f"problem must be a Problem, got {type(problem).__name__}")
     if solution is None:
@@ -287,7 +288,7 @@ def _check_plan(problem: Any, solution: Any) -> None:
 
 
 def _executor_spec(
-    problem: Problem, real_system: Any, opts: Mapping[str, Any], predict: bool
+    problem: Problem, real_system: SwitchedSystem | LCS | None, opts: Mapping[str, Any], predict: bool
 ) -> ExecutorSpec:
     """The executor of ``validate``'s keywords (``clip_controls``: the problem's domain, or none)."""
     spec = ExecutorSpec.make(
@@ -306,7 +307,7 @@ def _executor_spec(
     return spec
 
 
-def _policy(policy: Any, num_of_steps: Any, solution: ProbabilisticTSTrajectory) -> ReplanPolicy | None:
+def _policy(policy: object, num_of_steps: object, solution: ProbabilisticTSTrajectory) -> ReplanPolicy | None:
     if policy is None:
         return None
     if not isinstance(policy, ReplanPolicy):
@@ -319,7 +320,7 @@ def _policy(policy: Any, num_of_steps: Any, solution: ProbabilisticTSTrajectory)
     return policy
 
 
-def _dispatch(executor: Any, opts: Mapping[str, Any]) -> Dispatch:
+def _dispatch(executor: object, opts: Mapping[str, Any]) -> Dispatch:
     max_workers = as_int(opts.get("max_workers", 2), "max_workers", minimum=1)
     if isinstance(executor, str) and executor != "serial":
         raise InvalidArgumentError(f"executor must be an Executor, 'serial' or None, got {executor!r}")

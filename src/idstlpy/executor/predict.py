@@ -163,7 +163,7 @@ def _resolve(
     return system, formula, domain
 
 
-def _plan_steps(system: SwitchedSystem, plan: Any, num_of_steps: Any) -> tuple[int, np.ndarray]:
+def _plan_steps(system: SwitchedSystem, plan: object, num_of_steps: object) -> tuple[int, np.ndarray]:
     """The steps predicted and the plan's modes over them, checked against the system."""
     if plan is None:
         raise InvalidArgumentError(
@@ -203,7 +203,9 @@ class _Loop:
     particles: int
 
 
-def _check_closure(sensor_noise: Any, filter_sensitivity: Any, closure: Any, particles: Any) -> int:
+def _check_closure(
+    sensor_noise: object, filter_sensitivity: object, closure: object, particles: object
+) -> int:
     """Validate the closure's settings; the number of particles."""
     if sensor_noise not in ("expected", "mean", "plan"):
         raise InvalidArgumentError(f"sensor_noise must be 'expected', 'mean' or 'plan', got {sensor_noise!r}")
@@ -266,9 +268,9 @@ _DEFAULTS: dict[str, Any] = {
 def _start(
     plan: ProbabilisticTSTrajectory,
     n: int,
-    real_initial_state: Any,
+    real_initial_state: ArrayLike | None,
     initial_belief: GaussianBelief | None,
-    real_initial_cov: Any,
+    real_initial_cov: ArrayLike | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The loop's start: the mean ``z0`` (2n,) and covariance ``S0`` of ``(delta_0, eta_0)`` and
     the filter's prior covariance ``P0``."""
@@ -374,7 +376,7 @@ def _with_formula(
     plan: ProbabilisticTSTrajectory,
     actions: np.ndarray,
     samples: int,
-    seed: Any,
+    seed: int | np.random.SeedSequence | None,
 ) -> ClosedLoopPrediction:
     """The prediction of a formula's chance constraints and success over the loop's moments."""
     N = base["num_of_steps"]
