@@ -32,15 +32,15 @@ from benchmarks import perception_problems as pp
 
 REFERENCE = Path(__file__).parent / "results" / "repair_reference.json"
 
-OPTIONS: dict[str, Any] = dict(seed=0, time_limit=120, rrt_timeout=60)
+OPTIONS: dict[str, Any] = dict(time_limit=120, rrt_timeout=60)
 
 
 def _suite(kind: str) -> Callable[[], Any]:
     return lambda: pp.build(kind, "small")[0]
 
 
-# (name, builder, guarantee or None for the default, objective or None)
-CASES: list[tuple[str, Callable[[], Any], str | None, str | None]] = [
+# (name, builder, guarantee or None for the default, objective or None[, seed])
+CASES: list[tuple[Any, ...]] = [
     ("listing", _suite("listing"), None, None),
     ("listing", _suite("listing"), "mlo", None),
     ("listing", _suite("listing"), "closed_loop", None),
@@ -63,17 +63,21 @@ CASES: list[tuple[str, Callable[[], Any], str | None, str | None]] = [
     ("corridor", dp.corridor, "mlo", "margin"),
     ("integrator_2d_constant", dp.integrator_2d_constant, None, None),
     ("integrator_2d_constant", dp.integrator_2d_constant, "closed_loop", None),
+    # the closed-loop repair's line search (a fraction of the LP's step) runs here
+    ("double_integrator", _suite("double_integrator"), "closed_loop", None, 3),
 ]
 
 
-def _key(name: str, guarantee: str | None, objective: str | None) -> str:
-    return f"{name}/{guarantee or 'default'}/{objective or '-'}"
+def _key(name: str, guarantee: str | None, objective: str | None, seed: int = 0) -> str:
+    return f"{name}/{guarantee or 'default'}/{objective or '-'}" + (f"/seed{seed}" if seed else "")
 
 
-def run_case(build: Callable[[], Any], guarantee: str | None, objective: str | None) -> dict[str, Any]:
+def run_case(
+    build: Callable[[], Any], guarantee: str | None, objective: str | None, seed: int = 0
+) -> dict[str, Any]:
     """Solve one case; the record compared across commits (and its time, not compared)."""
     problem = build()
-    kw = dict(OPTIONS)
+    kw = dict(OPTIONS, seed=seed)
     if guarantee is not None:
         kw["guarantee"] = guarantee
     if objective is not None:
@@ -104,15 +108,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     only = {s for s in args.only.split(",") if s}
     rows: dict[str, dict[str, Any]] = {}
-    for name, build, guarantee, objective in CASES:
+    for name, build, guarantee, objective, *seed in CASES:
         if only and name not in only:
             continue
-        key = _key(name, guarantee, objective)
-        rows[key] = run_case(build, guarantee, objective)
+        key = _key(name, guarantee, objective, *seed)
+        rows[key] = run_case(build, guarantee, objective, *seed)
         print(key, json.dumps({k: v for k, v in rows[key].items() if k != "actions"}), flush=True)
     if args.record:
         REFERENCE.parent.mkdir(parents=True, exist_ok=True)
-        REFERENCE.write_text(json.dumps(rows, indent=1, sort_keys=True) + "\n")
+        old = json.loads(REFERENCE.read_text()) if REFERENCE.exists() else {}
+        REFERENCE.write_text(json.dumps({**old, **rows}, indent=1, sort_keys=True) + "\n")
         return 0
     ref = json.loads(REFERENCE.read_text())
     bad = 0
