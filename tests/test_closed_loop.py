@@ -214,17 +214,18 @@ def test_repair_takes_the_first_fraction_of_a_step_that_keeps_the_promise():
     keeps the promise (the double integrator, seed 1): the line search finds that fraction, and
     gives up when no fraction passes or improves."""
     from idstlpy.belief import rollout
-    from idstlpy.synthesis import cegis
+    from idstlpy.synthesis.abstraction import Abstraction
+    from idstlpy.synthesis.certify import STEP_FRACTIONS, line_search
     from idstlpy.synthesis.interfaces import Budget
-    from idstlpy.synthesis.options import SolverOptions
+    from idstlpy.synthesis.plan_lp import PlanLPContext
     from idstlpy.synthesis.teacher import closed_loop_check
 
     problem = scenarios.light_dark()
     res = problem.solve_result(seed=0, time_limit=30, guarantee="closed_loop")
     assert res.found
     traj, system, domain = res.trajectory, problem.switched_system, problem.control_domain
-    run = cegis._Run(problem, SolverOptions(seed=0, guarantee="closed_loop"), 0.0)
-    run.budget = Budget(np.inf)
+    context = PlanLPContext.of(problem, Abstraction(problem.stl_formula, system.n))
+    budget = Budget(np.inf)
     L = traj.num_of_steps + 1
     start, acts = traj.get_control(), traj.get_action()[: L - 1]
     j = L // 2
@@ -233,17 +234,18 @@ def test_repair_takes_the_first_fraction_of_a_step_that_keeps_the_promise():
     kick[j, 0], kick[j + 1, 0] = 4.0, -4.0
     whole = rollout(system, problem.initial_state, acts, start + kick)
     assert not closed_loop_check(system, whole, domain, problem.stl_formula)[2]
-    out = cegis._line_search(run, traj, start + kick, L, res.margin)
-    assert out is not None
+    found = line_search(context, problem, traj, start + kick, res.margin, budget)
+    assert found is not None and found.ok
+    out = found.traj
     fraction = (out.get_control()[j, 0] - start[j, 0]) / kick[j, 0]
-    assert fraction in cegis.STEP_FRACTIONS and fraction < 1.0
+    assert fraction in STEP_FRACTIONS and fraction < 1.0
     np.testing.assert_allclose(out.get_control(), start + fraction * kick)
     assert closed_loop_check(system, out, domain, problem.stl_formula)[2]
     # the larger fractions did not pass: the first passing one is taken
-    for a in cegis.STEP_FRACTIONS:
+    for a in STEP_FRACTIONS:
         if a <= fraction:
             break
         moved = rollout(system, problem.initial_state, acts, start + a * kick)
         assert not closed_loop_check(system, moved, domain, problem.stl_formula)[2]
     # a kick no fraction survives, and none improves on the plan's margin: no step
-    assert cegis._line_search(run, traj, start + 8.0 * kick, L, res.margin) is None
+    assert line_search(context, problem, traj, start + 8.0 * kick, res.margin, budget) is None

@@ -18,6 +18,7 @@ from idstlpy.synthesis import cegis
 from idstlpy.synthesis.abstraction import Abstraction
 from idstlpy.synthesis.interfaces import Refuted
 from idstlpy.synthesis.plan import DiscretePlan
+from idstlpy.synthesis.plan_lp import PlanLPContext
 from idstlpy.synthesis.proposer import min_plan_length
 from idstlpy.synthesis.teacher import LPTeacher, solve_plan_lp
 
@@ -69,10 +70,7 @@ def test_every_refutation_is_infeasible_on_its_own(monkeypatch, make):
         for k, i in conflict.requirements:
             required[i, k] = True
         only = DiscretePlan(required, plan.modes[:L].copy(), L)
-        init = prob.initial_state
-        again = solve_plan_lp(
-            prob.switched_system, prob.control_domain, init.mean, init.cov, abstraction, only
-        )
+        again = solve_plan_lp(PlanLPContext.of(prob, abstraction), only)
         assert again.status == "infeasible", conflict
 
 

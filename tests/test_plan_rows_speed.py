@@ -15,7 +15,7 @@ import pytest
 import idstlpy as stl
 from idstlpy.sets import Polytope
 from idstlpy.synthesis.abstraction import Abstraction
-from idstlpy.synthesis.plan_lp import Scaling, build_plan_rows
+from idstlpy.synthesis.plan_lp import PlanLPContext, Scaling, build_plan_rows
 
 
 def _problem() -> tuple[stl.SwitchedSystem, stl.Polytope, np.ndarray, np.ndarray, Abstraction]:
@@ -80,10 +80,9 @@ def test_cached_rows_equal_fresh_rows_in_any_candidate_order():
             for i in range(abstraction.num_atoms)
             if rng.random() < 0.6
         ]
-        cached = build_plan_rows(system.system_modes, U, mean0, cov0, abstraction, reqs, actions, scaling)
-        fresh = build_plan_rows(
-            system.system_modes, U, mean0, cov0, _fresh(abstraction), reqs, actions, scaling
-        )
+        cached = build_plan_rows(PlanLPContext(system, U, mean0, cov0, abstraction, scaling), reqs, actions)
+        other = PlanLPContext(system, U, mean0, cov0, _fresh(abstraction), scaling)
+        fresh = build_plan_rows(other, reqs, actions)
         _same(cached, fresh)
         assert cached.exact == (2 not in actions.tolist())
         prev = actions
@@ -109,12 +108,12 @@ def test_eps_zero_and_flat_faces_are_reported_impossible_in_requirement_order():
     names = abstraction.names()
     reqs = [(k, i) for k in (3, 1, 2) for i in range(abstraction.num_atoms)]
     actions = np.zeros(3, dtype=int)
-    rows = build_plan_rows(system.system_modes, U, mean0, cov0, abstraction, reqs, actions, scaling)
+    rows = build_plan_rows(PlanLPContext(system, U, mean0, cov0, abstraction, scaling), reqs, actions)
     sure_i = names.index("sure")
     assert rows.impossible == [(k, i) for (k, i) in reqs if i == sure_i]
     _same(
         rows,
-        build_plan_rows(system.system_modes, U, mean0, cov0, _fresh(abstraction), reqs, actions, scaling),
+        build_plan_rows(PlanLPContext(system, U, mean0, cov0, _fresh(abstraction), scaling), reqs, actions),
     )
 
 

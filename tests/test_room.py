@@ -15,7 +15,7 @@ from benchmarks import perception_suite as suite
 import idstlpy as stl
 from idstlpy.synthesis.abstraction import Abstraction
 from idstlpy.synthesis.plan import DiscretePlan, extract_witness
-from idstlpy.synthesis.plan_lp import Scaling
+from idstlpy.synthesis.plan_lp import PlanLPContext, Scaling
 from idstlpy.synthesis.room import Z_MAX, Z_MIN, execution_room, room_lp
 
 
@@ -57,24 +57,7 @@ def test_one_scp_step_gives_a_grazing_plan_more_room():
             break
     abs_, plan, traj, room = _room_of(problem, actions, controls)
     assert room.score < 0.5
-    scaling = Scaling.compute(
-        problem.switched_system,
-        problem.control_domain,
-        problem.initial_state.mean,
-        problem.initial_state.cov,
-        abs_,
-    )
-    out = room_lp(
-        problem.switched_system,
-        problem.control_domain,
-        problem.initial_state,
-        abs_,
-        plan,
-        traj,
-        room,
-        2.0 * room.largest_need,
-        scaling,
-    )
+    out = room_lp(PlanLPContext.of(problem, abs_), plan, traj, room, 2.0 * room.largest_need)
     assert out is not None
     moved = stl.rollout(
         problem.switched_system, problem.initial_state, traj.get_action()[: plan.length - 1], out[0]

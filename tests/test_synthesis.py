@@ -59,7 +59,8 @@ def test_light_dark_plans_keep_room_for_execution_noise(seed):
 def test_anchored_plan_lp_moves_means_at_most_trust():
     from idstlpy.synthesis.abstraction import Abstraction
     from idstlpy.synthesis.plan import DiscretePlan
-    from idstlpy.synthesis.teacher import solve_plan_lp
+    from idstlpy.synthesis.plan_lp import PlanLPContext
+    from idstlpy.synthesis.plan_solve import TrustRegion, solve_plan_lp
 
     problem = light_dark()
     plan = problem.solve(**LISTING, seed=0)
@@ -69,28 +70,14 @@ def test_anchored_plan_lp_moves_means_at_most_trust():
     target = [i for i, a in enumerate(abstraction.atoms) if a.name == "target"][0]
     required[target, -1] = True
     modes = np.concatenate([[-1], plan.get_action()]).astype(int)
-    init = problem.initial_state
-    free = solve_plan_lp(
-        problem.switched_system,
-        problem.control_domain,
-        init.mean,
-        init.cov,
-        abstraction,
-        DiscretePlan(required, modes, L),
-        1.0,
-        covs=plan.get_cov(),
-    )
+    context = PlanLPContext.of(problem, abstraction)
+    free = solve_plan_lp(context, DiscretePlan(required, modes, L), 1.0, covs=plan.get_cov())
     anchored = solve_plan_lp(
-        problem.switched_system,
-        problem.control_domain,
-        init.mean,
-        init.cov,
-        abstraction,
+        context,
         DiscretePlan(required, modes, L),
         1.0,
         covs=plan.get_cov(),
-        anchor=plan.get_mean(),
-        trust=0.01,
+        region=TrustRegion(plan.get_mean(), 0.01),
     )
     assert free.feasible and anchored.feasible and not anchored.exact
     assert np.abs(anchored.means - plan.get_mean()).max() <= 0.01 + 1e-7

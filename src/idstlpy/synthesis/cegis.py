@@ -18,7 +18,7 @@ The loop orchestrates typed parts (:mod:`.interfaces`) and decides nothing itsel
 With ``guarantee="execution"`` (the default) a plan that passes the monitor must also meet the
 execution target: its predicted execution (:func:`idstlpy.executor.predict.predict_closed_loop`,
 the true start drawn from the prior) reaches ``options.execution_target`` on both readings
-(:func:`_hold`). A plan below target gets the closed-loop repair (:func:`_certify`) and is
+(:func:`_hold`). A plan below target gets the closed-loop repair (:func:`~.certify.certify`) and is
 predicted again; one still below target is set aside (the best is kept) and the search goes on
 for at most :data:`BELOW_TARGET_EXTRA` times the candidates it took, at least
 :data:`BELOW_TARGET_MIN` more. If no plan meets the target by then (or another budget ends the
@@ -28,7 +28,7 @@ under every guarantee, carries its predicted execution (``SolveResult.execution`
 
 With ``guarantee="closed_loop"`` the monitor verifies the true state predicted under the executor
 (:func:`idstlpy.closed_loop.predicted_state`) instead of the MLO belief, and a plan that fails it
-is first repaired (:func:`_certify`). An MLO refutation stays a proof under constant sensor noise
+is first repaired (:func:`~.certify.certify`). An MLO refutation stays a proof under constant sensor noise
 (the predicted covariance is the filter's plus the estimate's spread, never smaller than the MLO
 one, and every chance constraint has ``eps <= 0.5``, so it only gets harder); under
 state-dependent noise it is not, and an ``infeasible`` becomes ``budget_exhausted``.
@@ -58,25 +58,19 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .advice import budget_advice
 from .allocation import NO_PROOF
+from .certify import certify
 from .decoupled import solve_decoupled
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp, switch_to_eager
 from .objectives import better, objective_value, refine
 from .options import SolverOptions
-from .plan import DiscretePlan, extract_witness, trajectory_plan
-from .plan_lp import Scaling
+from .plan import DiscretePlan, extract_witness
+from .plan_lp import PlanLPContext, Scaling, lp_exact
+from .plan_solve import LPGoal
 from .proposer import BMCProposer
 from .results import PredictedExecution, SolveResult, SolveStats, Status
 from .sampler import SamplerTeacher
-from .teacher import (
-    TIGHTEN,
-    LPOutcome,
-    LPTeacher,
-    closed_loop_check,
-    closed_loop_lp,
-    execution_margin,
-    solve_plan_lp,
-)
+from .teacher import TIGHTEN, LPTeacher, closed_loop_check, execution_margin, solve_plan_lp
 
 __all__ = ["synthesize"]
 
@@ -155,9 +149,7 @@ class _Run:
         system = problem.switched_system
         self._units: Scaling | None = None  # the loop's (use_units), else computed when asked
         # Under closed_loop, MLO proofs carry over only when the filter covariance is the MLO one.
-        self.proofs_hold = not self.closed_loop or not any(
-            mode.p and mode.has_state_dependent_noise for mode in system.system_modes
-        )
+        self.proofs_hold = not self.closed_loop or lp_exact(system)
         # Joint chance constraints are planned at one risk allocation (a sufficient condition):
         # a refutation under it proves nothing about the others.
         self.joint = any(ap.joints for ap in self.formula.atomic_propositions())
@@ -658,22 +650,16 @@ def _retime(
         plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
         keep = room if optimising else max(execution_margin(system, init, abstraction, plan), room)
         for tighten in RETIME_TIGHTENINGS if objective == "effort" else (TIGHTEN,):
+            context = PlanLPContext.of(problem, abstraction, scaling, get_backend(options.lp_backend))
+            goal = LPGoal(objective if optimising else None, weights, tighten)
             with stats.clock("time_lp"):
                 lp = solve_plan_lp(
-                    system,
-                    problem.control_domain,
-                    init.mean,
-                    init.cov,
-                    abstraction,
+                    context,
                     plan,
                     keep,
-                    scaling=scaling,
-                    backend=get_backend(options.lp_backend),
+                    goal=goal,
                     time_limit=max(budget.remaining(), 1e-3),
-                    objective=objective if optimising else None,
-                    effort_weights=weights,
-                    assume_feasible=True,  # the MILP's witness: no elastic phase when it holds
-                    tighten=tighten,
+                    phases="witness",  # the MILP's witness: no elastic phase when it holds
                 )
             stats.lp_calls += 1
             if not (lp.feasible and lp.controls is not None):
@@ -916,12 +902,21 @@ def _verify(
     its margin if it passes.
 
     Under ``guarantee="closed_loop"`` a plan whose predicted true state fails is repaired first
-    (:func:`_certify`).
+    (:func:`~.certify.certify`).
     """
     problem = run.problem
     traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
     if run.closed_loop:
-        certified = _certify(run, traj, abstraction, scaling)
+        context = PlanLPContext.of(problem, abstraction, scaling, get_backend(run.options.lp_backend))
+        certified = certify(
+            context,
+            problem,
+            traj,
+            exact=run.proofs_hold,
+            rounds=run.options.polish_rounds,
+            stats=run.stats,
+            budget=run.budget,
+        )
         # The final check (the domain, the roll-out, the prediction) is _check's, as for every plan.
         return None if certified is None else _check(run, certified.traj)
     checked = _check(run, traj)
@@ -937,7 +932,7 @@ def _verify(
 
 def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scaling) -> Verified | None:
     """Under ``guarantee="execution"``: the verified plan if its predicted execution meets the
-    target, else its closed-loop repair (:func:`_certify`) if that keeps the paper's semantics and
+    target, else its closed-loop repair (:func:`~.certify.certify`) if that keeps the paper's semantics and
     meets it; otherwise the better of the two is set aside (:meth:`_Run.set_aside`) and None
     returned (the candidate is abandoned, the search goes on)."""
     execution = run.predict(checked.traj)
@@ -950,7 +945,16 @@ def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scali
     repaired = None
     if modes not in run.unrepaired:  # the repair keeps the modes: once per mode sequence
         try:
-            repaired = _certify(run, checked.traj, abstraction, scaling)
+            context = PlanLPContext.of(run.problem, abstraction, scaling, get_backend(run.options.lp_backend))
+            repaired = certify(
+                context,
+                run.problem,
+                checked.traj,
+                exact=run.proofs_hold,
+                rounds=run.options.polish_rounds,
+                stats=run.stats,
+                budget=run.budget,
+            )
         finally:
             run.stats.execution_room = room
     best = checked
@@ -968,174 +972,3 @@ def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scali
     logger.info("plan set aside below the execution target: %s", (best.execution or execution).summary())
     run.set_aside(best)
     return None
-
-
-def _certify(
-    run: _Run, traj: ProbabilisticTSTrajectory, abstraction: Abstraction, scaling: Scaling
-) -> Verified | None:
-    """Make a plan keep its promise under the executor: sequential LPs on predicted covariances.
-
-    Each round predicts the true state's covariances under the executor for the current plan,
-    freezes them in the plan LP of the requirements the plan meets (its witness), leaves the
-    execution margin where it can, re-rolls the MLO belief and checks the prediction again.
-    Under constant sensor noise and without clipping the predicted covariances depend on the
-    modes only, so one round is exact; otherwise the means may move at most ``trust`` per round
-    (halved after a round that did not help) and the round takes the first fraction of the LP's
-    step that passes (:func:`_line_search`). A plan whose prediction passes but whose inputs
-    leave the tracking correction no room (:func:`idstlpy.closed_loop.trackable`) gets one repair
-    round and is kept if that does not give a trackable plan (a plan found by the line search
-    was that round's outcome already). Returns ``None`` when no plan passes.
-    """
-    problem, options, stats, budget = run.problem, run.options, run.stats, run.budget
-    system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
-    stats.execution_room = None  # the promise here is the predicted true state itself
-    exact = run.proofs_hold
-    trust = np.inf
-    rounds = max(2, options.polish_rounds)
-    fallback: Verified | None = None
-    best: tuple[ProbabilisticTSTrajectory, float] | None = None
-    searched = False  # whether the current plan is a fraction of a repair step (_line_search)
-    for r in range(rounds + 1):
-        budget.check("the closed-loop certification")
-        predicted, margin, ok, tracks = closed_loop_check(system, traj, problem.control_domain, formula)
-        logger.debug("closed-loop repair round %d: margin %.3g, trackable %s", r, margin, tracks)
-        if best is not None and not ok and margin < best[1]:
-            # The round made it worse: back to the best plan, with smaller steps. When that plan
-            # is the passing fallback, the next round would only re-check it and stop (one repair
-            # of a passing plan that rides the faces): stop now.
-            traj, trust = best[0], trust * 0.5
-            if exact or r == rounds or fallback is not None:
-                break
-            continue
-        best = (traj, margin)
-        if ok and tracks:
-            if r:
-                logger.info("closed-loop repair: the plan keeps its promise after %d round(s)", r)
-            return Verified(traj, margin, predicted)
-        if fallback is not None:
-            if ok and margin > fallback.margin:
-                fallback = Verified(traj, margin, predicted)
-            break  # one repair of a passing plan that rides the faces, no more (it rarely pays)
-        if ok:
-            fallback = Verified(traj, margin, predicted)
-            if searched:
-                break  # the step just taken was that plan's repair LP already
-        if r == rounds:
-            break
-        acts, means = traj.get_action(), traj.get_mean()
-        found_plan = trajectory_plan(formula, abstraction, traj)
-        if found_plan is None:
-            break
-        plan, L = found_plan, found_plan.length
-        target = execution_margin(system, init, abstraction, plan)
-        if not exact and not np.isfinite(trust):
-            trust = 2.0 * max(target, 1e-3 * float(np.max(scaling.dx)))
-
-        def solve(
-            backoff: np.ndarray | None,
-            covs: np.ndarray,
-            plan: DiscretePlan = plan,
-            target: float = target,
-            L: int = L,
-            means: np.ndarray = means,
-            trust: float = trust,
-        ) -> LPOutcome:
-            with stats.clock("time_lp"):
-                out = solve_plan_lp(
-                    system,
-                    problem.control_domain,
-                    init.mean,
-                    init.cov,
-                    abstraction,
-                    plan,
-                    target,
-                    covs=covs[:L],
-                    control_backoff=None if backoff is None else backoff[: L - 1],
-                    anchor=means[:L],
-                    trust=trust,
-                    scaling=scaling,
-                    backend=get_backend(options.lp_backend),
-                    time_limit=max(budget.remaining(), 1e-3),
-                    budget=budget,
-                    # Under state-dependent noise the covariances move with the means: a step of
-                    # sequential convex programming, not a frozen-covariance LP.
-                    linearise=not exact,
-                )
-            stats.lp_calls += 1
-            return out
-
-        lp = closed_loop_lp(system, traj, problem.control_domain, predicted, solve)
-        if not lp.feasible or lp.controls is None:
-            if exact:
-                break
-            trust *= 0.5
-            continue
-        if exact or fallback is not None:
-            # exact: the step is the answer; a passing plan's one repair round is after a
-            # trackable plan, which a fraction of an untrackable step rarely gives
-            traj = rollout(system, init, acts[: L - 1], lp.controls)
-            continue
-        step = _line_search(run, traj, lp.controls, L, margin)
-        if step is None:
-            trust *= 0.5  # no fraction of the step helps: a smaller trust region's LP next
-            continue
-        traj, searched = step, True
-    if fallback is not None:
-        logger.info(
-            "closed-loop check: no trackable plan found; the plan's inputs ride the control domain's "
-            "faces, where the prediction linearises the clipping"
-        )
-        return fallback
-    logger.info("closed-loop repair failed: the predicted true state breaks the formula")
-    return None
-
-
-STEP_FRACTIONS = (1.0, 0.5, 0.25, 0.125, 0.0625)
-"""Fractions of a sequential-convex repair step tried in turn (:func:`_line_search`)."""
-
-
-def _line_search(
-    run: _Run, traj: ProbabilisticTSTrajectory, controls: np.ndarray, L: int, margin: float
-) -> ProbabilisticTSTrajectory | None:
-    """The first fraction of the repair step ``traj -> controls`` whose plan keeps its promise.
-
-    Under state-dependent noise the repair LP linearises the covariances at the current means,
-    and its whole step (as far as the trust region) can break what it meant to mend, even in
-    the plan's own MLO roll-out (the double integrator, seed 1: -0.19 after a full step from
-    -0.012), while a fraction of the same step passes. The roll-out's means are linear in the
-    controls, so a fraction ``a`` moves every mean ``a`` times as far. Each fraction of
-    :data:`STEP_FRACTIONS` is checked in turn (the Gaussian screen of
-    :func:`~.teacher.closed_loop_check` first, which makes the failing ones cheap).
-
-    Parameters
-    ----------
-    run : _Run
-    traj : ProbabilisticTSTrajectory
-        The current plan (its MLO roll-out).
-    controls : ndarray, shape (L - 1, m)
-        The repair LP's controls.
-    L : int
-        Length of the plan the LP covers (its first ``L - 1`` actions are kept).
-    margin : float
-        The current plan's closed-loop margin.
-
-    Returns
-    -------
-    ProbabilisticTSTrajectory or None
-        The first fraction's plan that passes the check, else the best one when it improves on
-        ``margin``, else None.
-    """
-    problem = run.problem
-    system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
-    acts, start = traj.get_action()[: L - 1], traj.get_control()[: L - 1]
-    best: tuple[ProbabilisticTSTrajectory, float] | None = None
-    for a in STEP_FRACTIONS:
-        run.budget.check("the closed-loop certification")
-        moved = rollout(system, init, acts, start + a * (controls - start))
-        _, moved_margin, ok, _ = closed_loop_check(system, moved, problem.control_domain, formula)
-        logger.debug("closed-loop repair: %.3g of the step, margin %.3g", a, moved_margin)
-        if ok:
-            return moved
-        if moved_margin > margin and (best is None or moved_margin > best[1]):
-            best = (moved, moved_margin)
-    return None if best is None else best[0]

@@ -69,7 +69,7 @@ from ..semantics import formula_margins
 from .abstraction import Abstraction
 from .bmc import BMCEncoder
 from .interfaces import Budget
-from .plan_lp import Scaling, build_plan_rows
+from .plan_lp import PlanLPContext, Scaling, build_plan_rows
 
 __all__ = ["MILPOutcome", "solve_milp", "switch_to_eager"]
 
@@ -727,9 +727,8 @@ def solve_milp(
     A, B = mode.A, mode.B
     dx = scaling.dx
     actions = np.zeros(H, dtype=int)
-    rows = build_plan_rows(
-        system.system_modes, control_domain, mean0, cov0, abstraction, [], actions, scaling, budget=budget
-    )
+    context = PlanLPContext(system, control_domain, mean0, cov0, abstraction, scaling)
+    rows = build_plan_rows(context, [], actions, budget=budget)
     if not rows.exact:
         return MILPOutcome("unsupported", why="the covariance depends on the mean")
     covs = rows.covs

@@ -13,13 +13,15 @@ the exact covariances of the current plan, solve the plan LP for the objective w
 kept within a trust region, re-roll the exact belief dynamics, keep the result only if the
 monitor still accepts it, the objective improved and the plan keeps the execution room
 (:mod:`.room`) it had (up to all of it); the trust region halves after a round that did not
-help. The rounds are a work budget (``SolverOptions.polish_rounds``), so the result is
-reproducible.
+help (the trust-region repair loop, :mod:`.repair`). The rounds are a work budget
+(``SolverOptions.polish_rounds``), so the result is reproducible.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -28,11 +30,11 @@ from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .plan import DiscretePlan, trajectory_plan
-from .plan_lp import Scaling
+from .plan_lp import PlanLPContext, Scaling
+from .plan_solve import LPGoal, TrustRegion, solve_plan_lp
+from .repair import STOP, Stop, repair
 from .results import SolveStats
-from .room import Room, execution_room, note_room, room_lp
-from .teacher import solve_plan_lp
+from .room import RoomState, note_room, room_lp, room_state
 
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
 
@@ -126,98 +128,19 @@ def refine(
     """
     if name not in ("effort", "margin"):
         return traj
-    system, init, formula = problem.switched_system, problem.initial_state, problem.stl_formula
-    domain = problem.control_domain
-    best = objective_value(name, traj, formula, weights)
-    base = _room(problem, abstraction, traj)
+    context = PlanLPContext.of(problem, abstraction, scaling)
+    value = objective_value(name, traj, problem.stl_formula, weights)
+    base = room_state(context, problem.stl_formula, traj)
+    if base is None:
+        return traj
     # The room the execution needs (:mod:`.room`) is kept up to what the plan had: an objective
     # must not buy itself with it.
-    keep = min(1.0, max(base[1].score, 0.0)) if base is not None else 0.0
-    trust = None
-    # The room of the current plan: computed once per accepted plan (each evaluation predicts
-    # the closed loop, the refiner's largest cost after its LPs).
-    current = base
-    failed = 0
-    w = _weights(system.m, weights)
-    for _ in range(rounds):
-        if current is None:
-            break
-        plan, room = current
-        means = traj.get_mean()
-        if trust is None:
-            # Start wide (a quarter of the plan's extent) and halve after every failed round.
-            extent = float(np.max(means.max(axis=0) - means.min(axis=0)))
-            trust = max(0.25 * extent, 2.0 * room.largest_need, 1e-3 * float(np.max(scaling.dx)))
-        L = plan.length
-        controls: np.ndarray | None = None
-        if name == "effort":
-            out = room_lp(
-                system,
-                domain,
-                init,
-                abstraction,
-                plan,
-                traj,
-                room,
-                trust,
-                scaling,
-                effort_weights=w,
-                t_max=keep,
-            )
-            controls = None if out is None else out[0]
-        else:
-            lp = solve_plan_lp(
-                system,
-                domain,
-                init.mean,
-                init.cov,
-                abstraction,
-                plan,
-                0.0,
-                covs=traj.get_cov()[:L],
-                anchor=means[:L],
-                trust=trust,
-                scaling=scaling,
-                objective=name,
-                linearise=True,
-            )
-            controls = lp.controls if lp.feasible else None
-        stats.lp_calls += 1
-        if controls is not None and name == "effort" and _effort(controls, w) >= (1.0 - CONVERGED) * best:
-            # A smaller trust region only raises the LP's optimum: nothing left to gain here.
-            break
-        if controls is not None:
-            acts = traj.get_action()
-            moved = rollout(system, init, acts[: L - 1], controls)
-            margin = robustness(moved, formula)
-            value = objective_value(name, moved, formula, weights)
-            # The room may not pay for the objective: it is what the execution needs (the
-            # monitor's margin beyond it is not, and keeping it too blocks most effort savings).
-            if margin >= 0.0 and better(name, value, best):
-                moved_room = _room(problem, abstraction, moved)
-                if name == "effort" and moved_room is not None and moved_room[1].score < keep - 1e-3:
-                    # The room's dependence on the plan is linearised: one restoration step
-                    # from the moved plan gives it back (sequential convex programming).
-                    stats.lp_calls += 1
-                    moved, moved_room = _restore(
-                        problem, abstraction, scaling, moved, moved_room, trust, keep
-                    )
-                    value = objective_value(name, moved, formula, weights)
-                    margin = robustness(moved, formula)
-                ok = margin >= 0.0 and better(name, value, best)
-                if ok and moved_room is not None and moved_room[1].score >= keep - 1e-3:
-                    logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, best, value, trust)
-                    traj, best, current = moved, value, moved_room
-                    stats.improvements.append((float(elapsed()), value))
-                    failed = 0
-                    continue
-        failed += 1
-        if name == "effort" and failed >= PATIENCE:
-            break
-        trust *= 0.5
-    if current is not None and name == "effort":
-        note_room(stats, current[1])
-    return traj
+    keep = min(1.0, max(base.room.score, 0.0))
+    steps = _RefineSteps(context, problem, name, weights, keep, stats, elapsed)
+    end = repair(steps, _Refined(base, value), rounds)
+    if name == "effort":
+        note_room(stats, end.at.room)
+    return end.at.traj
 
 
 CONVERGED = 0.01
@@ -229,6 +152,120 @@ quarter of where the last improvement was found: what is left is small, measured
 listing in ``benchmarks/effort_listing.py``)."""
 
 
+@dataclass(frozen=True)
+class _Refined:
+    """The refiner's state: the plan with its witness and room, and its objective's value."""
+
+    at: RoomState
+    value: float
+
+
+class _RefineSteps:
+    """:func:`refine`'s parts of the repair loop (:class:`.repair.RepairSteps`).
+
+    The step's LP is the room LP minimising the effort with the room kept (``"effort"``), or
+    the plan LP maximising the margin on the plan's linearised covariances (``"margin"``); a
+    step is kept when the monitor accepts it, the objective improved and the room is kept (one
+    restoration step may give it back).
+    """
+
+    name = "refine"
+
+    def __init__(
+        self,
+        context: PlanLPContext,
+        problem: Any,
+        name: str,
+        weights: np.ndarray | None,
+        keep: float,
+        stats: SolveStats,
+        elapsed: Callable[[], float],
+    ) -> None:
+        self.context, self.init, self.formula = context, problem.initial_state, problem.stl_formula
+        self.objective, self.weights, self.keep = name, weights, keep
+        self.w = _weights(context.system.m, weights)
+        self.stats, self.elapsed = stats, elapsed
+
+    def done(self, state: _Refined) -> bool:
+        return False
+
+    def first_trust(self, state: _Refined) -> float:
+        # Wide (a quarter of the plan's extent); the loop halves it after every failed round.
+        means = state.at.traj.get_mean()
+        extent = float(np.max(means.max(axis=0) - means.min(axis=0)))
+        dx = self.context.scaling.dx
+        return max(0.25 * extent, 2.0 * state.at.room.largest_need, 1e-3 * float(np.max(dx)))
+
+    def propose(self, state: _Refined, trust: float, left: float) -> np.ndarray | Stop | None:
+        at, L = state.at, state.at.plan.length
+        controls: np.ndarray | None = None
+        if self.objective == "effort":
+            out = room_lp(
+                self.context,
+                at.plan,
+                at.traj,
+                at.room,
+                trust,
+                effort_weights=self.w,
+                t_max=self.keep,
+                time_limit=left,
+            )
+            controls = None if out is None else out[0]
+        else:
+            region = TrustRegion(at.traj.get_mean()[:L], trust, linearise=True)
+            covs = at.traj.get_cov()[:L]
+            goal = LPGoal(self.objective)
+            lp = solve_plan_lp(
+                self.context, at.plan, 0.0, covs=covs, region=region, goal=goal, time_limit=left
+            )
+            controls = lp.controls if lp.feasible else None
+        self.stats.lp_calls += 1
+        if controls is not None and self.objective == "effort":
+            if _effort(controls, self.w) >= (1.0 - CONVERGED) * state.value:
+                return STOP  # a smaller trust region only raises the LP's optimum
+        return controls
+
+    def accept(self, state: _Refined, controls: np.ndarray, trust: float) -> _Refined | None:
+        name, formula = self.objective, self.formula
+        acts = state.at.traj.get_action()
+        moved = rollout(self.context.system, self.init, acts[: state.at.plan.length - 1], controls)
+        margin = robustness(moved, formula)
+        value = objective_value(name, moved, formula, self.weights)
+        # The room may not pay for the objective: it is what the execution needs (the monitor's
+        # margin beyond it is not, and keeping it too blocks most effort savings).
+        if not (margin >= 0.0 and better(name, value, state.value)):
+            return None
+        at = room_state(self.context, formula, moved)
+        if name == "effort" and at is not None and at.room.score < self.keep - 1e-3:
+            # The room's dependence on the plan is linearised: one restoration step from the
+            # moved plan gives it back (sequential convex programming).
+            self.stats.lp_calls += 1
+            moved, at = self._restore(moved, at, trust)
+            value = objective_value(name, moved, formula, self.weights)
+            margin = robustness(moved, formula)
+        ok = margin >= 0.0 and better(name, value, state.value)
+        if not (ok and at is not None and at.room.score >= self.keep - 1e-3):
+            return None
+        logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, state.value, value, trust)
+        self.stats.improvements.append((float(self.elapsed()), value))
+        return _Refined(at, value)
+
+    def stuck(self, state: _Refined, failures: int) -> bool:
+        return self.objective == "effort" and failures >= PATIENCE
+
+    def _restore(
+        self, traj: ProbabilisticTSTrajectory, at: RoomState, trust: float
+    ) -> tuple[ProbabilisticTSTrajectory, RoomState | None]:
+        """One room LP from ``traj`` (no objective): the plan and its room after it, or ``traj``'s own."""
+        out = room_lp(self.context, at.plan, traj, at.room, trust, t_max=self.keep)
+        if out is None:
+            return traj, at
+        moved = rollout(self.context.system, self.init, traj.get_action()[: at.plan.length - 1], out[0])
+        if robustness(moved, self.formula) < 0:
+            return traj, at
+        return moved, room_state(self.context, self.formula, moved)
+
+
 def _weights(m: int, weights: np.ndarray | None) -> np.ndarray:
     """Per-input effort weights, shape (m,) (all ones by default)."""
     return np.ones(m) if weights is None else np.asarray(weights, dtype=float)
@@ -237,36 +274,3 @@ def _weights(m: int, weights: np.ndarray | None) -> np.ndarray:
 def _effort(controls: np.ndarray, weights: np.ndarray) -> float:
     """``sum_k sum_j w_j |u_kj|`` of controls of shape (K, m): the ``"effort"`` objective."""
     return float(np.sum(np.abs(np.asarray(controls)) @ weights))
-
-
-def _restore(
-    problem: Any,
-    abstraction: Abstraction,
-    scaling: Scaling,
-    traj: ProbabilisticTSTrajectory,
-    current: tuple[DiscretePlan, Room],
-    trust: float,
-    keep: float,
-) -> tuple[ProbabilisticTSTrajectory, tuple[DiscretePlan, Room] | None]:
-    """One room LP from ``traj`` (no objective): the plan and room after it, or ``traj``'s own."""
-    system, init = problem.switched_system, problem.initial_state
-    plan, room = current
-    domain = problem.control_domain
-    out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling, t_max=keep)
-    if out is None:
-        return traj, current
-    moved = rollout(system, init, traj.get_action()[: plan.length - 1], out[0])
-    if robustness(moved, problem.stl_formula) < 0:
-        return traj, current
-    return moved, _room(problem, abstraction, moved)
-
-
-def _room(
-    problem: Any, abstraction: Abstraction, traj: ProbabilisticTSTrajectory
-) -> tuple[DiscretePlan, Room] | None:
-    """The requirements ``traj`` meets (its earliest witness) and its execution room, or None."""
-    plan = trajectory_plan(problem.stl_formula, abstraction, traj)
-    if plan is None:
-        return None
-    room = execution_room(problem.switched_system, problem.control_domain, abstraction, plan, traj)
-    return None if room is None else (plan, room)

@@ -13,19 +13,22 @@ tolerances are relative to the problem: the same plan is found, or refuted, in m
 micrometres. Refutations are claimed only when the elastic LP's optimum is far above the
 solver's tolerances; a borderline optimum is *unknown*, never a proof.
 
-This module builds the rows; :mod:`.teacher` (the LP teacher) and :mod:`.milp` (the eager
-model) both use them.
+This module builds the rows (:func:`build_plan_rows`, from one solve's :class:`PlanLPContext`);
+:mod:`.plan_solve` solves them (the LP teacher's, the repairs' and the re-timing's plan LPs) and
+:mod:`.milp` (the eager model) extends them. Whether the LP is exact is decided in one place,
+:func:`lp_exact`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
+from ..backends import Backend, HighsBackend
 from ..belief import kalman_gain, kalman_update
 from ..chance import std_terms
 from .interfaces import Budget
@@ -34,9 +37,34 @@ from .plan import DiscretePlan
 if TYPE_CHECKING:  # plan_lp is imported by the abstraction (its covariance bounds)
     from .abstraction import Abstraction
 
-__all__ = ["PlanRows", "Scaling", "build_plan_rows", "covariance_jacobian", "covariance_schedule"]
+__all__ = [
+    "PlanLPContext",
+    "PlanRows",
+    "Scaling",
+    "build_plan_rows",
+    "covariance_jacobian",
+    "covariance_schedule",
+    "lp_exact",
+    "noise_depends_on_state",
+]
 
 _TINY = 1e-300
+
+
+def noise_depends_on_state(mode: Any) -> bool:
+    """Whether ``mode``'s measurement update depends on the mean: it senses (``p > 0``) through
+    a noise that is a function of the state. Only such a mode makes the covariance schedule a
+    function of the means (a mode that senses nothing has no noise to depend on)."""
+    return bool(mode.p) and bool(mode.has_state_dependent_noise)
+
+
+def lp_exact(system: Any) -> bool:
+    """Whether the plan LP is exact for ``system``: no mode's covariance update depends on the
+    means (:func:`noise_depends_on_state`), so the covariance schedule is fixed by the modes and
+    the LP decides a plan (``Found`` / ``Refuted``); otherwise it is a sound relaxation, a
+    step of sequential convex programming around a trajectory, and the repairs need a trust
+    region. The one definition every part of the synthesis reads."""
+    return not any(noise_depends_on_state(mode) for mode in system.system_modes)
 
 
 def covariance_schedule(
@@ -73,7 +101,7 @@ def covariance_schedule(
         P = mode.A @ covs[k] @ mode.A.T + mode.process_cov
         if mode.p == 0:
             covs[k + 1] = P
-        elif mode.has_state_dependent_noise:
+        elif noise_depends_on_state(mode):
             exact = False  # the declared floor of R(x) (zero if none) gives a lower bound
             covs[k + 1] = _lower_update(mode, P)
         else:
@@ -147,6 +175,56 @@ class Scaling:
         return cls(dx, du)
 
 
+@dataclass(frozen=True)
+class PlanLPContext:
+    """What every plan LP of one solve shares: built once per solve, passed to each LP.
+
+    Attributes
+    ----------
+    system : SwitchedSystem
+        The modes (the hull relaxation's for the every-mode refutation).
+    control_domain : Polytope
+    mean0 : ndarray, shape (n,)
+        The prior's mean.
+    cov0 : ndarray, shape (n, n)
+        The prior's covariance.
+    abstraction : Abstraction
+        The formula's propositions (their faces and the rows' caches live on it).
+    scaling : Scaling
+        Units of the LP's variables.
+    backend : Backend
+        The LP back-end (default HiGHS).
+    """
+
+    system: Any
+    control_domain: Any
+    mean0: np.ndarray
+    cov0: np.ndarray
+    abstraction: Abstraction
+    scaling: Scaling
+    backend: Backend = field(default_factory=HighsBackend)
+
+    @classmethod
+    def of(
+        cls,
+        problem: Any,
+        abstraction: Abstraction,
+        scaling: Scaling | None = None,
+        backend: Backend | None = None,
+    ) -> PlanLPContext:
+        """The context of ``problem``'s plan LPs (units computed from the problem when not given)."""
+        system, domain, init = problem.switched_system, problem.control_domain, problem.initial_state
+        if scaling is None:
+            scaling = Scaling.compute(system, domain, init.mean, init.cov, abstraction)
+        backend = backend if backend is not None else HighsBackend()
+        return cls(system, domain, init.mean, init.cov, abstraction, scaling, backend)
+
+    @property
+    def exact(self) -> bool:
+        """Whether the plan LP is exact for this context's system (:func:`lp_exact`)."""
+        return lp_exact(self.system)
+
+
 @dataclass
 class PlanRows:
     """The rows of the plan LP in scaled variables ``[x_1..x_K, u_0..u_{K-1}]`` plus extras.
@@ -212,19 +290,14 @@ class PlanRows:
 
 
 def build_plan_rows(
-    modes: Sequence[Any],
-    control_domain: Any,
-    mean0: np.ndarray,
-    cov0: np.ndarray,
-    abstraction: Abstraction,
+    context: PlanLPContext,
     requirements: list[tuple[int, int]],
     actions: np.ndarray,
-    scaling: Scaling,
     covs: np.ndarray | None = None,
     budget: Budget | None = None,
     linearisation: tuple[list[np.ndarray], np.ndarray] | None = None,
 ) -> PlanRows:
-    """Rows of the plan LP for a mode sequence ``actions`` (K,) and ``requirements``.
+    """Rows of the plan LP of ``context`` for a mode sequence ``actions`` (K,) and ``requirements``.
 
     ``covs`` (K + 1, n, n) replaces the covariance schedule of the modes (e.g. the exact
     covariances of a sampled trajectory); the rows are then not exact. ``linearisation``
@@ -237,6 +310,8 @@ def build_plan_rows(
     (extended from its longest common prefix with the last one) and each proposition's scaled,
     normalised faces. The rows are the same, entry for entry, as a fresh build's.
     """
+    modes, control_domain = context.system.system_modes, context.control_domain
+    mean0, cov0, abstraction, scaling = context.mean0, context.cov0, context.abstraction, context.scaling
     K = int(actions.shape[0])
     n, m = mean0.shape[0], scaling.du.shape[0]
     dx, du = scaling.dx, scaling.du
@@ -313,7 +388,7 @@ def cached_schedule(
         if tail_exact:
             inexact[p + 1 :] = inexact[p]
         else:
-            lower = [modes[int(q)].p != 0 and modes[int(q)].has_state_dependent_noise for q in actions[p:]]
+            lower = [noise_depends_on_state(modes[int(q)]) for q in actions[p:]]
             inexact[p + 1 :] = inexact[p] | (np.cumsum(lower) > 0)
     if K >= done.shape[0] or p < K:
         store[key] = (tuple(modes), np.asarray(actions, dtype=int).copy(), covs.copy(), inexact.copy())

@@ -50,7 +50,6 @@ the objectives' refiner use them.
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -59,7 +58,7 @@ import numpy as np
 from scipy.sparse import csr_matrix, diags, hstack, vstack
 from scipy.special import ndtri
 
-from ..backends import Backend, HighsBackend, LinearModel
+from ..backends import LinearModel
 from ..belief import rollout
 from ..chance import std_terms
 from ..closed_loop import TRACKABLE_Z, correction_spread, gains_for, propagate, tracking_backoff
@@ -68,7 +67,8 @@ from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .plan import DiscretePlan, trajectory_plan
-from .plan_lp import Scaling, build_plan_rows, covariance_jacobian, plan_requirements
+from .plan_lp import PlanLPContext, PlanRows, Scaling, build_plan_rows, covariance_jacobian, plan_requirements
+from .repair import repair
 from .results import SolveStats
 
 __all__ = [
@@ -78,8 +78,10 @@ __all__ = [
     "ROOM_FLOOR",
     "STATE_FAILURE",
     "Room",
+    "RoomState",
     "execution_room",
     "room_lp",
+    "room_state",
 ]
 
 logger = logging.getLogger(__name__)
@@ -292,11 +294,33 @@ def execution_room(
     loop = _loop(system, traj, control_domain)
     if loop is None:
         return None
-    n, N = system.n, traj.num_of_steps
+    reqs = plan_requirements(plan, abstraction)
+    parts = _face_parts(system.n, loop, traj, abstraction, reqs)
+    if parts:
+        cat = [np.concatenate([p[j] for p in parts]) for j in range(7)]
+        have_all, terms_all, sdx_all, sde_all, rx_all, re_all, ch_all = cat
+        z_b = _quantile(belief_failure, _trials(have_all, sde_all, re_all, ch_all))
+        z_s = _quantile(state_failure, _trials(have_all + terms_all, sdx_all, rx_all, ch_all))
+    else:
+        z_b = z_s = Z_MIN
+    radii = [abstraction.radius(i) for i in {i for _, i in reqs}]
+    finite = [r for r in radii if np.isfinite(r)]
+    floor = ROOM_FLOOR * min(finite) if finite else 0.0
+    need = [np.maximum(np.maximum(z_b * p[3], z_s * p[2] - p[1]), floor) for p in parts]
+    have = [p[0] for p in parts]
+    input_need, input_have = _input_room(system, traj, control_domain, loop, z_input)
+    return Room(reqs, need, have, input_need, input_have, loop.clip, z_b, z_s)
+
+
+def _face_parts(
+    n: int, loop: Any, traj: ProbabilisticTSTrajectory, abstraction: Abstraction, reqs: list[tuple[int, int]]
+) -> list[tuple[np.ndarray, ...]]:
+    """Per requirement ``(k, i)``, per face: the room kept, the plan's own back-off term, the
+    true state's and the belief's predicted spread along the face, their correlations with the
+    previous step's and whether the face is chained to it (the same face required at ``k - 1``)."""
     S = loop.cov
     means, covs = traj.get_mean(), traj.get_cov()
-    reqs = plan_requirements(plan, abstraction)
-    required = {(k, i) for k, i in reqs}
+    required = set(reqs)
     parts: list[tuple[np.ndarray, ...]] = []
     for k, i in reqs:
         cone = abstraction.atoms[i].cone
@@ -319,27 +343,22 @@ def execution_room(
             rho_eta = np.where(np.isfinite(rho_eta), rho_eta, 1.0)
         have = -(H @ means[k] + cone.c + terms)
         parts.append((have, terms, sd_x, sd_eta, rho_x, rho_eta, chained))
-    if parts:
-        cat = [np.concatenate([p[j] for p in parts]) for j in range(7)]
-        have_all, terms_all, sdx_all, sde_all, rx_all, re_all, ch_all = cat
-        z_b = _quantile(belief_failure, _trials(have_all, sde_all, re_all, ch_all))
-        z_s = _quantile(state_failure, _trials(have_all + terms_all, sdx_all, rx_all, ch_all))
-    else:
-        z_b = z_s = Z_MIN
-    radii = [abstraction.radius(i) for i in {i for _, i in reqs}]
-    finite = [r for r in radii if np.isfinite(r)]
-    floor = ROOM_FLOOR * min(finite) if finite else 0.0
-    need = [np.maximum(np.maximum(z_b * p[3], z_s * p[2] - p[1]), floor) for p in parts]
-    have = [p[0] for p in parts]
+    return parts
+
+
+def _input_room(
+    system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any, loop: Any, z_input: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per step and control face: the room the tracking correction needs and the room the
+    plan's inputs leave (both (N, F_u))."""
+    N = traj.num_of_steps
     Hu, cu = control_domain.H, control_domain.c
     if Hu.shape[0] and N:
         spread = correction_spread(loop, Hu)
         input_need = tracking_backoff(system, traj, control_domain, z_input, spread)
         input_have = -(traj.get_control()[:N] @ Hu.T + cu[None, :])
-    else:
-        input_need = np.zeros((N, Hu.shape[0]))
-        input_have = np.zeros((N, Hu.shape[0]))
-    return Room(reqs, need, have, input_need, input_have, loop.clip, z_b, z_s)
+        return input_need, input_have
+    return np.zeros((N, Hu.shape[0])), np.zeros((N, Hu.shape[0]))
 
 
 def _row_room(rows: Any, room: Room, abstraction: Abstraction) -> np.ndarray:
@@ -365,30 +384,25 @@ def _row_room(rows: Any, room: Room, abstraction: Abstraction) -> np.ndarray:
 
 
 def room_lp(
-    system: Any,
-    control_domain: Any,
-    init: Any,
-    abstraction: Abstraction,
+    context: PlanLPContext,
     plan: DiscretePlan,
     traj: ProbabilisticTSTrajectory,
     room: Room,
     trust: float,
-    scaling: Scaling,
     *,
-    backend: Backend | None = None,
     effort_weights: np.ndarray | None = None,
     t_max: float = 1.0,
     time_limit: float = 1e9,
 ) -> tuple[np.ndarray, float] | None:
     """One SCP step toward the room: controls keeping the largest common fraction of it.
 
-    The plan LP's rows for ``plan`` around ``traj`` (its covariances frozen, their dependence on
-    the means linearised, every mean within ``trust`` of ``traj``'s), every control face ``f`` at
-    step ``k`` backed off by ``level * input_need_kf`` (the first feasible level of
-    :data:`INPUT_LEVELS`), every required face by ``t * need_kf``: maximises the common fraction
-    ``t`` in ``[0, t_max]``, then either each face's own fraction ``t_kf`` in ``[t, t_max]``
-    (their sum: a face that cannot get its room does not hold the others back) or, with
-    ``effort_weights``, minimises the weighted input effort at ``t``.
+    The plan LP's rows (of ``context``) for ``plan`` around ``traj`` (its covariances frozen,
+    their dependence on the means linearised, every mean within ``trust`` of ``traj``'s), every
+    control face ``f`` at step ``k`` backed off by ``level * input_need_kf`` (the first feasible
+    level of :data:`INPUT_LEVELS`), every required face by ``t * need_kf``: maximises the common
+    fraction ``t`` in ``[0, t_max]``, then either each face's own fraction ``t_kf`` in
+    ``[t, t_max]`` (their sum: a face that cannot get its room does not hold the others back)
+    or, with ``effort_weights``, minimises the weighted input effort at ``t``.
 
     Returns
     -------
@@ -396,66 +410,112 @@ def room_lp(
         Controls, shape (L - 1, m), and the common fraction reached; None when no LP has an
         optimum (the trust region keeps no plan meeting the requirements).
     """
-    K = plan.num_transitions
-    if K <= 0:
+    lp = _RoomLP.around(context, plan, traj, room, trust)
+    if lp is None:
         return None
-    actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
-    modes = system.system_modes
-    means, covs = traj.get_mean()[: K + 1], traj.get_cov()[: K + 1]
-    reqs = plan_requirements(plan, abstraction)
-    if reqs != room.requirements:
+    first = None
+    level = 0.0
+    for level in INPUT_LEVELS:
+        first = lp.solve(level, None, 0.0, t_max, time_limit)
+        if first is not None:
+            break
+    if first is None:
         return None
-    lin = (covariance_jacobian(modes, actions, means, covs, scaling.dx), means)
-    rows = build_plan_rows(
-        modes,
-        control_domain,
-        init.mean,
-        init.cov,
-        abstraction,
-        reqs,
-        actions,
-        scaling,
-        covs,
-        linearisation=lin,
-    )
-    if rows.impossible:
-        return None
-    face_coef = (_row_room(rows, room, abstraction) + 1e-9 * float(np.min(scaling.dx))) * rows.face_unit
-    # control rows: normalised per face, zero rows dropped (as plan_lp builds them), step-major
-    du = scaling.du
-    unorm = np.linalg.norm(control_domain.H * du[None, :], axis=1)
-    keep = unorm > 0
-    u_shift = (room.input_need[:K][:, keep] / unorm[keep][None, :]).ravel()
-    if u_shift.shape[0] != rows.A_U.shape[0]:
-        u_shift = np.zeros(rows.A_U.shape[0])
-    backend = backend if backend is not None else HighsBackend()
-    ncol = rows.nx + rows.nu
-    R = rows.face_H.shape[0]
-    nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
-    lb_x = np.full(ncol, -np.inf)
-    ub_x = np.full(ncol, np.inf)
-    if np.isfinite(trust):
-        ref = (means[1 : K + 1] / scaling.dx).ravel()
-        width = trust / np.tile(scaling.dx, K)
-        lb_x[: rows.nx] = ref - width
-        ub_x[: rows.nx] = ref + width
+    z, t = first
+    t_keep = max(0.0, t * (1 - 1e-6))
+    second = None
+    if effort_weights is not None:
+        effort = np.asarray(effort_weights, dtype=float)
+        second = lp.solve(level, effort, t_keep, max(t, 0.0), time_limit)
+    elif lp.rows.face_H.shape[0] > 0 and t < t_max - 1e-9:  # at t_max every face has its room
+        second = lp.solve(level, None, t_keep, max(t_max, t_keep), time_limit, per_face=True)
+    if second is not None:
+        z = second[0]
+    _, controls = lp.rows.unscale(z, context.mean0)
+    return controls, t
+
+
+@dataclass(frozen=True)
+class _RoomLP:
+    """The room LP's pieces around one plan (:func:`room_lp`): the linearised plan rows, each
+    face row's needed room, each control row's back-off and the trust region's bounds."""
+
+    context: PlanLPContext
+    rows: PlanRows
+    face_coef: np.ndarray
+    u_shift: np.ndarray
+    lb_x: np.ndarray
+    ub_x: np.ndarray
+
+    @classmethod
+    def around(
+        cls,
+        context: PlanLPContext,
+        plan: DiscretePlan,
+        traj: ProbabilisticTSTrajectory,
+        room: Room,
+        trust: float,
+    ) -> _RoomLP | None:
+        """The pieces for ``plan`` around ``traj``; None when no LP can be built."""
+        K = plan.num_transitions
+        if K <= 0:
+            return None
+        actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
+        scaling, abstraction = context.scaling, context.abstraction
+        means, covs = traj.get_mean()[: K + 1], traj.get_cov()[: K + 1]
+        reqs = plan_requirements(plan, abstraction)
+        if reqs != room.requirements:
+            return None
+        jac = covariance_jacobian(context.system.system_modes, actions, means, covs, scaling.dx)
+        rows = build_plan_rows(context, reqs, actions, covs, linearisation=(jac, means))
+        if rows.impossible:
+            return None
+        need = _row_room(rows, room, abstraction) + 1e-9 * float(np.min(scaling.dx))
+        # control rows: normalised per face, zero rows dropped (as plan_lp builds them), step-major
+        unorm = np.linalg.norm(context.control_domain.H * scaling.du[None, :], axis=1)
+        keep = unorm > 0
+        u_shift = (room.input_need[:K][:, keep] / unorm[keep][None, :]).ravel()
+        if u_shift.shape[0] != rows.A_U.shape[0]:
+            u_shift = np.zeros(rows.A_U.shape[0])
+        ncol = rows.nx + rows.nu
+        lb_x = np.full(ncol, -np.inf)
+        ub_x = np.full(ncol, np.inf)
+        if np.isfinite(trust):
+            ref = (means[1 : K + 1] / scaling.dx).ravel()
+            width = trust / np.tile(scaling.dx, K)
+            lb_x[: rows.nx] = ref - width
+            ub_x[: rows.nx] = ref + width
+        return cls(context, rows, need * rows.face_unit, u_shift, lb_x, ub_x)
 
     def solve(
-        level: float, effort: np.ndarray | None, t_lo: float, t_hi: float, per_face: bool = False
+        self,
+        level: float,
+        effort: np.ndarray | None,
+        t_lo: float,
+        t_hi: float,
+        time_limit: float,
+        per_face: bool = False,
     ) -> tuple[np.ndarray, float] | None:
+        """One LP: the inputs backed off by ``level`` of their need, the fraction(s) ``t`` in
+        ``[t_lo, t_hi]`` maximised (``effort``: the weighted effort minimised instead)."""
+        rows, K = self.rows, self.rows.K
+        ncol = rows.nx + rows.nu
+        R = rows.face_H.shape[0]
+        nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
         nt = R if per_face else 1
         na = K * rows.m if effort is not None else 0
         extra = nt + na
-        t_block = csr_matrix(face_coef[:, None]) if not per_face else diags(face_coef, format="csr")
+        coef = self.face_coef
+        t_block = csr_matrix(coef[:, None]) if not per_face else diags(coef, format="csr")
         blocks = [
             hstack([rows.A_eq, csr_matrix((nE, extra))]),
             hstack([rows.A_U, csr_matrix((nU, extra))]),
             hstack([rows.face_H, t_block, csr_matrix((R, na))]),
         ]
         lo = [rows.b_eq, np.full(nU + R, -np.inf)]
-        hi = [rows.b_eq, rows.b_U - level * u_shift, -rows.face_off]
+        hi = [rows.b_eq, rows.b_U - level * self.u_shift, -rows.face_off]
         if effort is not None:
-            dus = np.tile(du, K)
+            dus = np.tile(self.context.scaling.du, K)
             idx = np.arange(na)
             shape = (na, ncol + extra)
             pos = csr_matrix((dus, (idx, rows.nx + idx)), shape=shape)
@@ -469,33 +529,32 @@ def room_lp(
             c[ncol : ncol + nt] = -1.0
         else:
             c[ncol + nt :] = np.tile(effort, K)
-        lb = np.concatenate([lb_x, np.full(nt, t_lo), np.zeros(na)])
-        ub = np.concatenate([ub_x, np.full(nt, t_hi), np.full(na, np.inf)])
+        lb = np.concatenate([self.lb_x, np.full(nt, t_lo), np.zeros(na)])
+        ub = np.concatenate([self.ub_x, np.full(nt, t_hi), np.full(na, np.inf)])
         A = vstack(blocks).tocsr()
-        sol = backend.solve(LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub), time_limit)
+        model = LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub)
+        sol = self.context.backend.solve(model, time_limit)
         if sol.status != "optimal" or sol.x is None:
             return None
         return sol.x[:ncol], float(np.min(sol.x[ncol : ncol + nt]))
 
-    first = None
-    level = 0.0
-    for level in INPUT_LEVELS:
-        first = solve(level, None, 0.0, t_max)
-        if first is not None:
-            break
-    if first is None:
+
+@dataclass(frozen=True)
+class RoomState:
+    """A plan the monitor accepts, the requirements it meets (its earliest witness) and its room."""
+
+    traj: ProbabilisticTSTrajectory
+    plan: DiscretePlan
+    room: Room
+
+
+def room_state(context: PlanLPContext, formula: Any, traj: ProbabilisticTSTrajectory) -> RoomState | None:
+    """``traj``'s witness (:func:`~.plan.trajectory_plan`) and its execution room, or None."""
+    plan = trajectory_plan(formula, context.abstraction, traj)
+    if plan is None:
         return None
-    z, t = first
-    t_keep = max(0.0, t * (1 - 1e-6))
-    second = None
-    if effort_weights is not None:
-        second = solve(level, np.asarray(effort_weights, dtype=float), t_keep, max(t, 0.0))
-    elif R > 0 and t < t_max - 1e-9:  # at t_max every face has all its room already
-        second = solve(level, None, t_keep, max(t_max, t_keep), per_face=True)
-    if second is not None:
-        z = second[0]
-    _, controls = rows.unscale(z, init.mean)
-    return controls, t
+    room = execution_room(context.system, context.control_domain, context.abstraction, plan, traj)
+    return None if room is None else RoomState(traj, plan, room)
 
 
 def give_room(
@@ -509,13 +568,13 @@ def give_room(
 ) -> ProbabilisticTSTrajectory:
     """Give a plan the room its execution needs, keeping its modes (sequential convex programming).
 
-    Each round takes the requirements the trajectory meets (:func:`~.plan.trajectory_plan`), predicts the
-    closed loop around it (:func:`execution_room`) and solves one step toward that room
-    (:func:`room_lp`, means within ``trust``); the re-rolled plan is kept only if the monitor
-    still accepts it and its room improved (:meth:`Room.better_than`); ``trust`` halves after a
-    round that did not help. It stops when the room is complete (:attr:`Room.complete`), or after
-    a failed round once every required face has its room. Without state-dependent noise the
-    covariances do not depend on the means and the rounds have no trust region.
+    The trust-region repair (:func:`.repair.repair`) with the room as its score: each round
+    solves one step toward the room of the requirements the plan meets (:func:`room_lp`, means
+    within ``trust``); the re-rolled plan is kept only if the monitor still accepts it and its
+    room improved (:meth:`Room.better_than`); ``trust`` halves after a round that did not help.
+    It stops when the room is complete (:attr:`Room.complete`), or after a failed round once
+    every required face has its room. Where the plan LP is exact (:func:`~.plan_lp.lp_exact`)
+    the covariances do not depend on the means and the rounds have no trust region.
 
     Parameters
     ----------
@@ -527,7 +586,7 @@ def give_room(
     rounds : int
         Work budget: LP rounds.
     stats : SolveStats
-        ``lp_calls`` is counted here.
+        ``lp_calls`` is counted here, the room kept in ``execution_room`` (:func:`note_room`).
     deadline : float, optional
         ``time.perf_counter()`` value (the solve's time limit) after which no round starts; each
         round's LP gets the time left. The plan so far is returned: the room is anytime.
@@ -538,67 +597,80 @@ def give_room(
         A plan the monitor accepts with at least ``traj``'s room (``traj`` itself when the monitor
         rejects it: nothing to give room to).
     """
-    init, system, formula = problem.initial_state, problem.switched_system, problem.stl_formula
-    domain = problem.control_domain
-    if robustness(traj, formula) < 0:
+    formula = problem.stl_formula
+    if robustness(traj, formula) < 0 or rounds <= 0:
         return traj
-    # Without state-dependent noise the covariances do not depend on the means: the LP is exact
-    # for the frozen requirements and needs no trust region (the LP path's plans).
-    exact = not any(m.has_state_dependent_noise for m in system.system_modes)
-    trust = np.inf
-    current: tuple[DiscretePlan, Room] | None = None
-    for _ in range(rounds):
-        if current is None:
-            found = trajectory_plan(formula, abstraction, traj)
-            if found is None:
-                break
-            first = execution_room(system, domain, abstraction, found, traj)
-            if first is None:
-                break
-            current = (found, first)
-        plan, room = current
-        if room.complete:
-            break
-        if not np.isfinite(trust) and not exact:
-            trust = max(2.0 * room.largest_need, 1e-3 * float(np.max(scaling.dx)))
-        left = 1e9 if deadline is None else deadline - time.perf_counter()
-        if left <= 0:
-            logger.info("room: the time limit stops the rounds; the plan keeps the room it has")
-            break
-        stats.lp_calls += 1
-        out = room_lp(system, domain, init, abstraction, plan, traj, room, trust, scaling, time_limit=left)
-        if out is not None:
-            # The LP moves the witness's steps; the plan keeps its length (its callers pair the
-            # controls with the candidate's modes), later steps keep their inputs.
-            controls = np.array(traj.get_control(), dtype=float, copy=True)
-            controls[: plan.length - 1] = out[0]
-            moved = rollout(system, init, traj.get_action(), controls)
-            if robustness(moved, formula) >= 0:
-                moved_plan = trajectory_plan(formula, abstraction, moved)
-                moved_room = None
-                if moved_plan is not None:
-                    moved_room = execution_room(system, domain, abstraction, moved_plan, moved)
-                if moved_plan is not None and moved_room is not None and moved_room.better_than(room):
-                    logger.debug(
-                        "room: %.3g -> %.3g, mean %.3g -> %.3g, inputs %.3g -> %.3g "
-                        "(trust %.3g, LP fraction %.3g)",
-                        room.score,
-                        moved_room.score,
-                        room.coverage,
-                        moved_room.coverage,
-                        room.input_score,
-                        moved_room.input_score,
-                        trust,
-                        out[1],
-                    )
-                    traj, current = moved, (moved_plan, moved_room)
-                    continue
-        if room.score >= 1.0 or exact:
-            break  # the faces have their room (only the inputs' is missing), or no smaller step helps
-        trust *= 0.5
-    if current is not None:
-        note_room(stats, current[1])
-    return traj
+    context = PlanLPContext.of(problem, abstraction, scaling)
+    start = room_state(context, formula, traj)
+    if start is None:
+        return traj
+    end = repair(_RoomSteps(context, problem, stats), start, rounds, deadline=deadline)
+    note_room(stats, end.room)
+    return end.traj
+
+
+class _RoomSteps:
+    """:func:`give_room`'s parts of the repair loop (:class:`.repair.RepairSteps`)."""
+
+    name = "room"
+
+    def __init__(self, context: PlanLPContext, problem: Any, stats: SolveStats) -> None:
+        self.context = context
+        self.formula = problem.stl_formula
+        self.init = problem.initial_state
+        self.stats = stats
+        # Exact: the LP is exact for the frozen requirements and needs no trust region (the LP
+        # path's plans), and a step that did not help is not helped by a smaller one.
+        self.exact = context.exact
+
+    def done(self, state: RoomState) -> bool:
+        return state.room.complete
+
+    def first_trust(self, state: RoomState) -> float:
+        if self.exact:
+            return np.inf
+        return max(2.0 * state.room.largest_need, 1e-3 * float(np.max(self.context.scaling.dx)))
+
+    def propose(
+        self, state: RoomState, trust: float, left: float
+    ) -> tuple[ProbabilisticTSTrajectory, float] | None:
+        self.stats.lp_calls += 1
+        out = room_lp(self.context, state.plan, state.traj, state.room, trust, time_limit=left)
+        if out is None:
+            return None
+        # The LP moves the witness's steps; the plan keeps its length (its callers pair the
+        # controls with the candidate's modes), later steps keep their inputs.
+        controls = np.array(state.traj.get_control(), dtype=float, copy=True)
+        controls[: state.plan.length - 1] = out[0]
+        moved = rollout(self.context.system, self.init, state.traj.get_action(), controls)
+        return moved, out[1]
+
+    def accept(
+        self, state: RoomState, proposal: tuple[ProbabilisticTSTrajectory, float], trust: float
+    ) -> RoomState | None:
+        moved, fraction = proposal
+        if robustness(moved, self.formula) < 0:
+            return None
+        found = room_state(self.context, self.formula, moved)
+        if found is None or not found.room.better_than(state.room):
+            return None
+        room, new = state.room, found.room
+        logger.debug(
+            "room: %.3g -> %.3g, mean %.3g -> %.3g, inputs %.3g -> %.3g (trust %.3g, LP fraction %.3g)",
+            room.score,
+            new.score,
+            room.coverage,
+            new.coverage,
+            room.input_score,
+            new.input_score,
+            trust,
+            fraction,
+        )
+        return found
+
+    def stuck(self, state: RoomState, failures: int) -> bool:
+        # the faces have their room (only the inputs' is missing), or no smaller step helps
+        return state.room.score >= 1.0 or self.exact
 
 
 def note_room(stats: SolveStats, room: Room) -> None:

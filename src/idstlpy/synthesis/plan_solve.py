@@ -1,0 +1,412 @@
+"""Solving the plan LP: controls for a discrete plan, or a proof that there are none.
+
+The plan LP (:mod:`.plan_lp`'s rows, for one solve's :class:`~.plan_lp.PlanLPContext`) is solved
+in two phases through a registered back-end:
+
+1. *elastic*: one slack per requirement, minimise their sum. An optimum far above the solver's
+   tolerances is a proof of infeasibility, and the requirements whose rows carry non-zero duals
+   form an infeasible subset on their own (the duals are a Farkas certificate of that subset
+   together with the dynamics and the control domain): that subset is the conflict. A
+   borderline optimum is *unknown*;
+2. *margin*: with the slacks at zero, push every required face inside its bound by up to
+   ``margin`` (state units), so the plan survives execution noise; a zero-slack plan keeps
+   margin 0 and the monitor decides it exactly. An objective (:class:`LPGoal`) follows.
+
+When no mode's noise depends on the state the LP is exact (:func:`~.plan_lp.lp_exact`:
+``Found`` / ``Refuted``); otherwise it is a sound relaxation (``Refuted`` or ``Unknown``), or,
+on a trajectory's frozen covariances within a :class:`TrustRegion`, one step of sequential
+convex programming.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+from scipy.sparse import csr_matrix, hstack, vstack
+
+from ..backends import Backend, LinearModel
+from .interfaces import Budget
+from .plan import DiscretePlan
+from .plan_lp import PlanLPContext, PlanRows, build_plan_rows, covariance_jacobian, plan_requirements
+
+__all__ = ["LPGoal", "LPOutcome", "TIGHTEN", "TrustRegion", "solve_plan_lp"]
+
+logger = logging.getLogger(__name__)
+
+FEASIBLE_TOL = 1e-9
+"""Elastic optimum (per requirement, normalised rows) at or below which the plan is feasible."""
+REFUTE_TOL = 1e-6
+"""Elastic optimum above which infeasibility is claimed (10x HiGHS' primal tolerance)."""
+_DUAL_TOL = 1e-9
+TIGHTEN = 2e-7
+"""Room (relative to the state's units) a plan keeps inside its faces when it can: twice HiGHS'
+primal tolerance on the normalised rows, so the monitor's exact re-check passes."""
+
+
+@dataclass
+class LPOutcome:
+    """Result of the plan LP.
+
+    Attributes
+    ----------
+    status : {"feasible", "infeasible", "unknown"}
+        ``infeasible`` is a proof (see the module docstring); ``unknown`` is not.
+    exact : bool
+        True when the covariance schedule is exact (no state-dependent noise on the plan).
+    controls : ndarray, shape (K, m), or None
+    means : ndarray, shape (K + 1, n), or None
+        Means of the LP's trajectory (also the least-violating one when infeasible).
+    conflict : list of (step, atom)
+        An infeasible subset of the requirements (empty unless infeasible).
+    covs : ndarray, shape (K + 1, n, n), or None
+        The covariance schedule the LP used (exact or lower bound).
+    why : str
+        Why the outcome is ``unknown`` (empty otherwise).
+    excess : float
+        The elastic LP's total violation (normalised rows; ``inf`` when a requirement is
+        impossible on its own, ``nan`` when the elastic phase did not run): the mode search's
+        score.
+    """
+
+    status: Literal["feasible", "infeasible", "unknown"]
+    exact: bool
+    controls: np.ndarray | None
+    means: np.ndarray | None
+    conflict: list[tuple[int, int]] = field(default_factory=list)
+    covs: np.ndarray | None = None
+    why: str = ""
+    excess: float = float("nan")
+
+    @property
+    def feasible(self) -> bool:
+        """True when the LP found controls."""
+        return self.status == "feasible"
+
+
+@dataclass(frozen=True)
+class TrustRegion:
+    """How far the plan LP's means may move from a trajectory's, whose covariances it freezes.
+
+    Attributes
+    ----------
+    anchor : ndarray, shape (K + 1, n)
+        The trajectory's means.
+    radius : float
+        Largest move of every mean (infinity norm, state units) in the margin and objective
+        phases; infinite: no bound.
+    linearise : bool
+        Add each standard-deviation term's first-order dependence on the means around
+        ``anchor`` (:func:`~.plan_lp.covariance_jacobian`): a step of a sequential convex
+        programme in belief space (the radius should then be finite).
+    """
+
+    anchor: np.ndarray
+    radius: float = np.inf
+    linearise: bool = False
+
+
+@dataclass(frozen=True)
+class LPGoal:
+    """What the plan LP optimises after feasibility.
+
+    Attributes
+    ----------
+    objective : {None, "effort", "margin"}
+        ``"effort"`` minimises ``sum_k sum_j w_j |u_kj|`` while keeping the execution margin;
+        ``"margin"`` maximises the smallest slack of the required faces (the monitor's
+        robustness over this plan's requirements); ``None`` keeps the margin phase.
+    effort_weights : ndarray, shape (m,), optional
+        Per-input weights ``w`` of the effort objective (default ones).
+    tighten : float
+        The least room kept inside the faces, relative to the smallest state unit (default
+        :data:`TIGHTEN`); an objective's exact re-timing asks for less (issue 25).
+    """
+
+    objective: str | None = None
+    effort_weights: np.ndarray | None = None
+    tighten: float = TIGHTEN
+
+
+Phases = Literal["elastic", "refute", "witness"]
+"""``"elastic"``: the elastic phase, then the margin and objective phases of a feasible plan;
+``"refute"``: only the elastic phase (a feasible plan's controls are the elastic LP's), for a
+relaxation asked only for its refutation (a prefix of a plan); ``"witness"``: the plan is
+expected to be feasible (a MILP's witness), the margin and objective phases run first and the
+elastic phase only when they find nothing."""
+
+
+def solve_plan_lp(
+    context: PlanLPContext,
+    plan: DiscretePlan,
+    margin: float = 0.0,
+    *,
+    covs: np.ndarray | None = None,
+    region: TrustRegion | None = None,
+    control_backoff: np.ndarray | None = None,
+    goal: LPGoal | None = None,
+    budget: Budget | None = None,
+    time_limit: float = np.inf,
+    phases: Phases = "elastic",
+) -> LPOutcome:
+    """Find controls that meet every requirement of ``plan`` (see the module docstring).
+
+    Parameters
+    ----------
+    context : PlanLPContext
+        The solve's system, control domain, prior, abstraction, units and back-end.
+    plan : DiscretePlan
+    margin : float
+        Room to leave inside every required face, in state units (second phase).
+    covs : ndarray, shape (K + 1, n, n), optional
+        Covariances to use instead of the modes' schedule (e.g. a sampled trajectory's); the
+        result is then exact only near that trajectory, which ``region`` bounds.
+    region : TrustRegion, optional
+    control_backoff : ndarray, shape (K, F), optional
+        Per step, how far inside each face of the control domain (its units) the input must
+        stay (room for the executor's tracking correction, :func:`~.teacher.closed_loop_lp`).
+        An ``infeasible`` answer is then about the shrunk domain, no proof about the problem.
+    goal : LPGoal, optional
+        The objective after feasibility (default: the margin phase only).
+    budget : Budget, optional
+        Overall wall-clock cap, checked while the rows are built.
+    time_limit : float
+        Wall-clock cap in seconds for each LP.
+    phases : {"elastic", "refute", "witness"}
+        Which phases run, in which order (:data:`Phases`).
+
+    Returns
+    -------
+    LPOutcome
+    """
+    K = plan.num_transitions
+    if K == 0:
+        covs0 = context.cov0[None, :, :] if covs is None else covs
+        mean0 = context.mean0[None, :].copy()
+        return LPOutcome("feasible", covs is None, np.zeros((0, context.system.m)), mean0, [], covs0)
+    rows = _plan_rows(context, plan, covs, region, control_backoff, budget)
+    if rows.impossible:
+        return LPOutcome(
+            "infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs, excess=float("inf")
+        )
+    goal = goal if goal is not None else LPGoal()
+    limit = float(min(time_limit, 1e9))
+    if phases == "witness":
+        # The phases' rows are the plan's with t >= 0: a solution of theirs meets the plan.
+        z2 = _optimise(rows, context.backend, limit, margin, region, goal)
+        if z2 is not None:
+            means, controls = rows.unscale(z2, context.mean0)
+            return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
+    return _elastic(context, rows, limit, margin, region, goal, phases == "refute")
+
+
+def _plan_rows(
+    context: PlanLPContext,
+    plan: DiscretePlan,
+    covs: np.ndarray | None,
+    region: TrustRegion | None,
+    control_backoff: np.ndarray | None,
+    budget: Budget | None,
+) -> PlanRows:
+    """The plan LP's rows for ``plan`` (linearised in a region, inputs backed off)."""
+    K = plan.num_transitions
+    actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
+    lin = None
+    if region is not None and region.linearise and covs is not None:
+        ref = np.asarray(region.anchor)[: K + 1]
+        jac = covariance_jacobian(
+            context.system.system_modes, actions, ref, covs[: K + 1], context.scaling.dx
+        )
+        lin = (jac, ref)
+    reqs = plan_requirements(plan, context.abstraction)
+    rows = build_plan_rows(context, reqs, actions, covs, budget=budget, linearisation=lin)
+    if control_backoff is not None:
+        du = context.scaling.du
+        rows = _backed_off(rows, context.control_domain, du, np.asarray(control_backoff)[:K])
+    return rows
+
+
+def _elastic(
+    context: PlanLPContext,
+    rows: PlanRows,
+    limit: float,
+    margin: float,
+    region: TrustRegion | None,
+    goal: LPGoal,
+    refute_only: bool,
+) -> LPOutcome:
+    """The elastic phase; a feasible plan's margin and objective phases (unless ``refute_only``)."""
+    mean0 = context.mean0
+    model, ns = _elastic_model(rows)
+    sol = context.backend.solve(model, limit)
+    if sol.status != "optimal" or sol.x is None:
+        why = f"plan LP: {sol.status} ({sol.message})"
+        logger.debug(why)
+        return LPOutcome("unknown", rows.exact, None, None, [], rows.covs, why)
+    z = sol.x
+    means, controls = rows.unscale(z, mean0)
+    excess = float(sol.objective)
+    if excess <= FEASIBLE_TOL * max(1, ns):
+        if refute_only:
+            return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs, excess=excess)
+        z2 = _optimise(rows, context.backend, limit, margin, region, goal)
+        if z2 is not None:
+            means, controls = rows.unscale(z2, mean0)
+        return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
+    if excess <= REFUTE_TOL:
+        why = f"plan LP borderline: total violation {excess:.3g} is within solver tolerances"
+        return LPOutcome("unknown", rows.exact, controls, means, [], rows.covs, why, excess)
+    nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
+    duals = np.abs(sol.row_duals[nE + nU :]) if sol.row_duals is not None else np.zeros(0)
+    involved = sorted(set(rows.face_owner[duals > _DUAL_TOL].tolist())) if duals.size else []
+    if not involved:
+        slack = z[rows.nx + rows.nu : rows.nx + rows.nu + ns]
+        involved = [r for r in range(ns) if slack[r] > FEASIBLE_TOL]
+    conflict = [rows.requirements[r] for r in involved]
+    return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs, excess=excess)
+
+
+def _backed_off(rows: PlanRows, control_domain: Any, du: np.ndarray, backoff: np.ndarray) -> PlanRows:
+    """``rows`` with every control face ``f`` at step ``k`` moved ``backoff[k, f]`` inward.
+
+    The rows are normalised and faces with a zero row dropped as in
+    :func:`~.plan_lp.build_plan_rows`; a copy, because built rows may be cached.
+    """
+    unorm = np.linalg.norm(control_domain.H * du[None, :], axis=1)
+    keep = unorm > 0
+    shift = (backoff[:, keep] / unorm[keep][None, :]).ravel()
+    if shift.shape != rows.b_U.shape:
+        raise ValueError(f"control_backoff has {shift.size} entries for {rows.b_U.size} control rows")
+    return dataclasses.replace(rows, b_U=rows.b_U - shift)
+
+
+def _optimise(
+    rows: PlanRows,
+    backend: Backend,
+    limit: float,
+    margin: float,
+    region: TrustRegion | None,
+    goal: LPGoal,
+) -> np.ndarray | None:
+    """The phases after feasibility: the execution margin, then the objective (if any)."""
+    objective = goal.objective
+    if rows.face_H.shape[0] == 0 and objective != "effort":
+        return None
+    dx = rows.scaling.dx
+    if objective == "margin":
+        # The monitor's robustness: the smallest raw slack, as large as the plan allows.
+        big = 1e6 * float(np.max(dx))
+        out = _phase(rows, backend, limit, t_lo=0.0, t_hi=big, coef=rows.face_unit, region=region)
+        return None if out is None else out[0]
+    t_max = max(float(margin), goal.tighten * float(np.min(dx)))
+    first = None
+    if rows.face_H.shape[0]:
+        first = _phase(rows, backend, limit, t_lo=0.0, t_hi=t_max, coef=rows.face_norm, region=region)
+    if objective != "effort":
+        return None if first is None else first[0]
+    # Keep the execution margin the first phase reached, then spend as little input as possible.
+    keep = 0.0 if first is None else max(0.0, first[1] * (1.0 - 1e-6))
+    weights = np.ones(rows.m) if goal.effort_weights is None else np.asarray(goal.effort_weights, dtype=float)
+    second = _phase(
+        rows,
+        backend,
+        limit,
+        t_lo=keep,
+        t_hi=max(keep, t_max),
+        coef=rows.face_norm,
+        effort=weights,
+        region=region,
+    )
+    if second is not None:
+        return second[0]
+    return None if first is None else first[0]
+
+
+def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
+    ns = len(rows.requirements)
+    ncol = rows.nx + rows.nu
+    R = rows.face_H.shape[0]
+    # [A_eq 0; A_U 0; face_H S] with S[r, owner[r]] = -1, built as CSR arrays directly (the
+    # sparse stacking cost more than the LP on the mode search's small models).
+    top = vstack([rows.A_eq, rows.A_U]).tocsr()
+    face = csr_matrix(rows.face_H)
+    ends = face.indptr[1:]
+    data = np.insert(face.data, ends, -1.0)
+    index = np.insert(face.indices, ends, ncol + np.asarray(rows.face_owner, dtype=face.indices.dtype))
+    indptr = face.indptr + np.arange(R + 1)
+    A = csr_matrix(
+        (
+            np.concatenate([top.data, data]),
+            np.concatenate([top.indices, index]),
+            np.concatenate([top.indptr, top.nnz + indptr[1:]]),
+        ),
+        shape=(top.shape[0] + R, ncol + ns),
+    )
+    lo = np.concatenate([rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)])
+    hi = np.concatenate([rows.b_eq, rows.b_U, -rows.face_off])
+    c = np.concatenate([np.zeros(ncol), np.ones(ns)])
+    lb = np.concatenate([np.full(ncol, -np.inf), np.zeros(ns)])
+    ub = np.full(ncol + ns, np.inf)
+    return LinearModel(c, A, lo, hi, lb, ub), ns
+
+
+def _phase(
+    rows: PlanRows,
+    backend: Backend,
+    limit: float,
+    *,
+    t_lo: float,
+    t_hi: float,
+    coef: np.ndarray,
+    effort: np.ndarray | None = None,
+    region: TrustRegion | None = None,
+) -> tuple[np.ndarray, float] | None:
+    """One optimisation over the plan rows with a uniform margin ``t`` in ``[t_lo, t_hi]``.
+
+    Each required face reads ``face_H z + coef * t <= -face_off``. Without ``effort`` the LP
+    maximises ``t``; with per-input weights ``effort`` (shape (m,)) it minimises
+    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. Returns the
+    scaled columns and ``t``, or ``None`` when the LP has no optimum.
+    """
+    R = rows.face_H.shape[0]
+    ncol = rows.nx + rows.nu
+    K, m = rows.K, rows.m
+    na = K * m if effort is not None else 0
+    blocks = [
+        hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], 1 + na))]),
+        hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], 1 + na))]),
+        hstack([rows.face_H, csr_matrix(coef[:, None]), csr_matrix((R, na))]),
+    ]
+    lo = [rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)]
+    hi = [rows.b_eq, rows.b_U, -rows.face_off]
+    if effort is not None:
+        # a_kj >= +-u_kj (problem units): du_j u~_kj - a_kj <= 0 and -du_j u~_kj - a_kj <= 0.
+        du = np.tile(rows.scaling.du, K)
+        idx = np.arange(na)
+        pos = csr_matrix((du, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
+        neg = csr_matrix((-du, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
+        aux = csr_matrix((-np.ones(na), (idx, ncol + 1 + idx)), shape=(na, ncol + 1 + na))
+        blocks += [pos + aux, neg + aux]
+        lo.append(np.full(2 * na, -np.inf))
+        hi.append(np.zeros(2 * na))
+    A = vstack(blocks).tocsr()
+    c = np.zeros(ncol + 1 + na)
+    if effort is None:
+        c[ncol] = -1.0
+    else:
+        c[ncol + 1 :] = np.tile(effort, K)
+    lb = np.concatenate([np.full(ncol, -np.inf), [t_lo], np.zeros(na)])
+    ub = np.concatenate([np.full(ncol, np.inf), [t_hi], np.full(na, np.inf)])
+    if region is not None and np.isfinite(region.radius):
+        dx = rows.scaling.dx
+        ref = (np.asarray(region.anchor)[1 : K + 1] / dx).ravel()
+        width = region.radius / np.tile(dx, K)
+        lb[: rows.nx] = ref - width
+        ub[: rows.nx] = ref + width
+    sol = backend.solve(LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub), limit)
+    if sol.status != "optimal" or sol.x is None:
+        return None
+    return sol.x[:ncol], float(sol.x[ncol])
