@@ -90,7 +90,7 @@ from .sets import (
     Polytope,
 )
 from .syntax import FormulaSyntaxError, parse_formula
-from .synthesis import Problem, SolveResult, SolverOptions, SolveStats, load_result
+from .synthesis import Problem, SolveResult, SolverOptions, SolveStats, Termination, load_result
 from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
 _logging.getLogger(__name__).addHandler(_logging.NullHandler())
@@ -156,6 +156,7 @@ __all__ = [
     "Problem",
     "SolveResult",
     "SolverOptions",
+    "Termination",
     "load_result",
     "SolveStats",
     # execution
