@@ -227,13 +227,11 @@ def _predict(spec: ValidationSpec) -> ClosedLoopPrediction:
     predicted = predict_closed_loop(
         spec.problem,
         spec.plan,
-        spec.real_system,
+        None,  # (the real system is the executor's)
         spec.start,
         num_of_steps=spec.num_of_steps,
-        control_domain=spec.executor.control_domain,
-        process_noise=spec.executor.process_noise,
-        lqr_gains=list(spec.gains()),
         real_initial_cov=None if spec.starts is None else spec.plan.get_cov(0),
+        executor=spec.executor,
         **opts,
     )
     logger.debug("validate: closed-loop prediction in %.3g s", time.perf_counter() - t0)
