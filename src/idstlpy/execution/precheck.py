@@ -19,16 +19,19 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 
 from .._checks import as_int, as_seed_sequence
 from ..belief import GaussianBelief
 from ..errors import InvalidArgumentError, InvalidTypeError
+from ..executor import ProcessNoise
+from ..synthesis.options import SolverOptions
 from ..synthesis.problem import Problem
+from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
-from .policy import ReplanPolicy
+from .policy import Adopt, ReplanPolicy, RiskMeasure, RiskOn
 from .replanner import EXECUTOR_KEYWORDS, executor_spec
 from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
 
@@ -62,18 +65,25 @@ class StartCheck:
         return any(r.adopted for r in self.replans)
 
 
-START_CHECK_KEYWORDS = frozenset(
-    {
-        "risk",
-        "risk_measure",
-        "risk_on",
-        "risk_samples",
-        "adopt",
-        "replan_time_limit",
-        "options",
-        "solver_options",
-    }
-)
+class StartCheckOptions(TypedDict, total=False):
+    """The keywords of :func:`start_check` (``**options: Unpack[StartCheckOptions]``): the
+    fields of its policy, and the executor's."""
+
+    risk: float
+    risk_measure: RiskMeasure
+    risk_on: RiskOn
+    risk_samples: int
+    adopt: Adopt
+    replan_time_limit: float
+    options: SolverOptions | None
+    solver_options: Mapping[str, Any] | None
+    clip_controls: bool
+    process_noise: ProcessNoise
+    lqr_gains: GainsOverride
+    default_lqr: Mapping[str, Any] | None
+
+
+START_CHECK_KEYWORDS = frozenset(StartCheckOptions.__optional_keys__) - EXECUTOR_KEYWORDS
 """The re-planning keywords of :func:`start_check` (the fields of its ``policy``)."""
 
 
@@ -84,7 +94,7 @@ def start_check(
     resolves: int = 2,
     seed: int | np.random.SeedSequence = 0,
     policy: ReplanPolicy | None = None,
-    **options: Any,
+    **options: Unpack[StartCheckOptions],
 ) -> StartCheck:
     """Check a plan before it is executed; re-solve it while its predicted success is below ``risk``.
 
@@ -142,7 +152,8 @@ def start_check(
     given = _start_policy(policy, options)
     resolves = as_int(resolves, "resolves", minimum=0)
     ss = as_seed_sequence(seed, allow_none=False)
-    spec = executor_spec(problem, **{k: v for k, v in options.items() if k in EXECUTOR_KEYWORDS})
+    executor: dict[str, Any] = {k: v for k, v in options.items() if k in EXECUTOR_KEYWORDS}
+    spec = executor_spec(problem, **executor)
     resolver = _Resolver(problem, _RiskModel.make(spec, given), given.solve_options(), given.adopt)
     belief = GaussianBelief(plan.get_mean(0).copy(), plan.get_cov(0).copy())
     current, p, _, records = resolver.check_start(

@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -61,7 +61,18 @@ __all__ = ["EXECUTOR_KEYWORDS", "ReplanningExecutor", "executor_spec"]
 logger = logging.getLogger(__name__)
 
 
-EXECUTOR_KEYWORDS = frozenset({"clip_controls", "process_noise", "lqr_gains", "default_lqr", "plant"})
+class ExecutorKeywords(TypedDict, total=False):
+    """The executor's keywords of :func:`~idstlpy.execute` (those of :func:`executor_spec` but
+    ``real_system``); :func:`~idstlpy.start_check` takes them but ``plant``."""
+
+    clip_controls: bool
+    process_noise: ProcessNoise
+    lqr_gains: GainsOverride
+    default_lqr: Mapping[str, Any] | None
+    plant: PlantStep | None
+
+
+EXECUTOR_KEYWORDS = frozenset(ExecutorKeywords.__optional_keys__)
 """The keywords of :func:`executor_spec` but ``real_system``: :func:`~idstlpy.execute`'s executor
 (and, but ``plant``, :func:`~idstlpy.start_check`'s)."""
 

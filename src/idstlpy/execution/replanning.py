@@ -56,7 +56,7 @@ import time
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -66,10 +66,11 @@ from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..executor import ExecutorSpec
 from ..semantics import robustness
+from ..synthesis.options import SolverOptions
 from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .policy import ReplanPolicy
-from .replanner import EXECUTOR_KEYWORDS, ReplanningExecutor, executor_spec
+from .policy import Adopt, ReplanPolicy, ReplanTrigger, RiskMeasure, RiskOn
+from .replanner import EXECUTOR_KEYWORDS, ExecutorKeywords, ReplanningExecutor, executor_spec
 from .resolving import Replan, check_problem_plan, replan_seed
 
 __all__ = [
@@ -84,10 +85,28 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-_POLICY_KEYWORDS = frozenset(
-    {"replan", "options", "solver_options"}
-    | {f for f in ReplanPolicy.__dataclass_fields__ if f not in ("trigger", "solver")}
-)
+
+class ExecuteOptions(ExecutorKeywords, total=False):
+    """The keywords of :func:`execute`: the executor's, and the deprecated re-planning ones
+    (``**options: Unpack[ExecuteOptions]``: type checkers and editors know them)."""
+
+    replan: ReplanTrigger | None
+    risk: float
+    every: int
+    check_every: int | None
+    drift: float | None
+    start_resolves: int
+    risk_measure: RiskMeasure
+    risk_on: RiskOn
+    risk_samples: int
+    max_replans: int
+    adopt: Adopt
+    replan_time_limit: float
+    options: SolverOptions | None
+    solver_options: Mapping[str, Any] | None
+
+
+_POLICY_KEYWORDS = frozenset(ExecuteOptions.__optional_keys__) - EXECUTOR_KEYWORDS
 """``execute``'s deprecated re-planning keywords (:meth:`ReplanPolicy.from_keywords`)."""
 
 
@@ -219,7 +238,7 @@ def execute(
     *,
     policy: ReplanPolicy | None = None,
     spec: ExecutorSpec | None = None,
-    **options: Any,
+    **options: Unpack[ExecuteOptions],
 ) -> ExecutionReport:
     """Execute a plan under real noise, re-planning from the executed belief as ``policy`` says.
 

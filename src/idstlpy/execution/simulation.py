@@ -15,7 +15,8 @@ step law of :mod:`idstlpy.executor.law` (see there for the equations)::
 from __future__ import annotations
 
 import logging
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, TypedDict, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -24,15 +25,28 @@ from .._checks import as_int, as_vector
 from ..belief import GaussianBelief
 from ..dynamical_system import LCS, SwitchedSystem, register_simulator
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
-from ..executor import ExecutorSpec, OnlineExecutor
+from ..executor import ExecutorSpec, OnlineExecutor, PlantStep, ProcessNoise
+from ..sets import Polytope
+from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
-__all__ = ["simulate", "EXECUTOR_OPTIONS"]
+__all__ = ["EXECUTOR_OPTIONS", "simulate"]
 
 logger = logging.getLogger(__name__)
 
 
-EXECUTOR_OPTIONS = ("control_domain", "process_noise", "lqr_gains", "default_lqr", "plant")
+class SimulateOptions(TypedDict, total=False):
+    """The executor's keywords of :func:`simulate` (``**options: Unpack[SimulateOptions]``: type
+    checkers and editors know them; ``simulate`` checks them at run time)."""
+
+    control_domain: Polytope | None
+    process_noise: ProcessNoise
+    lqr_gains: GainsOverride
+    default_lqr: Mapping[str, Any] | None
+    plant: PlantStep | None
+
+
+EXECUTOR_OPTIONS = tuple(SimulateOptions.__annotations__)
 """The executor's keywords of :func:`simulate` (those of :meth:`ExecutorSpec.make` but the plant's)."""
 
 
@@ -46,7 +60,7 @@ def simulate(
     *,
     initial_belief: GaussianBelief | None = None,
     spec: ExecutorSpec | None = None,
-    **options: Any,
+    **options: Unpack[SimulateOptions],
 ) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
     """Execute a plan on a plant with a Kalman filter and receding-horizon LQR tracking.
 
@@ -143,7 +157,7 @@ def _executor_spec(
     system: SwitchedSystem,
     real_system: SwitchedSystem | LCS | None,
     spec: ExecutorSpec | None,
-    options: dict[str, Any],
+    options: Mapping[str, Any],
     modes: list[int],
 ) -> ExecutorSpec:
     """``spec`` checked against ``system``, or the spec of the keyword ``options``."""
@@ -154,7 +168,7 @@ def _executor_spec(
             f"its options are {', '.join(sorted((*EXECUTOR_OPTIONS, 'initial_belief', 'spec')))}"
         )
     if spec is None:
-        return ExecutorSpec.make(system, real_system=real_system, modes=modes, **options)
+        return ExecutorSpec.make(system, real_system=real_system, modes=modes, **dict(options))
     if not isinstance(spec, ExecutorSpec):
         raise InvalidTypeError(f"spec must be an ExecutorSpec, got {type(spec).__name__}")
     if options or real_system is not None:

@@ -78,7 +78,7 @@ import math
 import time
 from collections.abc import Callable
 from concurrent.futures import Executor, ProcessPoolExecutor, ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -94,6 +94,7 @@ from .validation_spec import (
     REPLAN_OPTION_KEYS,
     VALIDATE_OPTIONS,
     Dispatch,
+    ValidateOptions,
     ValidationSpec,
     policy_of,
 )
@@ -140,7 +141,7 @@ def validate(
     runs: int = 100,
     seed: int | np.random.SeedSequence | None = None,
     executor: Executor | str | None = None,
-    **options: Any,
+    **options: Unpack[ValidateOptions],
 ) -> ValidationReport:
     """Execute a plan many times and measure how often its promise held (module notes).
 

@@ -17,10 +17,10 @@ versions: still accepted, with a ``DeprecationWarning``, in favour of ``policy=R
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -29,11 +29,12 @@ from .._checks import as_int, as_seed_sequence
 from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
-from ..executor import ExecutorSpec
+from ..executor import ExecutorSpec, PlantStep, ProcessNoise
 from ..synthesis.problem import Problem
+from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
 from .batches import Payload
-from .policy import ReplanPolicy
+from .policy import ReplanPolicy, ReplanTrigger
 from .simulation import simulate
 from .starts import true_starts
 
@@ -45,29 +46,35 @@ __all__ = [
     "ValidationSpec",
 ]
 
-VALIDATE_OPTIONS = frozenset(
-    {
-        "num_of_steps",
-        "clip_controls",
-        "process_noise",
-        "lqr_gains",
-        "default_lqr",
-        "plant",
-        "problem_factory",
-        "max_workers",
-        "keep_trajectories",
-        "progress",
-        "predict",
-        "predict_options",
-        "policy",
-        "execution_target",
-        "batched",
-    }
-)
-"""The keywords :func:`~idstlpy.validate` accepts (besides its positional arguments)."""
+
+class ValidateOptions(TypedDict, total=False):
+    """The keywords of :func:`~idstlpy.validate` (``**options: Unpack[ValidateOptions]``: type
+    checkers and editors know them; :func:`check_options` checks them at run time)."""
+
+    num_of_steps: int | None
+    clip_controls: bool
+    process_noise: ProcessNoise
+    lqr_gains: GainsOverride
+    default_lqr: Mapping[str, Any] | None
+    plant: PlantStep | None
+    problem_factory: Callable[[], Problem] | None
+    max_workers: int
+    keep_trajectories: int
+    progress: Callable[[int, int], None] | None
+    predict: bool
+    predict_options: Mapping[str, Any] | None
+    policy: ReplanPolicy | None
+    execution_target: ExecutionTarget | Sequence[float] | Mapping[str, float] | None
+    batched: bool
+    replan: ReplanTrigger | None  # deprecated: policy
+    replan_options: Mapping[str, Any] | None  # deprecated: policy
+
 
 DEPRECATED_OPTIONS = frozenset({"replan", "replan_options"})
 """``validate``'s keywords of earlier versions, still accepted with a ``DeprecationWarning``."""
+
+VALIDATE_OPTIONS = frozenset(ValidateOptions.__optional_keys__) - DEPRECATED_OPTIONS
+"""The keywords :func:`~idstlpy.validate` accepts (besides its positional arguments)."""
 
 REPLAN_OPTION_KEYS = frozenset(
     {
