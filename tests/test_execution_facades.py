@@ -233,3 +233,23 @@ def test_validation_spec_is_frozen_and_resolves_the_executor_once(case):
     assert len(gains) == problem.switched_system.num_modes
     assert all(not K.flags.writeable for Ks in gains for K in Ks)  # the spec's own, read-only
     assert {"policy", "clip_controls", "predict_options"} <= VALIDATE_OPTIONS
+
+
+def test_the_typed_keywords_are_the_accepted_ones():
+    """The ``Unpack[TypedDict]`` of each façade (what type checkers see) is what it accepts."""
+    import inspect
+
+    from idstlpy.execution.policy import POLICY_KEYWORDS
+    from idstlpy.execution.precheck import START_CHECK_KEYWORDS, StartCheckOptions
+    from idstlpy.execution.replanner import EXECUTOR_KEYWORDS, executor_spec
+    from idstlpy.execution.replanning import ExecuteOptions
+    from idstlpy.execution.simulation import EXECUTOR_OPTIONS, SimulateOptions
+    from idstlpy.execution.validation_spec import REPLAN_OPTION_KEYS, ValidateOptions
+
+    assert set(ExecuteOptions.__optional_keys__) == EXECUTOR_KEYWORDS | POLICY_KEYWORDS | {"replan"}
+    assert set(StartCheckOptions.__optional_keys__) == START_CHECK_KEYWORDS | (EXECUTOR_KEYWORDS - {"plant"})
+    assert START_CHECK_KEYWORDS <= POLICY_KEYWORDS and REPLAN_OPTION_KEYS == POLICY_KEYWORDS
+    assert EXECUTOR_KEYWORDS <= set(ValidateOptions.__optional_keys__)
+    make = set(inspect.signature(ExecutorSpec.make).parameters) - {"system", "real_system", "modes"}
+    assert set(SimulateOptions.__optional_keys__) == set(EXECUTOR_OPTIONS) == make
+    assert EXECUTOR_KEYWORDS == set(inspect.signature(executor_spec).parameters) - {"problem", "real_system"}

@@ -16,7 +16,7 @@ from .._checks import as_float, as_int
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..synthesis.options import SolverOptions
 
-__all__ = ["Adopt", "ReplanPolicy", "ReplanTrigger", "RiskMeasure", "RiskOn"]
+__all__ = ["Adopt", "POLICY_KEYWORDS", "ReplanPolicy", "ReplanTrigger", "RiskMeasure", "RiskOn"]
 
 ReplanTrigger = Literal["on_risk", "every"]
 """When a re-solve is considered: a predicted success below ``risk``, or a fixed schedule."""
@@ -183,3 +183,12 @@ class ReplanPolicy:
         base = self.solver if self.solver is not None else SolverOptions()
         cap = self.replan_time_limit
         return base.with_(time_limit=cap if base.time_limit is None else min(base.time_limit, cap))
+
+
+POLICY_KEYWORDS = frozenset(
+    {f for f in ReplanPolicy.__dataclass_fields__ if f not in ("trigger", "solver")}
+    | {"options", "solver_options"}
+)
+"""The keywords of :meth:`ReplanPolicy.from_keywords` besides ``replan`` (the trigger): the keys of
+``validate``'s deprecated ``replan_options`` and of problem files' ``[validation.replan_options]``
+(but ``options``)."""

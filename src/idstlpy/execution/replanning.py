@@ -69,7 +69,7 @@ from ..semantics import robustness
 from ..synthesis.options import SolverOptions
 from ..synthesis.problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
-from .policy import Adopt, ReplanPolicy, ReplanTrigger, RiskMeasure, RiskOn
+from .policy import POLICY_KEYWORDS, Adopt, ReplanPolicy, ReplanTrigger, RiskMeasure, RiskOn
 from .replanner import EXECUTOR_KEYWORDS, ExecutorKeywords, ReplanningExecutor, executor_spec
 from .resolving import Replan, check_problem_plan, replan_seed
 
@@ -106,7 +106,7 @@ class ExecuteOptions(ExecutorKeywords, total=False):
     solver_options: Mapping[str, Any] | None
 
 
-_POLICY_KEYWORDS = frozenset(ExecuteOptions.__optional_keys__) - EXECUTOR_KEYWORDS
+_POLICY_KEYWORDS = POLICY_KEYWORDS | {"replan"}
 """``execute``'s deprecated re-planning keywords (:meth:`ReplanPolicy.from_keywords`)."""
 
 

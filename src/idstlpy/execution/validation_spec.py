@@ -34,7 +34,7 @@ from ..synthesis.problem import Problem
 from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
 from .batches import Payload
-from .policy import ReplanPolicy, ReplanTrigger
+from .policy import POLICY_KEYWORDS, ReplanPolicy, ReplanTrigger
 from .simulation import simulate
 from .starts import true_starts
 
@@ -76,23 +76,7 @@ DEPRECATED_OPTIONS = frozenset({"replan", "replan_options"})
 VALIDATE_OPTIONS = frozenset(ValidateOptions.__optional_keys__) - DEPRECATED_OPTIONS
 """The keywords :func:`~idstlpy.validate` accepts (besides its positional arguments)."""
 
-REPLAN_OPTION_KEYS = frozenset(
-    {
-        "risk",
-        "every",
-        "check_every",
-        "drift",
-        "start_resolves",
-        "risk_measure",
-        "risk_on",
-        "risk_samples",
-        "max_replans",
-        "replan_time_limit",
-        "options",
-        "solver_options",
-        "adopt",
-    }
-)
+REPLAN_OPTION_KEYS = POLICY_KEYWORDS
 """Keys ``replan_options`` accepts (the execution options are validate's own); problem files'
 ``[validation.replan_options]`` reads the same keys but ``options`` (their ``[solver]``)."""
 
