@@ -52,7 +52,7 @@ from ..formulas import STLAnd, STLAtomicProposition, STLFormula, logical_and, ma
 from ..sets import Polytope
 from .abstraction import Abstraction
 from .interfaces import Budget
-from .plan_lp import Scaling
+from .plan_lp import Scaling, lp_exact
 from .results import SolveResult, SolveStats
 
 if TYPE_CHECKING:  # (importing Problem at run time would close an import cycle)
@@ -156,9 +156,9 @@ def split(problem: Problem) -> list[Block] | None:
     formula = problem.stl_formula
     if system.num_modes != 1 or system.n < 2:
         return None
-    mode = system.system_modes[0]
-    if not mode.has_state_dependent_noise:
+    if lp_exact(system):
         return None  # the plan LP and the eager MILP are exact there: nothing to gain
+    mode = system.system_modes[0]
     n, m = system.n, system.m
     atoms = formula.atomic_propositions()
     if any(ap.joints for ap in atoms):

@@ -670,7 +670,7 @@ def covariance_jacobian(
             M = (eye - gain @ C) @ A
         prev = np.einsum("ab,jibc,dc->jiad", M, S[k - 1], M) if k > 1 else np.zeros((0, n, n, n))
         new = np.zeros((1, n, n, n))
-        if gain is not None and mode.has_state_dependent_noise:
+        if gain is not None and noise_depends_on_state(mode):
             for i in range(n):
                 h = 1e-5 * dx[i]
                 up, down = means[k].copy(), means[k].copy()

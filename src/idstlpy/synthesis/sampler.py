@@ -38,7 +38,7 @@ from .abstraction import Abstraction
 from .interfaces import Budget, Found, Refuted, Unknown, Verdict
 from .options import SolverOptions
 from .plan import DiscretePlan, evaluate_bool
-from .plan_lp import Scaling
+from .plan_lp import Scaling, lp_exact, noise_depends_on_state
 from .proposer import BMCProposer
 from .results import SolveStats
 from .room import give_room
@@ -267,7 +267,7 @@ class BeliefSampler:
         The formula's regions need not contain the light (a formula without a free-space
         proposition, say), so samples drawn only inside their bounding box may never find it.
         """
-        noisy = [m for m in self.system.system_modes if m.has_state_dependent_noise]
+        noisy = [m for m in self.system.system_modes if noise_depends_on_state(m)]
         if not noisy:
             return np.zeros((0, self.system.n))
         low, high = self.workspace
@@ -891,8 +891,8 @@ class SamplerTeacher:
         self.sampler = BeliefSampler(problem, abstraction, proposer, options)
 
     def applies(self, problem: Any) -> bool:
-        """Only problems with state-dependent noise need sampling."""
-        return any(m.has_state_dependent_noise for m in problem.switched_system.system_modes)
+        """Only problems the plan LP is not exact for (:func:`~.plan_lp.lp_exact`) need sampling."""
+        return not lp_exact(problem.switched_system)
 
     def exact(self, problem: Any) -> bool:
         """Sampling never proves a candidate impossible."""
