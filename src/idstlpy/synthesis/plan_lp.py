@@ -15,8 +15,8 @@ solver's tolerances; a borderline optimum is *unknown*, never a proof.
 
 This module builds the rows (:func:`build_plan_rows`, from one solve's :class:`PlanLPContext`);
 :mod:`.plan_solve` solves them (the LP teacher's, the repairs' and the re-timing's plan LPs) and
-:mod:`.milp` (the eager model) extends them. Whether the LP is exact is decided in one place,
-:func:`lp_exact`.
+:mod:`.milp` (the eager model) extends them. The covariance schedules, and whether the LP is
+exact (:func:`~.covariances.lp_exact`, the one place that decides it), are :mod:`.covariances`'.
 """
 
 from __future__ import annotations
@@ -29,8 +29,15 @@ import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix
 
 from ..backends import Backend, HighsBackend
-from ..belief import kalman_gain, kalman_update
 from ..chance import std_terms
+from .covariances import (
+    cached_schedule,
+    covariance_jacobian,
+    covariance_schedule,
+    lp_exact,
+    noise_depends_on_state,
+    row_cache,
+)
 from .interfaces import Budget
 from .plan import DiscretePlan
 
@@ -42,6 +49,7 @@ __all__ = [
     "PlanRows",
     "Scaling",
     "build_plan_rows",
+    "cached_schedule",
     "covariance_jacobian",
     "covariance_schedule",
     "lp_exact",
@@ -49,85 +57,6 @@ __all__ = [
 ]
 
 _TINY = 1e-300
-
-
-def noise_depends_on_state(mode: Any) -> bool:
-    """Whether ``mode``'s measurement update depends on the mean: it senses (``p > 0``) through
-    a noise that is a function of the state. Only such a mode makes the covariance schedule a
-    function of the means (a mode that senses nothing has no noise to depend on)."""
-    return bool(mode.p) and bool(mode.has_state_dependent_noise)
-
-
-def lp_exact(system: Any) -> bool:
-    """Whether the plan LP is exact for ``system``: no mode's covariance update depends on the
-    means (:func:`noise_depends_on_state`), so the covariance schedule is fixed by the modes and
-    the LP decides a plan (``Found`` / ``Refuted``); otherwise it is a sound relaxation, a
-    step of sequential convex programming around a trajectory, and the repairs need a trust
-    region. The one definition every part of the synthesis reads."""
-    return not any(noise_depends_on_state(mode) for mode in system.system_modes)
-
-
-def covariance_schedule(
-    modes: Sequence[Any], cov0: np.ndarray, actions: np.ndarray, budget: Budget | None = None
-) -> tuple[np.ndarray, bool]:
-    """Covariances along a mode sequence: exact, or a lower bound under state-dependent noise.
-
-    Parameters
-    ----------
-    modes : sequence of LCS
-    cov0 : ndarray, shape (n, n)
-    actions : ndarray of int, shape (K,)
-    budget : Budget, optional
-        Wall-clock cap, checked every 1024 steps.
-
-    Returns
-    -------
-    covs : ndarray, shape (K + 1, n, n)
-    exact : bool
-        False when some step uses a mode with state-dependent noise (its covariance is then the
-        lower bound obtained with the noise's floor, ``R = mode.noise_floor``: the update is
-        monotone in ``R``).
-    """
-    K = actions.shape[0]
-    n = cov0.shape[0]
-    covs = np.empty((K + 1, n, n))
-    covs[0] = cov0
-    exact = True
-    zero_mean = np.zeros(n)
-    for k in range(K):
-        if budget is not None and not (k + 1) % 1024:
-            budget.check("the covariance schedule")
-        mode = modes[int(actions[k])]
-        P = mode.A @ covs[k] @ mode.A.T + mode.process_cov
-        if mode.p == 0:
-            covs[k + 1] = P
-        elif noise_depends_on_state(mode):
-            exact = False  # the declared floor of R(x) (zero if none) gives a lower bound
-            covs[k + 1] = _lower_update(mode, P)
-        else:
-            covs[k + 1] = kalman_update(mode, zero_mean, P)[1]
-    return covs, exact
-
-
-def _lower_update(mode: Any, P: np.ndarray) -> np.ndarray:
-    """The measurement update with the noise's floor ``F <= R(x)``: a lower bound on the posterior.
-
-    ``P - P C' (C P C' + F)^+ C P`` with a pseudo-inverse, which stays exact when ``F`` is zero
-    and ``C P C'`` singular (a perfect sensor, or a direction the prior already knows). Should
-    rounding leave it indefinite or not finite, zero, the trivial lower bound, is used.
-    """
-    C, F = mode.C, mode.noise_floor
-    with np.errstate(all="ignore"):
-        PCt = P @ C.T
-        S = C @ PCt + F
-        if not np.all(np.isfinite(S)):
-            return np.zeros_like(P)
-        post = P - PCt @ np.linalg.pinv(0.5 * (S + S.T), rcond=1e-12, hermitian=True) @ PCt.T
-        post = 0.5 * (post + post.T)
-    if not np.all(np.isfinite(post)):
-        return np.zeros_like(P)
-    w, v = np.linalg.eigh(post)
-    return np.asarray((v * np.maximum(w, 0.0)) @ v.T)
 
 
 def _magnitude(values: np.ndarray) -> float:
@@ -350,51 +279,6 @@ def build_plan_rows(
     )
 
 
-def _row_cache(abstraction: Abstraction) -> dict[str, Any]:
-    cache: dict[str, Any] = abstraction.__dict__.setdefault("_plan_rows_cache", {})
-    return cache
-
-
-def cached_schedule(
-    abstraction: Abstraction,
-    modes: Sequence[Any],
-    cov0: np.ndarray,
-    actions: np.ndarray,
-    budget: Budget | None,
-) -> tuple[np.ndarray, bool]:
-    """:func:`covariance_schedule`, extended from the last schedule of the same modes and prior.
-
-    The schedule up to step ``k`` depends only on ``actions[:k]``, so the steps shared with the
-    previous request are copied, not recomputed (single-mode problems never recompute a step).
-    """
-    K = int(actions.shape[0])
-    key = (tuple(id(mode) for mode in modes), cov0.shape, cov0.tobytes())
-    store = _row_cache(abstraction).setdefault("schedules", {})
-    entry = store.get(key)
-    # The entry holds the modes themselves: while it lives, their ids name no other object.
-    if entry is None:
-        entry = (tuple(modes), np.zeros(0, dtype=int), cov0[None, :, :].copy(), np.zeros(1, dtype=bool))
-    _, done, covs_done, inexact_done = entry
-    L = min(K, done.shape[0])
-    same = np.flatnonzero(done[:L] != actions[:L])
-    p = int(same[0]) if same.size else L
-    covs = np.empty((K + 1,) + cov0.shape)
-    covs[: p + 1] = covs_done[: p + 1]
-    inexact = np.empty(K + 1, dtype=bool)  # inexact[k]: some step before k used a lower bound
-    inexact[: p + 1] = inexact_done[: p + 1]
-    if p < K:
-        tail, tail_exact = covariance_schedule(modes, covs[p], actions[p:], budget)
-        covs[p + 1 :] = tail[1:]
-        if tail_exact:
-            inexact[p + 1 :] = inexact[p]
-        else:
-            lower = [noise_depends_on_state(modes[int(q)]) for q in actions[p:]]
-            inexact[p + 1 :] = inexact[p] | (np.cumsum(lower) > 0)
-    if K >= done.shape[0] or p < K:
-        store[key] = (tuple(modes), np.asarray(actions, dtype=int).copy(), covs.copy(), inexact.copy())
-    return covs, not bool(inexact[K])
-
-
 def _dynamics_rows(
     modes: Sequence[Any], actions: np.ndarray, mean0: np.ndarray, dx: np.ndarray, du: np.ndarray, ncol: int
 ) -> tuple[csr_matrix, np.ndarray]:
@@ -468,7 +352,7 @@ class _Faces:
 
 
 def _faces(abstraction: Abstraction, i: int, dx: np.ndarray) -> _Faces:
-    store = _row_cache(abstraction).setdefault("faces", {})
+    store = row_cache(abstraction).setdefault("faces", {})
     key = (i, dx.tobytes())
     out = store.get(key)
     if out is None:
@@ -622,64 +506,6 @@ def _linearised_face_rows(
         np.asarray(owner, dtype=int),
         impossible,
     )
-
-
-def covariance_jacobian(
-    modes: Sequence[Any], actions: np.ndarray, means: np.ndarray, covs: np.ndarray, dx: np.ndarray
-) -> list[np.ndarray]:
-    """How the MLO covariances depend on the means: ``S[k][j - 1, i] = d covs[k] / d means[j][i]``.
-
-    The covariance depends on the means only through the observation noise ``R(mean_k)`` of
-    each update. With the Kalman gain ``K_k`` at the optimum, ``d P_k = K_k dR K_k'`` at step
-    ``k``, and a change of the predicted covariance propagates as ``M dP M'`` with
-    ``M = (I - K C) A``. ``dR / d mean`` is a central difference with step ``1e-5 dx``. A
-    singular innovation covariance ``C P C' + R`` takes the pseudo-inverse's gain
-    (:func:`idstlpy.belief.kalman_gain`), the limit of the regular case.
-
-    Parameters
-    ----------
-    modes : sequence of LCS
-    actions : ndarray of int, shape (K,)
-    means : ndarray, shape (K + 1, n)
-    covs : ndarray, shape (K + 1, n, n)
-        The exact roll-out being linearised.
-    dx : ndarray, shape (n,)
-        State units (for the difference steps).
-
-    Returns
-    -------
-    list of ndarray
-        ``S[k]`` has shape (k, n, n, n).
-    """
-    K = actions.shape[0]
-    n = means.shape[1]
-    eye = np.eye(n)
-    S: list[np.ndarray] = [np.zeros((0, n, n, n))]
-    for k in range(1, K + 1):
-        mode = modes[int(actions[k - 1])]
-        A = mode.A
-        P = A @ covs[k - 1] @ A.T + mode.process_cov
-        if mode.p == 0:
-            M, gain = A, None
-        else:
-            C = mode.C
-            R = mode.noise_cov(means[k])
-            # A singular innovation covariance (a noise-free sensor of a direction the belief
-            # already knows) has the pseudo-inverse's gain, the exact limit (belief.gain_from).
-            gain = kalman_gain(C, P, R)
-            M = (eye - gain @ C) @ A
-        prev = np.einsum("ab,jibc,dc->jiad", M, S[k - 1], M) if k > 1 else np.zeros((0, n, n, n))
-        new = np.zeros((1, n, n, n))
-        if gain is not None and noise_depends_on_state(mode):
-            for i in range(n):
-                h = 1e-5 * dx[i]
-                up, down = means[k].copy(), means[k].copy()
-                up[i] += h
-                down[i] -= h
-                dR = (mode.noise_cov(up) - mode.noise_cov(down)) / (2 * h)
-                new[0, i] = gain @ dR @ gain.T
-        S.append(np.concatenate([prev, new]))
-    return S
 
 
 def _sparse(rows: list[Any], cols: list[Any], vals: list[Any], nrow: int, ncol: int) -> csr_matrix:
