@@ -31,7 +31,7 @@ Every feasible instance has a hand-made witness plan ``(actions, controls)`` tha
 and a *lazy* plan (the same task without the looks / readings / sensing) that the oracles
 reject. ``python -m benchmarks.sensing_families --witnesses`` (35 s):
 
-| family | instance | witness (oracles) | lazy (oracles) | predicted belief / state | Monte Carlo belief / state |
+| family | instance | witness (oracles) | lazy (oracles) | predicted belief / state | MC belief / state |
 |---|---|---|---|---|---|
 | stop_and_look | L3_slip0.05 | holds | fails | 0.956 / 0.996 | 0.963 / 0.997 |
 | stop_and_look | L4_slip0.05 | holds | fails | 0.970 / 0.997 | 0.983 / 0.999 |
@@ -698,7 +698,7 @@ def witness_table(samples: int = 1000, runs: int = 1000, seed: int = 0) -> list[
     """Markdown rows: every feasible instance's witness and lazy plan, checked and executed."""
     lines = [
         "| family | instance | witness (oracles) | lazy (oracles) | predicted belief / state "
-        "| Monte Carlo belief / state |",
+        "| MC belief / state |",
         "|---|---|---|---|---|---|",
     ]
     for inst in instances():
