@@ -84,7 +84,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal, TypeGuard
+from typing import TYPE_CHECKING, Any, Literal, TypedDict, TypeGuard, Unpack
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -97,11 +97,12 @@ from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins
 from ..sets import Polytope
+from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
 from .blas import single_blas_thread
 from .model_sampling import clopper_pearson_lower, sample_rates
 from .predicted import ClosedLoopPrediction, ConstraintPrediction
-from .spec import ExecutorSpec
+from .spec import ExecutorSpec, ProcessNoise
 from .success_bound import Faces, bivariate_normal_cdf, mode_truth, stack_faces, success_bound
 
 if TYPE_CHECKING:  # the synthesis layer is above this one
@@ -119,6 +120,38 @@ logger = logging.getLogger(__name__)
 
 SensorNoise = Literal["expected", "mean", "plan"]
 Closure = Literal["auto", "gaussian", "particles"]
+
+
+class PredictOptions(TypedDict, total=False):
+    """The keywords of :func:`predict_closed_loop` besides its named parameters
+    (``**options: Unpack[PredictOptions]``: type checkers and editors know them;
+    ``predict_closed_loop`` checks them at run time). Documented there."""
+
+    control_domain: Polytope | None | str
+    process_noise: ProcessNoise
+    lqr_gains: GainsOverride
+    default_lqr: Mapping[str, Any] | None
+    initial_belief: GaussianBelief | None
+    real_initial_cov: ArrayLike | None
+    sensor_noise: SensorNoise
+    filter_sensitivity: bool
+    closure: Closure
+    particles: int
+
+
+_OPTION_DEFAULTS: dict[str, Any] = {
+    "control_domain": "problem",
+    "process_noise": "model",
+    "lqr_gains": None,
+    "default_lqr": None,
+    "initial_belief": None,
+    "real_initial_cov": None,
+    "sensor_noise": "expected",
+    "filter_sensitivity": True,
+    "closure": "auto",
+    "particles": 4000,
+}
+"""Every :class:`PredictOptions` keyword's default."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -161,6 +194,18 @@ def _resolve(
     if formula is not None and not isinstance(formula, STLFormula):
         raise InvalidTypeError(f"formula must be an STLFormula, got {type(formula).__name__}")
     return system, formula, domain
+
+
+def _options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword options with their defaults; an unknown keyword is an error naming it."""
+    unknown = sorted(set(options) - set(_OPTION_DEFAULTS))
+    if unknown:
+        names = sorted((*_OPTION_DEFAULTS, "formula", "num_of_steps", "samples", "seed", "executor"))
+        raise InvalidTypeError(
+            f"predict_closed_loop got an unexpected keyword argument {', '.join(map(repr, unknown))}; "
+            f"its options are {', '.join(names)}"
+        )
+    return {**_OPTION_DEFAULTS, **options}
 
 
 def _plan_steps(system: SwitchedSystem, plan: object, num_of_steps: object) -> tuple[int, np.ndarray]:
@@ -443,19 +488,10 @@ def predict_closed_loop(
     *,
     formula: STLFormula | None = None,
     num_of_steps: int | None = None,
-    control_domain: Polytope | None | str = "problem",
-    process_noise: str = "model",
-    lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None = None,
-    default_lqr: Mapping[str, Any] | None = None,
-    initial_belief: GaussianBelief | None = None,
-    real_initial_cov: ArrayLike | None = None,
-    sensor_noise: SensorNoise = "expected",
-    filter_sensitivity: bool = True,
     samples: int = 4000,
     seed: int | np.random.SeedSequence | None = 0,
-    closure: Closure = "auto",
-    particles: int = 4000,
     executor: ExecutorSpec | None = None,
+    **options: Unpack[PredictOptions],
 ) -> ClosedLoopPrediction:
     """Predict the execution of a plan by :func:`~idstlpy.execution.simulate.simulate`.
 
@@ -480,43 +516,43 @@ def predict_closed_loop(
         Overrides the problem's formula; without any, only the moments are predicted.
     num_of_steps : int, optional
         Steps executed, ``0 <= num_of_steps <= N`` (default ``N``).
-    control_domain : Polytope, None or "problem"
-        The polytope (shape ``m``) the corrected input is projected on: ``"problem"`` (default)
-        the problem's, as ``validate(clip_controls=True)``; None: no projection, as ``simulate``
-        without ``control_domain``.
-    process_noise : {"model", "real", "none"}
-        As in ``simulate``.
-    lqr_gains, default_lqr : optional
-        As in ``simulate`` (per-mode gains (m, n); weights for modes without gains).
-    initial_belief : GaussianBelief, optional
-        The filter's prior (default the plan's first belief).
-    real_initial_cov : array_like, shape (n, n), optional
-        Covariance of a random true initial state (default 0: ``simulate``'s fixed start).
-    sensor_noise : {"expected", "mean", "plan"}
-        Linearisation of state-dependent sensor noise (module notes); no effect on constant noise.
-    filter_sensitivity : bool
-        Carry the first-order variation of the filter covariance with the filter's mean path
-        (state-dependent noise only).
     samples : int
         Samples of the Gaussian model for the point estimates (0: none, the estimates are NaN).
     seed : int or SeedSequence, optional
         Seed of those samples (default 0: deterministic).
-    closure : {"auto", "gaussian", "particles"}
-        How the loop's non-linearities are modelled (:func:`idstlpy.closed_loop.propagate`):
-        ``"gaussian"``: the clip of the corrected input on a box by its statistical
-        linearisation and a state-dependent sensor linearised (``sensor_noise``), the loop kept
-        Gaussian; ``"particles"``: ``particles`` samples (seed 0, deterministic) pushed through
-        the clip itself, each drawing the sensor's noise at its own true state and running its own
-        filter; the moments are theirs and the point estimates are sampled from the same loop;
-        ``"auto"`` (default): particles under a state-dependent sensor or when the input is
-        clipped with probability above 1% at some step.
-    particles : int
-        Samples of the particle closure.
     executor : ExecutorSpec, optional
         What runs the plan, resolved once (:meth:`idstlpy.executor.ExecutorSpec.make`: its
         control domain, process-noise reading, tracking gains and linear real system); exclusive
         with ``real_system``, ``control_domain``, ``process_noise``, ``lqr_gains`` and
         ``default_lqr``. Its system must be the planning model.
+    **options
+        The executor's settings as keywords, and the closure's (:class:`PredictOptions`):
+
+        - ``control_domain`` (Polytope, None or "problem"): the polytope (shape ``m``) the
+          corrected input is projected on: ``"problem"`` (default) the problem's, as
+          ``validate(clip_controls=True)``; None: no projection, as ``simulate`` without
+          ``control_domain``.
+        - ``process_noise`` ({"model", "real", "none"}): as in ``simulate``.
+        - ``lqr_gains``, ``default_lqr`` (optional): as in ``simulate`` (per-mode gains (m, n);
+          weights for modes without gains).
+        - ``initial_belief`` (GaussianBelief, optional): the filter's prior (default the plan's
+          first belief).
+        - ``real_initial_cov`` (array_like, shape (n, n), optional): covariance of a random true
+          initial state (default 0: ``simulate``'s fixed start).
+        - ``sensor_noise`` ({"expected", "mean", "plan"}): linearisation of state-dependent
+          sensor noise (module notes); no effect on constant noise.
+        - ``filter_sensitivity`` (bool, default True): carry the first-order variation of the
+          filter covariance with the filter's mean path (state-dependent noise only).
+        - ``closure`` ({"auto", "gaussian", "particles"}): how the loop's non-linearities are
+          modelled (:func:`idstlpy.closed_loop.propagate`): ``"gaussian"``: the clip of the
+          corrected input on a box by its statistical linearisation and a state-dependent sensor
+          linearised (``sensor_noise``), the loop kept Gaussian; ``"particles"``: ``particles``
+          samples (seed 0, deterministic) pushed through the clip itself, each drawing the
+          sensor's noise at its own true state and running its own filter; the moments are
+          theirs and the point estimates are sampled from the same loop; ``"auto"`` (default):
+          particles under a state-dependent sensor or when the input is clipped with
+          probability above 1% at some step.
+        - ``particles`` (int, default 4000): samples of the particle closure.
 
     Returns
     -------
@@ -529,7 +565,7 @@ def predict_closed_loop(
     DimensionError
         When dimensions of the plan, the model, the domain and the real system disagree.
     InvalidTypeError
-        When an argument has the wrong type.
+        When an argument has the wrong type, or a keyword is unknown.
 
     Notes
     -----
@@ -537,22 +573,18 @@ def predict_closed_loop(
     thread (:mod:`idstlpy.executor.blas`): their products are too small to gain from threads,
     and threads that wait for each other on a busy machine made the prediction up to 10x slower.
     """
-    system, formula, domain = _resolve(problem_or_system, formula, control_domain)
+    opts = _options(options)
+    system, formula, domain = _resolve(problem_or_system, formula, opts["control_domain"])
     N, actions = _plan_steps(system, plan, num_of_steps)
-    keywords = {
-        "real_system": real_system,
-        "control_domain": control_domain,
-        "process_noise": process_noise,
-        "lqr_gains": lqr_gains,
-        "default_lqr": default_lqr,
-    }
+    keywords = {k: opts[k] for k in _DEFAULTS if k != "real_system"} | {"real_system": real_system}
     real_modes, gains, noise, domain = _executor_parts(system, actions, executor, keywords, domain)
     samples = as_int(samples, "samples", minimum=0)
+    sensor_noise, sensitivity, closure = opts["sensor_noise"], opts["filter_sensitivity"], opts["closure"]
     setup = _Loop(
-        real_modes, gains, noise, domain, sensor_noise, filter_sensitivity, closure,
-        _check_closure(sensor_noise, filter_sensitivity, closure, particles),
+        real_modes, gains, noise, domain, sensor_noise, sensitivity, closure,
+        _check_closure(sensor_noise, sensitivity, closure, opts["particles"]),
     )  # fmt: skip
-    start = _start(plan, system.n, real_initial_state, initial_belief, real_initial_cov)
+    start = _start(plan, system.n, real_initial_state, opts["initial_belief"], opts["real_initial_cov"])
     with single_blas_thread():
         loop, base = _moments(system, plan, N, setup, start)
         if formula is None:
