@@ -135,3 +135,26 @@ def test_prediction_reproduces_recorded_rates_bit_for_bit(name):
 
 if __name__ == "__main__" and "--record" in sys.argv:
     _record()
+
+
+def test_prediction_with_an_executor_spec_is_the_keywords_prediction():
+    """``executor=ExecutorSpec`` (the settings resolved once) predicts what the keywords predict;
+    giving both, an unknown keyword or a step-function plant is an error naming it."""
+    from idstlpy.errors import InvalidArgumentError, InvalidTypeError
+    from idstlpy.executor import ExecutorSpec
+
+    target, plan, _, options = _cases()["two_modes_clipped"]
+    domain = options["control_domain"]
+    spec = ExecutorSpec.make(target, control_domain=domain)
+    kw = {k: v for k, v in options.items() if k != "control_domain"}
+    a = stl.predict_closed_loop(target, plan, executor=spec, **kw)
+    b = stl.predict_closed_loop(target, plan, control_domain=domain, **kw)
+    assert a.state_success_estimate == b.state_success_estimate
+    assert np.array_equal(a.augmented_cov, b.augmented_cov)
+    with pytest.raises(InvalidArgumentError, match="control_domain"):
+        stl.predict_closed_loop(target, plan, executor=spec, control_domain=domain, **kw)
+    with pytest.raises(InvalidTypeError, match="'particle'"):
+        stl.predict_closed_loop(target, plan, particle=10)  # type: ignore[call-arg]
+    step_plant = ExecutorSpec.make(target, plant=lambda x, u, q, rng: x)
+    with pytest.raises(InvalidArgumentError, match="step function"):
+        stl.predict_closed_loop(target, plan, executor=step_plant, **kw)
