@@ -58,7 +58,7 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .advice import budget_advice
 from .allocation import NO_PROOF
-from .certify import certify
+from .certify import Certified, certify
 from .decoupled import solve_decoupled
 from .interfaces import Budget, BudgetExceeded, Found, ProposerDry, Refuted, Teacher, Unknown
 from .milp import solve_milp, switch_to_eager
@@ -907,16 +907,7 @@ def _verify(
     problem = run.problem
     traj = rollout(problem.switched_system, problem.initial_state, actions, controls)
     if run.closed_loop:
-        context = PlanLPContext.of(problem, abstraction, scaling, get_backend(run.options.lp_backend))
-        certified = certify(
-            context,
-            problem,
-            traj,
-            exact=run.proofs_hold,
-            rounds=run.options.polish_rounds,
-            stats=run.stats,
-            budget=run.budget,
-        )
+        certified = _certify(run, traj, abstraction, scaling)
         # The final check (the domain, the roll-out, the prediction) is _check's, as for every plan.
         return None if certified is None else _check(run, certified.traj)
     checked = _check(run, traj)
@@ -945,16 +936,7 @@ def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scali
     repaired = None
     if modes not in run.unrepaired:  # the repair keeps the modes: once per mode sequence
         try:
-            context = PlanLPContext.of(run.problem, abstraction, scaling, get_backend(run.options.lp_backend))
-            repaired = certify(
-                context,
-                run.problem,
-                checked.traj,
-                exact=run.proofs_hold,
-                rounds=run.options.polish_rounds,
-                stats=run.stats,
-                budget=run.budget,
-            )
+            repaired = _certify(run, checked.traj, abstraction, scaling)
         finally:
             run.stats.execution_room = room
     best = checked
@@ -972,3 +954,12 @@ def _hold(run: _Run, checked: Verified, abstraction: Abstraction, scaling: Scali
     logger.info("plan set aside below the execution target: %s", (best.execution or execution).summary())
     run.set_aside(best)
     return None
+
+
+def _certify(
+    run: _Run, traj: ProbabilisticTSTrajectory, abstraction: Abstraction, scaling: Scaling
+) -> Certified | None:
+    """The closed-loop repair (:func:`~.certify.certify`) of ``traj`` with this solve's parts."""
+    context = PlanLPContext.of(run.problem, abstraction, scaling, get_backend(run.options.lp_backend))
+    rounds, exact = run.options.polish_rounds, run.proofs_hold
+    return certify(context, run.problem, traj, exact=exact, rounds=rounds, stats=run.stats, budget=run.budget)

@@ -26,14 +26,14 @@ from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
-from scipy.sparse import csr_matrix, hstack, vstack
+from scipy.sparse import csr_matrix, diags, hstack, vstack
 
 from ..backends import Backend, LinearModel
 from .interfaces import Budget
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext, PlanRows, build_plan_rows, covariance_jacobian, plan_requirements
 
-__all__ = ["LPGoal", "LPOutcome", "TIGHTEN", "TrustRegion", "solve_plan_lp"]
+__all__ = ["LPGoal", "LPOutcome", "Phases", "TIGHTEN", "TrustRegion", "margin_phase", "solve_plan_lp"]
 
 logger = logging.getLogger(__name__)
 
@@ -299,18 +299,18 @@ def _optimise(
     if objective == "margin":
         # The monitor's robustness: the smallest raw slack, as large as the plan allows.
         big = 1e6 * float(np.max(dx))
-        out = _phase(rows, backend, limit, t_lo=0.0, t_hi=big, coef=rows.face_unit, region=region)
+        out = margin_phase(rows, backend, limit, t_lo=0.0, t_hi=big, coef=rows.face_unit, region=region)
         return None if out is None else out[0]
     t_max = max(float(margin), goal.tighten * float(np.min(dx)))
     first = None
     if rows.face_H.shape[0]:
-        first = _phase(rows, backend, limit, t_lo=0.0, t_hi=t_max, coef=rows.face_norm, region=region)
+        first = margin_phase(rows, backend, limit, t_lo=0.0, t_hi=t_max, coef=rows.face_norm, region=region)
     if objective != "effort":
         return None if first is None else first[0]
     # Keep the execution margin the first phase reached, then spend as little input as possible.
     keep = 0.0 if first is None else max(0.0, first[1] * (1.0 - 1e-6))
     weights = np.ones(rows.m) if goal.effort_weights is None else np.asarray(goal.effort_weights, dtype=float)
-    second = _phase(
+    second = margin_phase(
         rows,
         backend,
         limit,
@@ -353,7 +353,7 @@ def _elastic_model(rows: PlanRows) -> tuple[LinearModel, int]:
     return LinearModel(c, A, lo, hi, lb, ub), ns
 
 
-def _phase(
+def margin_phase(
     rows: PlanRows,
     backend: Backend,
     limit: float,
@@ -361,45 +361,54 @@ def _phase(
     t_lo: float,
     t_hi: float,
     coef: np.ndarray,
+    per_face: bool = False,
     effort: np.ndarray | None = None,
     region: TrustRegion | None = None,
+    b_U: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float] | None:
-    """One optimisation over the plan rows with a uniform margin ``t`` in ``[t_lo, t_hi]``.
+    """One optimisation over the plan rows with a margin ``t`` in ``[t_lo, t_hi]``.
 
-    Each required face reads ``face_H z + coef * t <= -face_off``. Without ``effort`` the LP
-    maximises ``t``; with per-input weights ``effort`` (shape (m,)) it minimises
-    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. Returns the
-    scaled columns and ``t``, or ``None`` when the LP has no optimum.
+    Each required face ``r`` reads ``face_H z + coef_r * t <= -face_off``, with one ``t`` for
+    every face or, ``per_face``, one each. Without ``effort`` the LP maximises ``t`` (the sum of
+    the ``t_r``); with per-input weights ``effort`` (shape (m,)) it minimises
+    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. The means stay
+    in ``region``; ``b_U`` replaces the control rows' right-hand side (a back-off). Returns the
+    scaled columns and the (smallest) ``t``, or ``None`` when the LP has no optimum.
     """
     R = rows.face_H.shape[0]
     ncol = rows.nx + rows.nu
     K, m = rows.K, rows.m
+    nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
+    nt = R if per_face else 1
     na = K * m if effort is not None else 0
+    extra = nt + na
+    t_block = diags(coef, format="csr") if per_face else csr_matrix(coef[:, None])
     blocks = [
-        hstack([rows.A_eq, csr_matrix((rows.A_eq.shape[0], 1 + na))]),
-        hstack([rows.A_U, csr_matrix((rows.A_U.shape[0], 1 + na))]),
-        hstack([rows.face_H, csr_matrix(coef[:, None]), csr_matrix((R, na))]),
+        hstack([rows.A_eq, csr_matrix((nE, extra))]),
+        hstack([rows.A_U, csr_matrix((nU, extra))]),
+        hstack([rows.face_H, t_block, csr_matrix((R, na))]),
     ]
-    lo = [rows.b_eq, np.full(rows.A_U.shape[0] + R, -np.inf)]
-    hi = [rows.b_eq, rows.b_U, -rows.face_off]
+    lo = [rows.b_eq, np.full(nU + R, -np.inf)]
+    hi = [rows.b_eq, rows.b_U if b_U is None else b_U, -rows.face_off]
     if effort is not None:
         # a_kj >= +-u_kj (problem units): du_j u~_kj - a_kj <= 0 and -du_j u~_kj - a_kj <= 0.
         du = np.tile(rows.scaling.du, K)
         idx = np.arange(na)
-        pos = csr_matrix((du, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
-        neg = csr_matrix((-du, (idx, rows.nx + idx)), shape=(na, ncol + 1 + na))
-        aux = csr_matrix((-np.ones(na), (idx, ncol + 1 + idx)), shape=(na, ncol + 1 + na))
+        shape = (na, ncol + extra)
+        pos = csr_matrix((du, (idx, rows.nx + idx)), shape=shape)
+        neg = csr_matrix((-du, (idx, rows.nx + idx)), shape=shape)
+        aux = csr_matrix((-np.ones(na), (idx, ncol + nt + idx)), shape=shape)
         blocks += [pos + aux, neg + aux]
         lo.append(np.full(2 * na, -np.inf))
         hi.append(np.zeros(2 * na))
     A = vstack(blocks).tocsr()
-    c = np.zeros(ncol + 1 + na)
+    c = np.zeros(ncol + extra)
     if effort is None:
-        c[ncol] = -1.0
+        c[ncol : ncol + nt] = -1.0
     else:
-        c[ncol + 1 :] = np.tile(effort, K)
-    lb = np.concatenate([np.full(ncol, -np.inf), [t_lo], np.zeros(na)])
-    ub = np.concatenate([np.full(ncol, np.inf), [t_hi], np.full(na, np.inf)])
+        c[ncol + nt :] = np.tile(effort, K)
+    lb = np.concatenate([np.full(ncol, -np.inf), np.full(nt, t_lo), np.zeros(na)])
+    ub = np.concatenate([np.full(ncol, np.inf), np.full(nt, t_hi), np.full(na, np.inf)])
     if region is not None and np.isfinite(region.radius):
         dx = rows.scaling.dx
         ref = (np.asarray(region.anchor)[1 : K + 1] / dx).ravel()
@@ -409,4 +418,4 @@ def _phase(
     sol = backend.solve(LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub), limit)
     if sol.status != "optimal" or sol.x is None:
         return None
-    return sol.x[:ncol], float(sol.x[ncol])
+    return sol.x[:ncol], float(np.min(sol.x[ncol : ncol + nt]))

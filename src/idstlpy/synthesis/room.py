@@ -15,15 +15,14 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy.sparse import csr_matrix, diags, hstack, vstack
 
-from ..backends import LinearModel
 from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .plan import DiscretePlan, trajectory_plan
 from .plan_lp import PlanLPContext, PlanRows, Scaling, build_plan_rows, covariance_jacobian, plan_requirements
+from .plan_solve import TrustRegion, margin_phase
 from .repair import repair
 from .results import SolveStats
 from .room_measure import (
@@ -136,14 +135,13 @@ def room_lp(
 @dataclass(frozen=True)
 class _RoomLP:
     """The room LP's pieces around one plan (:func:`room_lp`): the linearised plan rows, each
-    face row's needed room, each control row's back-off and the trust region's bounds."""
+    face row's needed room, each control row's back-off and the trust region."""
 
     context: PlanLPContext
     rows: PlanRows
     face_coef: np.ndarray
     u_shift: np.ndarray
-    lb_x: np.ndarray
-    ub_x: np.ndarray
+    region: TrustRegion
 
     @classmethod
     def around(
@@ -175,15 +173,7 @@ class _RoomLP:
         u_shift = (room.input_need[:K][:, keep] / unorm[keep][None, :]).ravel()
         if u_shift.shape[0] != rows.A_U.shape[0]:
             u_shift = np.zeros(rows.A_U.shape[0])
-        ncol = rows.nx + rows.nu
-        lb_x = np.full(ncol, -np.inf)
-        ub_x = np.full(ncol, np.inf)
-        if np.isfinite(trust):
-            ref = (means[1 : K + 1] / scaling.dx).ravel()
-            width = trust / np.tile(scaling.dx, K)
-            lb_x[: rows.nx] = ref - width
-            ub_x[: rows.nx] = ref + width
-        return cls(context, rows, need * rows.face_unit, u_shift, lb_x, ub_x)
+        return cls(context, rows, need * rows.face_unit, u_shift, TrustRegion(means, trust))
 
     def solve(
         self,
@@ -194,47 +184,22 @@ class _RoomLP:
         time_limit: float,
         per_face: bool = False,
     ) -> tuple[np.ndarray, float] | None:
-        """One LP: the inputs backed off by ``level`` of their need, the fraction(s) ``t`` in
-        ``[t_lo, t_hi]`` maximised (``effort``: the weighted effort minimised instead)."""
-        rows, K = self.rows, self.rows.K
-        ncol = rows.nx + rows.nu
-        R = rows.face_H.shape[0]
-        nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
-        nt = R if per_face else 1
-        na = K * rows.m if effort is not None else 0
-        extra = nt + na
-        coef = self.face_coef
-        t_block = csr_matrix(coef[:, None]) if not per_face else diags(coef, format="csr")
-        blocks = [
-            hstack([rows.A_eq, csr_matrix((nE, extra))]),
-            hstack([rows.A_U, csr_matrix((nU, extra))]),
-            hstack([rows.face_H, t_block, csr_matrix((R, na))]),
-        ]
-        lo = [rows.b_eq, np.full(nU + R, -np.inf)]
-        hi = [rows.b_eq, rows.b_U - level * self.u_shift, -rows.face_off]
-        if effort is not None:
-            dus = np.tile(self.context.scaling.du, K)
-            idx = np.arange(na)
-            shape = (na, ncol + extra)
-            pos = csr_matrix((dus, (idx, rows.nx + idx)), shape=shape)
-            neg = csr_matrix((-dus, (idx, rows.nx + idx)), shape=shape)
-            aux = csr_matrix((-np.ones(na), (idx, ncol + nt + idx)), shape=shape)
-            blocks += [pos + aux, neg + aux]
-            lo.append(np.full(2 * na, -np.inf))
-            hi.append(np.zeros(2 * na))
-        c = np.zeros(ncol + extra)
-        if effort is None:
-            c[ncol : ncol + nt] = -1.0
-        else:
-            c[ncol + nt :] = np.tile(effort, K)
-        lb = np.concatenate([self.lb_x, np.full(nt, t_lo), np.zeros(na)])
-        ub = np.concatenate([self.ub_x, np.full(nt, t_hi), np.full(na, np.inf)])
-        A = vstack(blocks).tocsr()
-        model = LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub)
-        sol = self.context.backend.solve(model, time_limit)
-        if sol.status != "optimal" or sol.x is None:
-            return None
-        return sol.x[:ncol], float(np.min(sol.x[ncol : ncol + nt]))
+        """One LP (:func:`~.plan_solve.margin_phase`): the inputs backed off by ``level`` of
+        their need, the fraction(s) of the room in ``[t_lo, t_hi]`` maximised (``effort``: the
+        weighted effort minimised instead)."""
+        rows = self.rows
+        return margin_phase(
+            rows,
+            self.context.backend,
+            time_limit,
+            t_lo=t_lo,
+            t_hi=t_hi,
+            coef=self.face_coef,
+            per_face=per_face,
+            effort=effort,
+            region=self.region,
+            b_U=rows.b_U - level * self.u_shift,
+        )
 
 
 @dataclass(frozen=True)
