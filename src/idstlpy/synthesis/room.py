@@ -101,6 +101,25 @@ def room_lp(
     ``[t, t_max]`` (their sum: a face that cannot get its room does not hold the others back)
     or, with ``effort_weights``, minimises the weighted input effort at ``t``.
 
+    Parameters
+    ----------
+    context : PlanLPContext
+        The solve's plan LP context (its back-end solves the LPs).
+    plan : DiscretePlan
+        The requirements ``traj`` meets (``room``'s), ``L`` steps.
+    traj : ProbabilisticTSTrajectory
+        The current plan (its MLO roll-out).
+    room : Room
+        ``traj``'s room (:func:`execution_room`).
+    trust : float
+        Largest move of every mean (infinity norm, state units); infinite: none.
+    effort_weights : ndarray, shape (m,), optional
+        Minimise the weighted effort at the fraction reached (the objectives' refiner).
+    t_max : float
+        Largest fraction of the room asked for.
+    time_limit : float
+        Seconds for each LP.
+
     Returns
     -------
     (controls, t) or None
