@@ -18,7 +18,8 @@ already).
 from __future__ import annotations
 
 import logging
-from typing import Any, NamedTuple
+from collections.abc import Callable
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -31,6 +32,9 @@ from .plan_solve import LPOutcome, TrustRegion, solve_plan_lp
 from .repair import STOP, RepairSteps, Stop, repair
 from .results import SolveStats
 from .teacher import closed_loop_check, closed_loop_lp, execution_margin
+
+if TYPE_CHECKING:
+    from .problem import Problem
 
 __all__ = ["Certified", "Checked", "MIN_ROUNDS", "STEP_FRACTIONS", "certify", "line_search"]
 
@@ -64,7 +68,7 @@ class Checked(NamedTuple):
 
 def certify(
     context: PlanLPContext,
-    problem: Any,
+    problem: Problem,
     traj: ProbabilisticTSTrajectory,
     *,
     exact: bool,
@@ -127,7 +131,7 @@ class _CertifySteps:
     def __init__(
         self,
         context: PlanLPContext,
-        problem: Any,
+        problem: Problem,
         exact: bool,
         rounds: int,
         stats: SolveStats,
@@ -212,7 +216,9 @@ class _CertifySteps:
             self.searched = True
         return step  # None: no fraction helps, a smaller trust region's LP next
 
-    def _solver(self, state: Checked, plan: DiscretePlan, trust: float) -> Any:
+    def _solver(
+        self, state: Checked, plan: DiscretePlan, trust: float
+    ) -> Callable[[np.ndarray | None, np.ndarray], LPOutcome]:
         """The plan LP :func:`~.teacher.closed_loop_lp` asks for, given a back-off and covariances."""
         L = plan.length
         target = execution_margin(
@@ -256,7 +262,7 @@ class _CertifySteps:
 
 def line_search(
     context: PlanLPContext,
-    problem: Any,
+    problem: Problem,
     traj: ProbabilisticTSTrajectory,
     controls: np.ndarray,
     margin: float,

@@ -211,24 +211,19 @@ class HullSystem:
 
     Attributes
     ----------
-    system_modes : list
-        The one hull mode (``A``, ``B = [B_0 .. B_{M-1}]``, shape (n, M m)).
+    system_modes : list of LCS
+        The one hull mode (``A``, ``B = [B_0 .. B_{M-1}]``, shape (n, M m); no sensor, no noise:
+        the plan LP reads its dynamics only, the covariance floor is its schedule).
     control_domain : Polytope
         ``U^M``, shape (M F, M m).
     n, m : int
         State dimension and ``M m``.
     """
 
-    system_modes: list[_HullMode]
+    system_modes: list[LCS]
     control_domain: Polytope
     n: int
     m: int
-
-
-@dataclass(frozen=True)
-class _HullMode:
-    A: np.ndarray
-    B: np.ndarray
 
 
 def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem | None:
@@ -244,6 +239,7 @@ def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem 
     -------
     HullSystem or None
     """
+    from ..dynamical_system import LCS
     from ..sets import Polytope
 
     modes = system.system_modes
@@ -259,4 +255,4 @@ def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem 
     HH = np.zeros((M * H.shape[0], M * m))
     for q in range(M):
         HH[q * H.shape[0] : (q + 1) * H.shape[0], q * m : (q + 1) * m] = H
-    return HullSystem([_HullMode(A, B)], Polytope(HH, np.tile(c, M)), system.n, M * m)
+    return HullSystem([LCS(A, B)], Polytope(HH, np.tile(c, M)), system.n, M * m)

@@ -9,7 +9,6 @@ its first-order dependence on the means (the plan LP's sequential convex steps).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -18,7 +17,9 @@ from ..belief import kalman_gain, kalman_update
 from .interfaces import Budget
 
 if TYPE_CHECKING:  # the abstraction reads the cached schedules (its covariance bounds)
+    from ..dynamical_system import LCS, SwitchedSystem
     from .abstraction import Abstraction
+    from .covariance_floor import Modes
 
 __all__ = [
     "cached_schedule",
@@ -30,14 +31,14 @@ __all__ = [
 ]
 
 
-def noise_depends_on_state(mode: Any) -> bool:
+def noise_depends_on_state(mode: LCS) -> bool:
     """Whether ``mode``'s measurement update depends on the mean: it senses (``p > 0``) through
     a noise that is a function of the state. Only such a mode makes the covariance schedule a
     function of the means (a mode that senses nothing has no noise to depend on)."""
     return bool(mode.p) and bool(mode.has_state_dependent_noise)
 
 
-def lp_exact(system: Any) -> bool:
+def lp_exact(system: SwitchedSystem) -> bool:
     """Whether the plan LP is exact for ``system``: no mode's covariance update depends on the
     means (:func:`noise_depends_on_state`), so the covariance schedule is fixed by the modes and
     the LP decides a plan (``Found`` / ``Refuted``); otherwise it is a sound relaxation, a
@@ -47,7 +48,7 @@ def lp_exact(system: Any) -> bool:
 
 
 def covariance_schedule(
-    modes: Sequence[Any], cov0: np.ndarray, actions: np.ndarray, budget: Budget | None = None
+    modes: Modes, cov0: np.ndarray, actions: np.ndarray, budget: Budget | None = None
 ) -> tuple[np.ndarray, bool]:
     """Covariances along a mode sequence: exact, or a lower bound under state-dependent noise.
 
@@ -88,7 +89,7 @@ def covariance_schedule(
     return covs, exact
 
 
-def _lower_update(mode: Any, P: np.ndarray) -> np.ndarray:
+def _lower_update(mode: LCS, P: np.ndarray) -> np.ndarray:
     """The measurement update with the noise's floor ``F <= R(x)``: a lower bound on the posterior.
 
     ``P - P C' (C P C' + F)^+ C P`` with a pseudo-inverse, which stays exact when ``F`` is zero
@@ -117,7 +118,7 @@ def row_cache(abstraction: Abstraction) -> dict[str, Any]:
 
 def cached_schedule(
     abstraction: Abstraction,
-    modes: Sequence[Any],
+    modes: Modes,
     cov0: np.ndarray,
     actions: np.ndarray,
     budget: Budget | None,
@@ -156,7 +157,7 @@ def cached_schedule(
 
 
 def covariance_jacobian(
-    modes: Sequence[Any], actions: np.ndarray, means: np.ndarray, covs: np.ndarray, dx: np.ndarray
+    modes: Modes, actions: np.ndarray, means: np.ndarray, covs: np.ndarray, dx: np.ndarray
 ) -> list[np.ndarray]:
     """How the MLO covariances depend on the means: ``S[k][j - 1, i] = d covs[k] / d means[j][i]``.
 

@@ -57,19 +57,23 @@ import logging
 from collections.abc import Sequence
 from dataclasses import replace
 from itertools import chain
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, hstack, vstack
 
 from ..backends import Backend, BackendSolution, HighsBackend, LinearModel
 from ..chance import std_terms
-from ..formulas import STLAnd, STLAtomicProposition, STLRelease
+from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLRelease
 from ..semantics import formula_margins
 from .abstraction import Abstraction
 from .bmc import BMCEncoder
 from .interfaces import Budget
 from .plan_lp import PlanLPContext, Scaling, build_plan_rows
+
+if TYPE_CHECKING:
+    from ..dynamical_system import SwitchedSystem
+    from ..sets import Polytope
 
 __all__ = ["MILPOutcome", "solve_milp", "switch_to_eager"]
 
@@ -286,12 +290,12 @@ def _exclusion_cliques(
     return rest, cliques
 
 
-def _contains_zero(U: Any) -> bool:
+def _contains_zero(U: Polytope) -> bool:
     """Whether ``u = 0`` lies in the control domain ``{u : H u + c <= 0}`` (exactly)."""
     return bool(np.all(np.asarray(U.c) <= 0.0))
 
 
-def _support_points(U: Any) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+def _support_points(U: Polytope) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """Vertices of the control domain (``None`` when unavailable) and its bounding box."""
     low, high = U.bounding_box()
     if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
@@ -323,7 +327,7 @@ def _support(points: tuple[np.ndarray | None, np.ndarray, np.ndarray], D: np.nda
     return np.asarray(np.where(D == 0, 0.0, box).sum(axis=1))
 
 
-def _invariants(formula: Any, abstraction: Abstraction) -> list[tuple[int, int]]:
+def _invariants(formula: STLFormula, abstraction: Abstraction) -> list[tuple[int, int]]:
     """Propositions the formula requires at every step ``0..b``: ``(atom, b)`` pairs.
 
     Read off the top-level conjunction: ``always(0, b, ap)`` (or of a conjunction of them).
@@ -344,7 +348,9 @@ def _invariants(formula: Any, abstraction: Abstraction) -> list[tuple[int, int]]
     return out
 
 
-def _invariant_box(formula: Any, abstraction: Abstraction, n: int, H: int) -> tuple[np.ndarray, np.ndarray]:
+def _invariant_box(
+    formula: STLFormula, abstraction: Abstraction, n: int, H: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Per step, the bounding box of the means the invariants allow, shapes (H+1, n)."""
     low, high = np.full((H + 1, n), -np.inf), np.full((H + 1, n), np.inf)
     for i, b in _invariants(formula, abstraction):
@@ -355,7 +361,7 @@ def _invariant_box(formula: Any, abstraction: Abstraction, n: int, H: int) -> tu
     return low, high
 
 
-def _hard_steps(formula: Any, abstraction: Abstraction, H: int) -> np.ndarray:
+def _hard_steps(formula: STLFormula, abstraction: Abstraction, H: int) -> np.ndarray:
     """``hard[k, i]``: the invariants require proposition ``i`` at step ``k``; shape (H+1, n_atoms)."""
     hard = np.zeros((H + 1, abstraction.num_atoms), dtype=bool)
     for i, b in _invariants(formula, abstraction):
@@ -422,7 +428,7 @@ def _common_slack(Hf: np.ndarray, bound: np.ndarray) -> float:
 
 
 def _margin_cap(
-    formula: Any,
+    formula: STLFormula,
     abstraction: Abstraction,
     covs: np.ndarray,
     reach_min: np.ndarray,
@@ -684,8 +690,8 @@ def _recheck(
 def solve_milp(
     enc: BMCEncoder,
     abstraction: Abstraction,
-    system: Any,
-    control_domain: Any,
+    system: SwitchedSystem,
+    control_domain: Polytope,
     mean0: np.ndarray,
     cov0: np.ndarray,
     scaling: Scaling,

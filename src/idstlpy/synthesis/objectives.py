@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,21 +30,27 @@ from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
+from .options import OBJECTIVES as OPTION_OBJECTIVES
+from .options import Objective
 from .plan_lp import PlanLPContext, Scaling
 from .plan_solve import LPGoal, TrustRegion, solve_plan_lp
 from .repair import STOP, Stop, repair
 from .results import SolveStats
 from .room import RoomState, note_room, room_lp, room_state
 
+if TYPE_CHECKING:
+    from ..formulas import STLFormula
+    from .problem import Problem
+
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
 
 logger = logging.getLogger(__name__)
 
-OBJECTIVES: tuple[str, ...] = ("effort", "time", "margin")
+OBJECTIVES: tuple[Objective, ...] = OPTION_OBJECTIVES
 
 
 def objective_value(
-    name: str, traj: ProbabilisticTSTrajectory, formula: Any, weights: np.ndarray | None = None
+    name: str, traj: ProbabilisticTSTrajectory, formula: STLFormula, weights: np.ndarray | None = None
 ) -> float:
     """The value of objective ``name`` on a plan (see the module docstring).
 
@@ -93,15 +99,15 @@ def better(name: str, a: float, b: float) -> bool:
 
 
 def refine(
-    problem: Any,
+    problem: Problem,
     abstraction: Abstraction,
     scaling: Scaling,
     traj: ProbabilisticTSTrajectory,
-    name: str,
+    name: Objective,
     weights: np.ndarray | None,
     rounds: int,
     stats: SolveStats,
-    elapsed: Any,
+    elapsed: Callable[[], float],
 ) -> ProbabilisticTSTrajectory:
     """Improve a verified plan for objective ``name`` by trust-region SCP (module docstring).
 
@@ -174,8 +180,8 @@ class _RefineSteps:
     def __init__(
         self,
         context: PlanLPContext,
-        problem: Any,
-        name: str,
+        problem: Problem,
+        name: Objective,
         weights: np.ndarray | None,
         keep: float,
         stats: SolveStats,

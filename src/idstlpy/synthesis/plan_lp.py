@@ -21,7 +21,6 @@ exact (:func:`~.covariances.lp_exact`, the one place that decides it), are :mod:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -42,7 +41,11 @@ from .interfaces import Budget
 from .plan import DiscretePlan
 
 if TYPE_CHECKING:  # plan_lp is imported by the abstraction (its covariance bounds)
+    from ..dynamical_system import SwitchedSystem
+    from ..sets import Polytope
     from .abstraction import Abstraction
+    from .covariance_floor import Modes
+    from .problem import Problem
 
 __all__ = [
     "PlanLPContext",
@@ -80,7 +83,12 @@ class Scaling:
 
     @classmethod
     def compute(
-        cls, system: Any, control_domain: Any, mean0: np.ndarray, cov0: np.ndarray, abstraction: Abstraction
+        cls,
+        system: SwitchedSystem,
+        control_domain: Polytope,
+        mean0: np.ndarray,
+        cov0: np.ndarray,
+        abstraction: Abstraction,
     ) -> Scaling:
         """Units read off the prior, the propositions' regions and the control domain."""
         n, m = system.n, system.m
@@ -125,8 +133,8 @@ class PlanLPContext:
         The LP back-end (default HiGHS).
     """
 
-    system: Any
-    control_domain: Any
+    system: SwitchedSystem
+    control_domain: Polytope
     mean0: np.ndarray
     cov0: np.ndarray
     abstraction: Abstraction
@@ -136,7 +144,7 @@ class PlanLPContext:
     @classmethod
     def of(
         cls,
-        problem: Any,
+        problem: Problem,
         abstraction: Abstraction,
         scaling: Scaling | None = None,
         backend: Backend | None = None,
@@ -280,7 +288,7 @@ def build_plan_rows(
 
 
 def _dynamics_rows(
-    modes: Sequence[Any], actions: np.ndarray, mean0: np.ndarray, dx: np.ndarray, du: np.ndarray, ncol: int
+    modes: Modes, actions: np.ndarray, mean0: np.ndarray, dx: np.ndarray, du: np.ndarray, ncol: int
 ) -> tuple[csr_matrix, np.ndarray]:
     """Dynamics, row-scaled by 1/dx: x~_{k+1} - (A~) x~_k - (B~) u~_k = [k = 0] A~ x~_0."""
     K = int(actions.shape[0])
@@ -318,7 +326,7 @@ def _dynamics_rows(
 
 
 def _control_rows(
-    control_domain: Any, du: np.ndarray, K: int, n: int, m: int, ncol: int
+    control_domain: Polytope, du: np.ndarray, K: int, n: int, m: int, ncol: int
 ) -> tuple[csr_matrix, np.ndarray]:
     """The control domain at every step, rows normalised."""
     UH = control_domain.H * du[None, :]

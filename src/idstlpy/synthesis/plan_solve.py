@@ -23,7 +23,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from scipy.sparse import csr_matrix, diags, hstack, vstack
@@ -32,6 +32,9 @@ from ..backends import Backend, LinearModel
 from .interfaces import Budget
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext, PlanRows, build_plan_rows, covariance_jacobian, plan_requirements
+
+if TYPE_CHECKING:
+    from ..sets import Polytope
 
 __all__ = ["LPGoal", "LPOutcome", "Phases", "TIGHTEN", "TrustRegion", "margin_phase", "solve_plan_lp"]
 
@@ -269,7 +272,7 @@ def _elastic(
     return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs, excess=excess)
 
 
-def _backed_off(rows: PlanRows, control_domain: Any, du: np.ndarray, backoff: np.ndarray) -> PlanRows:
+def _backed_off(rows: PlanRows, control_domain: Polytope, du: np.ndarray, backoff: np.ndarray) -> PlanRows:
     """``rows`` with every control face ``f`` at step ``k`` moved ``backoff[k, f]`` inward.
 
     The rows are normalised and faces with a zero row dropped as in
