@@ -16,12 +16,17 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._checks import as_covariance, as_vector
 from .errors import DimensionError, InvalidArgumentError, OutOfRangeError
+
+if TYPE_CHECKING:  # both import this module
+    from .dynamical_system import SwitchedSystem
+    from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
     "GaussianBelief",
@@ -369,7 +374,9 @@ def belief_step(mode: Any, mean: np.ndarray, cov: np.ndarray, u: np.ndarray) -> 
     return kalman_update(mode, mean_pred, P)
 
 
-def rollout(system: Any, initial: GaussianBelief, actions: Sequence[int] | np.ndarray, controls: Any) -> Any:
+def rollout(
+    system: SwitchedSystem, initial: GaussianBelief, actions: Sequence[int] | np.ndarray, controls: ArrayLike
+) -> ProbabilisticTSTrajectory:
     """Roll the MLO belief dynamics along a mode and control sequence.
 
     Parameters

@@ -162,7 +162,7 @@ def start_check(
     return StartCheck(current, p, records[0].predicted if records else p, tuple(records))
 
 
-def _start_policy(policy: Any, options: Mapping[str, Any]) -> ReplanPolicy:
+def _start_policy(policy: ReplanPolicy | None, options: Mapping[str, Any]) -> ReplanPolicy:
     """``start_check``'s policy: ``policy``, or the one of its keywords (checked, never both)."""
     accepted = START_CHECK_KEYWORDS | (EXECUTOR_KEYWORDS - {"plant"})
     unknown = sorted(set(options) - accepted)

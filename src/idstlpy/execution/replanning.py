@@ -217,7 +217,12 @@ def _policy(policy: ReplanPolicy | None, legacy: Mapping[str, Any], caller: str)
     return made if replan is not None else None
 
 
-def _spec(problem: Problem, spec: Any, real_system: Any, options: Mapping[str, Any]) -> ExecutorSpec:
+def _spec(
+    problem: Problem,
+    spec: ExecutorSpec | None,
+    real_system: SwitchedSystem | LCS | None,
+    options: Mapping[str, Any],
+) -> ExecutorSpec:
     """``spec`` checked against the problem, or the spec of the executor's keywords ``options``."""
     if spec is None:
         return executor_spec(problem, real_system=real_system, **options)

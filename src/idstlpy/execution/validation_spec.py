@@ -326,7 +326,7 @@ def _dispatch(executor: object, opts: Mapping[str, Any]) -> Dispatch:
     return Dispatch(executor, max_workers, factory, progress)
 
 
-def _predict_options(options: Any) -> dict[str, Any]:
+def _predict_options(options: object) -> dict[str, Any]:
     if options is not None and not isinstance(options, Mapping):
         raise InvalidTypeError(f"predict_options must be a mapping, got {type(options).__name__}")
     opts = dict(options or {})

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import csr_matrix
@@ -18,6 +19,9 @@ from ..chance import std_terms
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
 from .interfaces import Budget
+
+if TYPE_CHECKING:
+    from ..dynamical_system import SwitchedSystem
 
 __all__ = ["Abstraction", "PruningReport"]
 
@@ -187,7 +191,7 @@ class Abstraction:
 
     def out_of_reach(
         self,
-        system,
+        system: SwitchedSystem,
         initial_cov: np.ndarray,
         horizon: int,
         budget: Budget | None = None,
@@ -256,7 +260,7 @@ class Abstraction:
     # -- pruning ------------------------------------------------------------------------------------
     def prune(
         self,
-        system,
+        system: SwitchedSystem,
         control_domain: Polytope,
         initial_mean: np.ndarray,
         initial_cov: np.ndarray,
@@ -319,7 +323,7 @@ class Abstraction:
 
     def _impossible_steps(
         self,
-        system,
+        system: SwitchedSystem,
         U: Polytope,
         regions: list[Polytope],
         empty: set[int],

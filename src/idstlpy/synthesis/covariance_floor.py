@@ -32,10 +32,10 @@ from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 
+from ..dynamical_system import LCS, SwitchedSystem
 from .interfaces import Budget
 
 if TYPE_CHECKING:
-    from ..dynamical_system import LCS, SwitchedSystem
     from ..sets import Polytope
 
 Modes: TypeAlias = "Sequence[LCS] | np.ndarray"
@@ -198,8 +198,7 @@ def covariance_floor(
     return CovarianceFloor(A, W_lo, J_hi, covs, how)
 
 
-@dataclass(frozen=True)
-class HullSystem:
+class HullSystem(SwitchedSystem):
     """One mode whose inputs are every mode's at once: a relaxation of every mode sequence.
 
     With a common ``A`` and ``0`` in the control domain ``U``, every step of every mode,
@@ -209,21 +208,21 @@ class HullSystem:
     on this system that is infeasible proves the requirements infeasible for *every* mode
     sequence.
 
-    Attributes
+    A switched system of that one mode (``n`` states, ``M m`` inputs), so the plan LP takes it
+    as it takes the problem's.
+
+    Parameters
     ----------
-    system_modes : list of LCS
-        The one hull mode (``A``, ``B = [B_0 .. B_{M-1}]``, shape (n, M m); no sensor, no noise:
-        the plan LP reads its dynamics only, the covariance floor is its schedule).
+    mode : LCS
+        The hull mode (``A``, ``B = [B_0 .. B_{M-1}]``, shape (n, M m); no sensor, no noise: the
+        plan LP reads its dynamics only, the covariance floor is its schedule).
     control_domain : Polytope
         ``U^M``, shape (M F, M m).
-    n, m : int
-        State dimension and ``M m``.
     """
 
-    system_modes: list[LCS]
-    control_domain: Polytope
-    n: int
-    m: int
+    def __init__(self, mode: LCS, control_domain: Polytope) -> None:
+        super().__init__([mode])
+        self.control_domain = control_domain
 
 
 def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem | None:
@@ -239,7 +238,6 @@ def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem 
     -------
     HullSystem or None
     """
-    from ..dynamical_system import LCS
     from ..sets import Polytope
 
     modes = system.system_modes
@@ -255,4 +253,4 @@ def hull_system(system: SwitchedSystem, control_domain: Polytope) -> HullSystem 
     HH = np.zeros((M * H.shape[0], M * m))
     for q in range(M):
         HH[q * H.shape[0] : (q + 1) * H.shape[0], q * m : (q + 1) * m] = H
-    return HullSystem([LCS(A, B)], Polytope(HH, np.tile(c, M)), system.n, M * m)
+    return HullSystem(LCS(A, B), Polytope(HH, np.tile(c, M)))

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..belief import belief_step, rollout, rollout_arrays
 from ..sets import Polytope
@@ -93,7 +94,7 @@ class _Tree:
         self._alloc(cap)
 
     def _alloc(self, cap: int) -> None:
-        def grow(old, shape, dtype):
+        def grow(old: np.ndarray | None, shape: tuple[int, ...], dtype: DTypeLike) -> np.ndarray:
             new = np.zeros((cap, *shape), dtype=dtype)
             if old is not None:
                 new[: self.size] = old[: self.size]
@@ -116,7 +117,18 @@ class _Tree:
         self.lastk = grow(g(self, "lastk", None), (), np.int64)  # the step it was entered
         self.cap = cap
 
-    def add(self, mean, cov, k, parent, action, control, truth, plan, stage=0) -> int:
+    def add(
+        self,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        k: int,
+        parent: int,
+        action: int,
+        control: np.ndarray | None,
+        truth: np.ndarray,
+        plan: int,
+        stage: int = 0,
+    ) -> int:
         if self.size == self.cap:
             self._alloc(2 * self.cap)
         i = self.size
@@ -392,7 +404,8 @@ class BeliefSampler:
         room = -(self.UH @ c0 + Uc)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(rate > 1e-12, room / rate, np.inf)
-        return c0 + min(1.0, float(np.min(t))) * d
+        clipped: np.ndarray = c0 + min(1.0, float(np.min(t))) * d
+        return clipped
 
     def _partial(
         self, mean: np.ndarray, target: np.ndarray, Ah: np.ndarray, G: np.ndarray, h: int
