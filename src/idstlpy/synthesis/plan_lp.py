@@ -362,7 +362,7 @@ class _Faces:
 def _faces(abstraction: Abstraction, i: int, dx: np.ndarray) -> _Faces:
     store = row_cache(abstraction).setdefault("faces", {})
     key = (i, dx.tobytes())
-    out = store.get(key)
+    out: _Faces | None = store.get(key)
     if out is None:
         cone = abstraction.atoms[i].cone
         G = cone.H * dx[None, :]
