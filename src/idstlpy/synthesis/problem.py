@@ -6,6 +6,8 @@ import logging
 import time
 from typing import Any
 
+import numpy as np
+
 from ..belief import GaussianBelief
 from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
@@ -116,7 +118,7 @@ class Problem:
         goal_bias: float | None = None,
         min_num_of_steps: int | None = None,
         max_num_of_steps: int | None = None,
-        seed: Any = None,
+        seed: int | np.random.Generator | None = None,
         *,
         options: SolverOptions | None = None,
         **more: Any,
@@ -170,7 +172,7 @@ class Problem:
         goal_bias: float | None = None,
         min_num_of_steps: int | None = None,
         max_num_of_steps: int | None = None,
-        seed: Any = None,
+        seed: int | np.random.Generator | None = None,
         *,
         options: SolverOptions | None = None,
         **more: Any,
