@@ -1,0 +1,528 @@
+"""The moments of the executor's closed loop around a plan: :func:`propagate`.
+
+With ``delta_k = x_k - m_k`` the true state's deviation from the plan and ``eta_k = mean_k - m_k``
+the executed belief mean's, the joint ``z = (delta, eta[, dP])`` is propagated step by step: its
+mean and covariance, the one-step transitions ``F``, offsets ``g`` and noise covariances ``Q``, the
+filter covariance, the gains and a bound on the probability that the input is clipped (the
+derivation, and what is exact and what is linearised, is in :mod:`idstlpy.executor.predict`).
+Under ``closure="particles"`` the moments are those of samples pushed through the loop itself
+(:mod:`idstlpy.loop_samples`). :mod:`idstlpy.closed_loop` re-exports everything here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.special import ndtr
+
+from .belief import kalman_gain, kalman_update
+from .dynamical_system import LCS, SwitchedSystem
+from .errors import InvalidArgumentError
+from .loop_samples import LoopStep, NoiseInterpolant, ParticleCloud, cubature, sqrt_psd
+from .sets import Polytope
+from .tracking import box_bounds, gain_at
+from .trajectory import ProbabilisticTSTrajectory
+
+__all__ = ["ClosedLoopMoments", "prob_le", "propagate", "sqrt_psd", "step_parts"]
+
+
+def prob_le(mu: np.ndarray, sd: np.ndarray) -> np.ndarray:
+    """``P[X <= 0]`` for ``X ~ N(mu, sd^2)``; an indicator when ``sd == 0``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = ndtr(-mu / sd)
+    return np.where(sd > 0, p, (mu <= 0).astype(float))
+
+
+def step_parts(
+    system: SwitchedSystem,
+    real_modes: Sequence[LCS] | None,
+    gains: Mapping[int, Sequence[np.ndarray]],
+    process_noise: str,
+    q: int,
+    remaining: int,
+) -> tuple[LCS, LCS | None, np.ndarray, np.ndarray | None]:
+    """What the executor uses at a plan step in mode ``q`` with ``remaining`` plan steps left.
+
+    The one home of these choices for the executor's step law (:mod:`idstlpy.executor.law`) and
+    the moment propagation (:func:`propagate`).
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+        The planning model.
+    real_modes : sequence of LCS or None
+        The linear plant's modes (one for all, or one per planning mode); None for a plant
+        given as a step function.
+    gains : mapping
+        Mode -> tracking gains ``K_0 .. K_{h-1}``, each (m, n).
+    process_noise : {"model", "real", "none"}
+    q : int
+        The planning mode.
+    remaining : int
+        Plan steps left (``N - k``).
+
+    Returns
+    -------
+    mode : LCS
+        The planning mode.
+    real : LCS or None
+        The plant's linear mode (None without ``real_modes``).
+    K : ndarray, shape (m, n)
+        The receding-horizon tracking gain (:func:`idstlpy.tracking.gain_at`).
+    W : ndarray of shape (n, r), or None
+        The factor of the process noise added to the true state (None: none).
+    """
+    mode = system.mode(q)
+    real = None if real_modes is None else real_modes[0] if len(real_modes) == 1 else real_modes[q]
+    W = None
+    if process_noise == "model":
+        W = mode.W
+    elif process_noise == "real" and real is not None:
+        W = real.W
+    return mode, real, gain_at(gains[q], remaining), W
+
+
+def _clipped_moments(
+    mu: np.ndarray, sd: np.ndarray, low: np.ndarray, high: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Moments of ``clip(Y_i, low_i, high_i)`` for ``Y_i ~ N(mu_i, sd_i^2)``, each shape (m,).
+
+    Returns the mean, the variance and ``P[low_i < Y_i < high_i]`` (the expected derivative of the
+    clip: by Stein's lemma ``Cov(z, clip(Y_i)) = P_in Cov(z, Y_i)`` for any ``z`` jointly Gaussian
+    with ``Y``).
+    """
+    pos = sd > 0
+    s = np.where(pos, sd, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = (low - mu) / s
+        b = (high - mu) / s
+    Fa, Fb = ndtr(a), ndtr(b)
+    pa = np.where(np.isfinite(a), np.exp(-0.5 * np.where(np.isfinite(a), a, 0.0) ** 2), 0.0) / np.sqrt(
+        2 * np.pi
+    )
+    pb = np.where(np.isfinite(b), np.exp(-0.5 * np.where(np.isfinite(b), b, 0.0) ** 2), 0.0) / np.sqrt(
+        2 * np.pi
+    )
+    apa = np.where(np.isfinite(a), np.where(np.isfinite(a), a, 0.0) * pa, 0.0)  # no inf * 0
+    bpb = np.where(np.isfinite(b), np.where(np.isfinite(b), b, 0.0) * pb, 0.0)
+    lo_t = np.where(np.isfinite(low), low, 0.0)
+    hi_t = np.where(np.isfinite(high), high, 0.0)
+    p_in = Fb - Fa
+    e1 = lo_t * Fa + hi_t * (1 - Fb) + mu * p_in + s * (pa - pb)
+    e2 = (
+        lo_t**2 * Fa
+        + hi_t**2 * (1 - Fb)
+        + (mu**2 + s**2) * p_in
+        + 2 * mu * s * (pa - pb)
+        + s**2 * (apa - bpb)
+    )
+    var = np.maximum(e2 - e1**2, 0.0)
+    det = np.clip(mu, low, high)
+    inside = ((mu > low) & (mu < high)).astype(float)
+    return np.where(pos, e1, det), np.where(pos, var, 0.0), np.where(pos, p_in, inside)
+
+
+@dataclass
+class ClosedLoopMoments:
+    """Moments of the closed loop's joint state ``z = (delta, eta[, dP])`` (``D`` coordinates).
+
+    Attributes: ``mean`` (L, D) and ``cov`` (L, D, D) per step; the one-step transitions ``F``
+    (N, D, D), offsets ``g`` (N, D) and noise covariances ``Q`` (N, D, D); the filter covariance
+    ``P`` (L, n, n); the tracking gains ``K`` (N, m, n) and Kalman gains ``L`` (n, p each); an
+    upper bound on the probability that the input is clipped, ``clip`` (N,); ``sensitivity``:
+    whether the ``n^2`` filter-sensitivity coordinates are carried; ``steps``: the per-step maps
+    on samples (:class:`LoopStep`); ``closure``: how the moments were closed (``"gaussian"``:
+    the clip linearised statistically; ``"particles"``: the moments of samples propagated through
+    the clip, ``F, g, Q`` their statistical linear regression).
+    """
+
+    mean: np.ndarray  # (L, D)
+    cov: np.ndarray  # (L, D, D)
+    F: np.ndarray  # (N, D, D)
+    g: np.ndarray  # (N, D)
+    Q: np.ndarray  # (N, D, D)
+    P: np.ndarray  # (L, n, n)
+    K: np.ndarray  # (N, m, n)
+    L: list[np.ndarray]
+    clip: np.ndarray  # (N,)
+    sensitivity: bool
+    steps: list[LoopStep] | None = None
+    closure: str = "gaussian"
+
+
+def _noise_cov_jacobian(mode: LCS, x: np.ndarray) -> np.ndarray:
+    """``dR/dx_i`` at ``x`` by central differences, shape (n, p, p)."""
+    out = np.empty((x.shape[0], mode.p, mode.p))
+    for i in range(x.shape[0]):
+        step = 1e-5 * max(1.0, abs(float(x[i])))
+        e = np.zeros_like(x)
+        e[i] = step
+        out[i] = (mode.noise_cov(x + e) - mode.noise_cov(x - e)) / (2 * step)
+    return out
+
+
+def propagate(
+    system: SwitchedSystem,
+    plan: ProbabilisticTSTrajectory,
+    N: int,
+    real_modes: list[LCS],
+    gains: Mapping[int, Sequence[np.ndarray]],
+    process_noise: str,
+    z0: np.ndarray,
+    S0: np.ndarray,
+    P0: np.ndarray,
+    sensor_noise: str,
+    domain: Polytope | None,
+    filter_sensitivity: bool,
+    closure: str = "gaussian",
+    particles: int = 4000,
+    seed: int = 0,
+) -> ClosedLoopMoments:
+    """Propagate the closed loop's first two moments over ``N`` steps of ``plan``.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+        The planning model (the filter's).
+    plan : ProbabilisticTSTrajectory
+        The plan tracked (modes, means, inputs).
+    N : int
+        Steps to propagate (``<= plan.num_of_steps``).
+    real_modes : list of LCS
+        From :func:`idstlpy.closed_loop.real_modes_for`.
+    gains : dict
+        From :func:`idstlpy.closed_loop.gains_for`.
+    process_noise : {"model", "real", "none"}
+    z0 : ndarray, shape (2n,)
+        Mean of ``(delta_0, eta_0)``.
+    S0 : ndarray, shape (2n, 2n)
+        Its covariance.
+    P0 : ndarray, shape (n, n)
+        The filter's prior covariance.
+    sensor_noise : {"expected", "mean", "plan"}
+        Linearisation of a state-dependent sensor (see :mod:`idstlpy.execution.prediction`).
+    domain : Polytope or None
+        The control domain the corrected input is projected on.
+    filter_sensitivity : bool
+        Carry the first-order variation of the filter covariance (``n^2`` coordinates).
+    closure : {"gaussian", "particles", "auto"}
+        ``"gaussian"``: the clip of the corrected input by its statistical linearisation, exact
+        for one step from a Gaussian, but it keeps the loop Gaussian: a plan that rides an input
+        bound makes the clipped loop a rectifier (deviations on one side are not corrected and
+        accumulate) whose spread this under-states. ``"particles"``: ``particles`` samples of
+        ``z`` are propagated through the clip itself (:class:`LoopStep`, seeded by ``seed``:
+        deterministic); the moments are theirs, and ``F, g, Q`` their statistical linear
+        regression (``F = Cov(z_{k+1}, z_k) Cov(z_k)^+``, ``Q`` the residual covariance), so the
+        Gauss-Markov model has the samples' per-step moments and one-step covariances.
+        With a state-dependent sensor the samples also draw its noise at their own true state
+        and run their own filter (:class:`LoopStep`): the skew such a sensor gives the loop is
+        kept. ``"auto"``: particles under a state-dependent sensor or when a box clips the input
+        with probability above 1% at some step, the (exact) Gaussian closure otherwise.
+    particles : int
+    seed : int
+
+    Returns
+    -------
+    ClosedLoopMoments
+
+    Raises
+    ------
+    InvalidArgumentError
+        When the predicted loop diverges.
+    """
+    n, m = system.n, system.m
+    box = box_bounds(domain, m)
+    used = {int(q) for q in plan.get_action()[:N]}
+    state_dependent = any(system.mode(q).p and system.mode(q).has_state_dependent_noise for q in used)
+    if closure not in ("auto", "gaussian", "particles"):
+        raise InvalidArgumentError(f"closure must be 'auto', 'gaussian' or 'particles', got {closure!r}")
+    if closure == "auto":
+        if N == 0:
+            closure = "gaussian"
+        elif state_dependent:
+            closure = "particles"
+        elif box is None:
+            closure = "gaussian"
+        else:
+            first = propagate(
+                system, plan, N, real_modes, gains, process_noise, z0, S0, P0, sensor_noise, domain,
+                filter_sensitivity, "gaussian",
+            )  # fmt: skip
+            if float(first.clip.max()) <= 0.01:
+                return first
+            closure = "particles"
+    sens = filter_sensitivity and state_dependent
+    run = _Run(
+        system, plan, real_modes, gains, process_noise, sensor_noise, domain, box, sens,
+        2 * n + (n * n if sens else 0), closure == "particles" and N > 0, particles,
+        cubature(n) if sensor_noise == "expected" else None, np.random.default_rng(seed),
+    )  # fmt: skip
+    out = run.moments(N, z0, S0, P0)
+    z, S, P = out.mean[0], out.cov[0], P0
+    cloud = ParticleCloud.start(z0, S0, run.D, run.particles, run.rng) if run.use_particles else None
+    for k in range(N):
+        z, S, P = run.step(out, k, z, S, P, cloud)
+    return out
+
+
+@dataclass
+class _Run:
+    """The settings one propagation reads at every step (checked by :func:`propagate`)."""
+
+    system: SwitchedSystem
+    plan: ProbabilisticTSTrajectory
+    real_modes: Sequence[LCS]
+    gains: Mapping[int, Sequence[np.ndarray]]
+    process_noise: str
+    sensor_noise: str
+    domain: Polytope | None
+    box: tuple[np.ndarray, np.ndarray] | None
+    sens: bool  # the filter-sensitivity coordinates are carried
+    D: int  # the joint state's dimension
+    use_particles: bool
+    particles: int
+    cub: tuple[np.ndarray, np.ndarray] | None  # the cubature of sensor_noise="expected"
+    rng: np.random.Generator
+
+    def moments(self, N: int, z0: np.ndarray, S0: np.ndarray, P0: np.ndarray) -> ClosedLoopMoments:
+        """The result's arrays, the start filled in."""
+        n, m, D = self.system.n, self.system.m, self.D
+        out = ClosedLoopMoments(
+            mean=np.zeros((N + 1, D)),
+            cov=np.zeros((N + 1, D, D)),
+            F=np.zeros((N, D, D)),
+            g=np.zeros((N, D)),
+            Q=np.zeros((N, D, D)),
+            P=np.empty((N + 1, n, n)),
+            K=np.empty((N, m, n)),
+            L=[],
+            clip=np.zeros(N),
+            sensitivity=self.sens,
+        )
+        out.mean[0, : 2 * n], out.cov[0, : 2 * n, : 2 * n], out.P[0] = z0, S0, P0
+        out.closure = "particles" if self.use_particles else "gaussian"
+        out.steps = []
+        return out
+
+    def step(
+        self,
+        out: ClosedLoopMoments,
+        k: int,
+        z: np.ndarray,
+        S: np.ndarray,
+        P: np.ndarray,
+        cloud: ParticleCloud | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Step ``k``: linearise the loop at the moments ``z, S`` (the samples' under particles),
+        record it in ``out`` and return the next moments and filter covariance."""
+        n, m = self.system.n, self.system.m
+        q = int(self.plan.get_action()[k])
+        mode, real_or_none, Kt, W = step_parts(
+            self.system, self.real_modes, self.gains, self.process_noise, q, self.plan.num_of_steps - k
+        )
+        real = mode if real_or_none is None else real_or_none  # (never None: real_modes is a list)
+        means, v = self.plan.get_mean(), self.plan.get_control()[k]
+        m_k, m_next = means[k], means[k + 1]
+        if cloud is not None:  # the moments the linearisation below is taken at are the samples'
+            z, S = cloud.zc, cloud.Sp
+        eta = z[n : 2 * n]
+        nominal_pred = mode.A @ m_k + mode.B @ v
+        r = m_next - nominal_pred
+        d = real.A @ m_k + real.B @ v - m_next
+        K_eff, c_u, E, clip = _input(Kt, v, eta, S[n : 2 * n, n : 2 * n], self.box, self.domain, m)
+        out.clip[k] = clip
+        A_eta = mode.A - mode.B @ K_eff
+        # The filter's predicted mean is m_next + eta_pred, eta_pred = A_eta eta + B c_u - r + B e.
+        eta_pred_mean = A_eta @ eta + mode.B @ c_u - r
+        if cloud is not None:
+            eta_pred_mean = cloud.predicted_eta(mode, Kt, v, self.box, n) - r
+        # Filter: its noise is evaluated at its own (random) predicted mean, linearised at the plan's
+        # nominal one ("plan": the plan's MLO covariances) or at the predicted one (otherwise).
+        state_dep = bool(mode.p) and mode.has_state_dependent_noise
+        plan_point = self.sensor_noise == "plan" or not state_dep
+        x_lin = nominal_pred if plan_point else m_next + eta_pred_mean
+        Lk, P_next, LC = _filter(mode, P, x_lin, n)
+        lin = _Linear(mode, real, K_eff, c_u, E, r, d, LC, Lk, A_eta, m_next, x_lin, state_dep)
+        F, g, J = lin.transition(self.D, self.sens)
+        Qw = W @ W.T if W is not None and W.shape[1] else np.zeros((n, n))
+        Qk = lin.noise(Qw)
+        z = F @ z + g
+        S_pre = F @ S @ F.T + Qk
+        fitted = None  # the sensor's noise interpolant, for samples drawing it at their own state
+        if cloud is not None and state_dep and mode.p:
+            fitted = NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n])
+        R_true = np.zeros((mode.p, mode.p))
+        if mode.p:
+            R_true = self.sensor_cov(mode, state_dep, m_next, z[:n], S_pre[:n, :n], fitted)
+            LRL = np.zeros((self.D, self.D))
+            LRL[n : 2 * n, n : 2 * n] = Lk @ R_true @ Lk.T
+            Qk = Qk + LRL
+            S_pre = S_pre + LRL
+        S = 0.5 * (S_pre + S_pre.T)
+        step = lin.loop_step(Kt, v, self.box, F, J, Qw, R_true, self.sens)
+        if fitted is not None:
+            step.noise = fitted
+            step.m_next, step.C, step.Qp = m_next, mode.C, mode.process_cov
+            step.P_prev, step.P_next = P, P_next
+        out.steps.append(step)  # type: ignore[union-attr]
+        if cloud is not None:
+            z, S, F, g, Qk = cloud.advance(step, self.rng)
+        P = P_next
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
+            raise InvalidArgumentError(
+                f"the predicted closed loop diverged at step {k + 1} (non-finite moments)"
+            )
+        out.mean[k + 1], out.cov[k + 1], out.P[k + 1] = z, S, P
+        out.F[k], out.g[k], out.Q[k], out.K[k] = F, g, 0.5 * (Qk + Qk.T), Kt
+        out.L.append(Lk)
+        return z, S, P
+
+    def sensor_cov(
+        self,
+        mode: LCS,
+        state_dep: bool,
+        m_next: np.ndarray,
+        delta: np.ndarray,
+        S_delta: np.ndarray,
+        fitted: NoiseInterpolant | None,
+    ) -> np.ndarray:
+        """The sensor noise covariance acting on the loop, ``R`` at the true state (``delta``: its
+        predicted mean deviation, ``S_delta`` its covariance) as ``sensor_noise`` reads it."""
+        if self.sensor_noise == "plan" or not state_dep:
+            return mode.noise_cov(m_next)
+        if self.sensor_noise == "mean":
+            return mode.noise_cov(m_next + delta)
+        if fitted is not None:
+            # the interpolant's nodes are the cubature's points (up to n = 4): reuse them
+            # (the moments below are the samples', so only the step's R_root reads this)
+            return fitted.expectation()
+        pts, w = self.cub  # type: ignore[misc]
+        xs = m_next + delta + pts @ sqrt_psd(S_delta).T
+        # the noise factor directly: R(x) = n(x) n(x)' without noise_cov's per-call checks
+        # (a non-finite factor makes the moments non-finite, caught below)
+        nxs = np.stack([mode.noise(xi) for xi in xs])
+        out: np.ndarray = np.einsum("g,gpq,grq->pr", w, nxs, nxs)
+        return out
+
+
+def _input(
+    Kt: np.ndarray,
+    v: np.ndarray,
+    eta: np.ndarray,
+    S_eta: np.ndarray,
+    box: tuple[np.ndarray, np.ndarray] | None,
+    domain: Polytope | None,
+    m: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The input: ``u - v = c_u - K_eff eta + e``, the statistical linearisation of the clip
+    (``e`` uncorrelated with the loop, covariance ``E``), and the bound on the probability that
+    the input is clipped (0 without a domain)."""
+    K_eff, c_u, E, clip = Kt, np.zeros(m), np.zeros((m, m)), 0.0
+    if box is not None:
+        mu_y = v - Kt @ eta
+        sd_y = np.sqrt(np.maximum(np.diag(Kt @ S_eta @ Kt.T), 0.0))
+        e1, var, p_in = _clipped_moments(mu_y, sd_y, box[0], box[1])
+        K_eff = p_in[:, None] * Kt
+        c_u = e1 - v + K_eff @ eta
+        E = np.diag(np.maximum(var - p_in**2 * sd_y**2, 0.0))
+        clip = min(1.0, float(np.sum(1.0 - p_in)))
+    elif domain is not None:  # a general polytope: the projection is not modelled, only bounded
+        mu_y = v - Kt @ eta
+        HK = domain.H @ Kt
+        sd_f = np.sqrt(np.maximum(np.einsum("fi,ij,fj->f", HK, S_eta, HK), 0.0))
+        clip = min(1.0, float(np.sum(1.0 - prob_le(domain.H @ mu_y + domain.c, sd_f))))
+    return K_eff, c_u, E, clip
+
+
+def _filter(mode: LCS, P: np.ndarray, x_lin: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The filter's step at the linearisation point ``x_lin``: Kalman gain, covariance, ``L C``."""
+    P_pred = mode.A @ P @ mode.A.T + mode.process_cov
+    if mode.p:
+        R_filter = mode.noise_cov(x_lin)
+        Lk = kalman_gain(mode.C, P_pred, R_filter)
+        _, P_next = kalman_update(mode, x_lin, P_pred, R=R_filter)
+        return Lk, P_next, Lk @ mode.C
+    return np.zeros((n, 0)), 0.5 * (P_pred + P_pred.T), np.zeros((n, n))
+
+
+@dataclass
+class _Linear:
+    """One step of the loop, linearised: ``z_{k+1} = F z_k + g + noise`` (module notes)."""
+
+    mode: LCS
+    real: LCS
+    K_eff: np.ndarray
+    c_u: np.ndarray
+    E: np.ndarray
+    r: np.ndarray
+    d: np.ndarray
+    LC: np.ndarray
+    Lk: np.ndarray
+    A_eta: np.ndarray
+    m_next: np.ndarray
+    x_lin: np.ndarray
+    state_dep: bool
+    Gw: np.ndarray = field(init=False)  # how the process noise enters
+    Ge: np.ndarray = field(init=False)  # how the clipping residual enters
+
+    def transition(self, D: int, sens: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """``F``, ``g`` and the sensitivity's ``J`` (None unless a state-dependent sensor's
+        sensitivity is carried)."""
+        A, B, Ar, Br = self.mode.A, self.mode.B, self.real.A, self.real.B
+        n, m = A.shape[0], B.shape[1]
+        LC, K_eff, c_u, r = self.LC, self.K_eff, self.c_u, self.r
+        I = np.eye(n)
+        ILC = I - LC
+        BrK = Br @ K_eff
+        F = np.zeros((D, D))
+        F[: 2 * n, : 2 * n] = np.block([[Ar, -BrK], [LC @ Ar, ILC @ self.A_eta - LC @ BrK]])
+        drift = Br @ c_u + self.d
+        g = np.zeros(D)
+        g[: 2 * n] = np.concatenate([drift, ILC @ (B @ c_u - r) + LC @ drift])
+        self.Gw = np.zeros((D, n))
+        self.Gw[: 2 * n] = np.vstack([I, LC])
+        self.Ge = np.zeros((D, m))
+        self.Ge[: 2 * n] = np.vstack([Br, ILC @ B + LC @ Br])
+        J = None
+        if sens:
+            Phi = ILC @ A
+            F[2 * n :, 2 * n :] = np.kron(Phi, Phi)
+            if self.state_dep:
+                dR = _noise_cov_jacobian(self.mode, self.x_lin)
+                Lk = self.Lk
+                J = np.stack([(Lk @ dR[i] @ Lk.T).reshape(-1) for i in range(n)], axis=1)  # (n^2, n)
+                F[2 * n :, n : 2 * n] = J @ self.A_eta
+                g[2 * n :] = J @ (B @ c_u - r - (self.x_lin - self.m_next))
+                self.Ge[2 * n :] = J @ B
+        return F, g, J
+
+    def noise(self, Qw: np.ndarray) -> np.ndarray:
+        """The covariance of the process noise and of the clipping residual (``transition`` first)."""
+        return self.Gw @ Qw @ self.Gw.T + self.Ge @ self.E @ self.Ge.T
+
+    def loop_step(
+        self,
+        Kt: np.ndarray,
+        v: np.ndarray,
+        box: tuple[np.ndarray, np.ndarray] | None,
+        F: np.ndarray,
+        J: np.ndarray | None,
+        Qw: np.ndarray,
+        R_true: np.ndarray,
+        sens: bool,
+    ) -> LoopStep:
+        """The step as a map on samples (:class:`~idstlpy.loop_samples.LoopStep`)."""
+        n = self.mode.A.shape[0]
+        sens_map = None
+        if sens:
+            sens_map = (F[2 * n :, 2 * n :], J if J is not None else np.zeros((n * n, n)),
+                        (self.x_lin - self.m_next) if self.state_dep else np.zeros(n))  # fmt: skip
+        return LoopStep(
+            K=Kt, v=v, low=None if box is None else box[0], high=None if box is None else box[1],
+            Ar=self.real.A, Br=self.real.B, A=self.mode.A, B=self.mode.B, d=self.d, r=self.r,
+            LC=self.LC, Lk=self.Lk,
+            W_root=sqrt_psd(Qw) if Qw.any() else np.zeros((n, 0)),
+            R_root=sqrt_psd(R_true) if self.mode.p else np.zeros((0, 0)), sens=sens_map,
+        )  # fmt: skip
