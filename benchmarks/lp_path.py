@@ -65,7 +65,7 @@ def _problem(cell: str) -> Any:
 def switch_ab(cells: list[str], repeats: int) -> None:
     """Previous vs current switch rule, interleaved in one process (see the module docstring)."""
     import idstlpy as I
-    import idstlpy.synthesis.cegis as cegis
+    import idstlpy.synthesis.eager as eager
     from idstlpy.synthesis.milp import switch_to_eager
 
     rules = {"previous": previous_rule, "current": switch_to_eager}
@@ -83,7 +83,7 @@ def switch_ab(cells: list[str], repeats: int) -> None:
             seen: dict[str, tuple[str, int]] = {}
             for r in range(repeats):
                 for tag in ("previous", "current") if r % 2 == 0 else ("current", "previous"):
-                    cegis.switch_to_eager = rules[tag]  # type: ignore[assignment]
+                    eager.switch_to_eager = rules[tag]  # type: ignore[assignment]
                     problem = _problem(cell)
                     c0, w0 = time.process_time(), time.perf_counter()
                     out = problem.solve_result(rrt_timeout=30, time_limit=30, seed=0)
@@ -106,7 +106,7 @@ def switch_ab(cells: list[str], repeats: int) -> None:
                 flush=True,
             )
     finally:
-        cegis.switch_to_eager = switch_to_eager
+        eager.switch_to_eager = switch_to_eager
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"\nload {load:.1f} at the end, {time.strftime('%H:%M UTC', time.gmtime())}")
 

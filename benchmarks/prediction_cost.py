@@ -1,8 +1,9 @@
 """What the default guarantee's prediction costs, and whether a change keeps its numbers.
 
 Under the default ``guarantee="execution"`` every plan the planner finds gets a predicted
-execution (:func:`idstlpy.executor.predict.predict_closed_loop` via ``cegis._Run.predict``). This
-benchmark times that prediction alone and whole default solves, on three problems:
+execution (:func:`idstlpy.executor.predict.predict_closed_loop` via
+``synthesis.context.SolveContext.predict``). This benchmark times that prediction alone and whole
+default solves, on three problems:
 
 - ``dims3``: three 2-D light-dark robots (6-D, :mod:`benchmarks.dims_family`, ``build(3)``);
 - ``listing``: the paper's listing (``idstlpy.scenarios.light_dark(240, 40)``, the listing's
@@ -136,10 +137,10 @@ def _load() -> None:
 
 def capture(names: list[str], seed: int = 0) -> list[dict[str, Any]]:
     """Solve each problem once and keep every prediction request the planner made."""
-    from idstlpy.synthesis import cegis
+    from idstlpy.synthesis import context
 
     requests: list[dict[str, Any]] = []
-    original = cegis.predict_closed_loop
+    original = context.predict_closed_loop
 
     for name in names:
         build, kw = PROBLEMS[name]
@@ -148,11 +149,11 @@ def capture(names: list[str], seed: int = 0) -> list[dict[str, Any]]:
             requests.append({"name": _name, "problem": problem, "plan": plan, "options": options})
             return original(problem, plan, **options)
 
-        cegis.predict_closed_loop = spy  # type: ignore[assignment]
+        context.predict_closed_loop = spy  # type: ignore[assignment]
         try:
             build().solve_result(seed=seed, time_limit=TIME_LIMIT, **kw)
         finally:
-            cegis.predict_closed_loop = original
+            context.predict_closed_loop = original
     return requests
 
 

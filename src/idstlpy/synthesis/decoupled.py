@@ -29,7 +29,7 @@ that a plan satisfies stays satisfied when the plan goes on). Otherwise (``free 
 where ``free`` and ``target`` constrain every robot: all must hold their targets together) the
 projections are only necessary conditions, and the holds usually make the composition satisfy
 the team's formula. Nothing here is trusted: the composed plan is re-rolled with the exact joint
-belief dynamics and must pass the solve's final check (:func:`.cegis._check`); otherwise, or when
+belief dynamics and must pass the solve's final check (:mod:`.final_check`); otherwise, or when
 a block is not found, the caller searches the joint problem. A block's ``infeasible`` is not
 turned into a claim about the whole problem (the sensor's dependences were probed, not proven).
 """

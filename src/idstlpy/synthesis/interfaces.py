@@ -5,7 +5,8 @@
   as proofs, and tells, when it runs dry, whether that is a proof.
 - A **teacher** decides a candidate: :class:`Found` (controls), :class:`Refuted` (a conflict
   with its proof: only this may become a clause) or :class:`Unknown` (why it gave up). It
-  declares whether it decides a problem exactly.
+  declares whether it decides a problem exactly, and has hooks for the loop's other steps:
+  guiding the proposer, rescuing a refuted candidate, hearing of a plan below target.
 - A :class:`Budget` carries the wall-clock safety cap from the first line of ``solve`` to every
   part (encoding, LPs, sampling); :class:`BudgetExceeded` unwinds to the loop when it is hit.
 
@@ -15,6 +16,7 @@ This module is a leaf: the parts import it, it imports only the plan and option 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
@@ -23,6 +25,7 @@ import numpy as np
 from .plan import DiscretePlan
 
 if TYPE_CHECKING:
+    from .bmc import BMCEncoder
     from .problem import Problem
     from .results import SolveStats
 
@@ -131,6 +134,8 @@ class Unknown:
     hint_means: np.ndarray | None = field(default=None, repr=False)
     # What the teacher got closest to: (actions (k,), controls (k, m), progress); not a plan.
     closest: tuple[np.ndarray, np.ndarray, float] | None = field(default=None, repr=False)
+    budgeted: bool = False
+    """True when the teacher gave up for want of work (a budget option may change the answer)."""
 
 
 Verdict = Found | Refuted | Unknown
@@ -153,7 +158,36 @@ class ProposerDry:
 
 
 class Proposer(Protocol):
-    """Offers discrete plans; learns proven conflicts; sets abandoned candidates aside."""
+    """Offers discrete plans; learns proven conflicts; sets abandoned candidates aside.
+
+    Every member the loop and its parts use (:mod:`.cegis`, :mod:`.eager`, the belief sampler)
+    is declared here, and they are typed against this protocol, not against an implementation.
+    """
+
+    @property
+    def hard(self) -> Sequence[Sequence[object]]:
+        """The proven clauses learnt so far, oldest first (the eager switch reads their sizes)."""
+        ...
+
+    @property
+    def bound(self) -> int:
+        """The current encoding covers plans of at most ``bound + 1`` steps."""
+        ...
+
+    @property
+    def cap(self) -> int:
+        """The largest ``bound`` allowed (the formula's horizon, or ``max_plan_length - 1``)."""
+        ...
+
+    @property
+    def H(self) -> int:
+        """The formula's horizon: a proposer dry at this bound is a proof."""
+        ...
+
+    @property
+    def sat_calls(self) -> int:
+        """SAT calls made so far (for the statistics)."""
+        ...
 
     def propose(self) -> DiscretePlan | ProposerDry:
         """The next candidate (shortest first), or why there is none."""
@@ -167,15 +201,37 @@ class Proposer(Protocol):
         """Set a candidate aside without a proof (it may count against ``infeasible``)."""
         ...
 
-    def complete(
-        self, truth: np.ndarray, modes: np.ndarray, optimistic_required: np.ndarray
-    ) -> DiscretePlan | None:
+    def set_aside(self, plan: DiscretePlan) -> None:
+        """Set a candidate's requirements aside for every mode sequence, without a proof."""
+        ...
+
+    def guide(self, plan: DiscretePlan, truth: np.ndarray) -> None:
+        """Prefer, in the next searches, the labels ``truth`` (n_atoms, K + 1) a teacher saw."""
+        ...
+
+    def grow(self) -> bool:
+        """Cover longer plans (a larger ``bound``); False when at ``cap``."""
+        ...
+
+    def complete(self, truth: np.ndarray, modes: np.ndarray) -> DiscretePlan | None:
         """A plan that extends a realised prefix, or ``None`` if none is left."""
+        ...
+
+    def export(self) -> BMCEncoder:
+        """The current encoding with its proven clauses, for an eager model."""
+        ...
+
+    def close(self) -> None:
+        """Free the proposer's solver."""
         ...
 
 
 class Teacher(Protocol):
-    """Decides candidates of the problems it applies to."""
+    """Decides candidates of the problems it applies to.
+
+    Besides :meth:`teach`, a teacher has hooks the loop calls at fixed points of the figure; their
+    defaults do nothing, so a teacher subclasses this protocol and overrides the ones it needs.
+    """
 
     name: str
 
@@ -190,3 +246,19 @@ class Teacher(Protocol):
     def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
         """Decide ``plan`` within ``budget``; count work in ``stats``."""
         ...
+
+    def guide(self, proposer: Proposer, plan: DiscretePlan) -> None:
+        """After teaching ``plan``: steer the proposer's next searches (default: nothing)."""
+        return None
+
+    def rescue(self, plan: DiscretePlan, refuted: Refuted, budget: Budget, stats: SolveStats) -> Verdict:
+        """Take over a candidate a teacher refuted (default: the refutation stands).
+
+        A teacher that chooses what a refutation was about (the modes, say) may search the
+        candidate itself; anything but ``refuted`` returned here replaces the refutation.
+        """
+        return refuted
+
+    def below_target(self) -> None:
+        """Hear that a verified plan was set aside below the execution target (default: nothing)."""
+        return None

@@ -7,7 +7,7 @@
 
 On the eager MILP's path (one mode, no state-dependent noise) the optimum is exact over every
 plan within the horizon, for the problem as stated (no execution margin, idle steps free; see
-:mod:`.milp` and ``cegis._retime``), and ``optimal=True`` only within 1e-6 of its proven bound
+:mod:`.milp` and ``eager.EagerMILP._retime``), and ``optimal=True`` only within 1e-6 of its proven bound
 (issue 25). On the sampler path the plan is refined by sequential convex programming: freeze
 the exact covariances of the current plan, solve the plan LP for the objective with the means
 kept within a trust region, re-roll the exact belief dynamics, keep the result only if the

@@ -345,9 +345,7 @@ class BMCProposer:
         phases = np.concatenate([signed.T.ravel(), enc.p[:, K + 1 :].ravel()])
         enc.set_phases(phases.tolist())
 
-    def complete(
-        self, truth: np.ndarray, modes: np.ndarray, optimistic_required: np.ndarray | None = None
-    ) -> DiscretePlan | None:
+    def complete(self, truth: np.ndarray, modes: np.ndarray) -> DiscretePlan | None:
         """A plan consistent with a realised prefix, or ``None`` when none is left.
 
         Parameters
@@ -356,8 +354,6 @@ class BMCProposer:
             The labels realised at steps ``0..k``.
         modes : ndarray of int, shape (k,)
             The modes used to arrive at steps ``1..k``.
-        optimistic_required : ignored
-            Reserved.
 
         The plan is the witness of the *optimistic* completion (every proposition claimed at
         every later step) with the latest until-witnesses, so a branch keeps it as long as

@@ -36,11 +36,10 @@ from numpy.typing import DTypeLike
 from ..belief import belief_step, rollout, rollout_arrays
 from ..sets import Polytope
 from .abstraction import Abstraction
-from .interfaces import Budget, Found, Refuted, Unknown, Verdict
+from .interfaces import Budget, Found, Proposer, Refuted, Teacher, Unknown, Verdict
 from .options import SolverOptions
 from .plan import DiscretePlan, evaluate_bool
 from .plan_lp import Scaling, lp_exact, noise_depends_on_state
-from .proposer import BMCProposer
 from .results import SolveStats
 from .room import give_room
 
@@ -191,7 +190,7 @@ class BeliefSampler:
         self,
         problem: Any,
         abstraction: Abstraction,
-        proposer: BMCProposer,
+        proposer: Proposer,
         options: SolverOptions,
     ) -> None:
         self.problem = problem
@@ -869,14 +868,14 @@ def _bucket(run: np.ndarray | int) -> np.ndarray:
     return np.floor(np.log2(np.asarray(run) + 1.0)).astype(int)
 
 
-class SamplerTeacher:
+class SamplerTeacher(Teacher):
     """Decides candidates under state-dependent noise by sampling belief space (never refutes).
 
     Parameters
     ----------
     problem : Problem
     abstraction : Abstraction
-    proposer : BMCProposer
+    proposer : Proposer
         Used to re-time a branch whose realised prefix breaks the candidate.
     options : SolverOptions
     scaling : Scaling
@@ -891,7 +890,7 @@ class SamplerTeacher:
         self,
         problem: Any,
         abstraction: Abstraction,
-        proposer: BMCProposer,
+        proposer: Proposer,
         options: SolverOptions,
         scaling: Scaling,
         seeds: np.random.SeedSequence,
@@ -929,7 +928,7 @@ class SamplerTeacher:
                 if out.capped
                 else f"sampler: no plan within its budget of {budget_iters} iterations"
             )
-            return Unknown(why, closest=out.closest)
+            return Unknown(why, closest=out.closest, budgeted=True)
         with stats.clock("time_sampling"):
             actions, controls = self.sampler.shortcut(out.actions, out.controls, self.options.shortcut_checks)
         with stats.clock("time_lp"):

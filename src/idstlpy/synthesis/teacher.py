@@ -21,7 +21,7 @@ from ..closed_loop import TRACKABLE_Z, predicted_state, trackable, tracking_back
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
-from .interfaces import Budget, Conflict, Found, Refuted, Unknown, Verdict
+from .interfaces import Budget, Conflict, Found, Proposer, Refuted, Teacher, Unknown, Verdict
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext, Scaling, covariance_schedule, lp_exact
 from .plan_solve import TIGHTEN, LPGoal, LPOutcome, Phases, solve_plan_lp
@@ -194,7 +194,7 @@ def closed_loop_lp(
     return solve(None, predicted.get_cov())
 
 
-class LPTeacher:
+class LPTeacher(Teacher):
     """Decides candidates with the plan LP (exact without state-dependent noise).
 
     Parameters
@@ -281,6 +281,26 @@ class LPTeacher:
     def exact(self, problem: Any) -> bool:
         """Exact when no mode's noise depends on the state."""
         return lp_exact(problem.switched_system)
+
+    def guide(self, proposer: Proposer, plan: DiscretePlan) -> None:
+        """Prefer, in the proposer's next searches, the labels the last LP's trajectory has."""
+        out, abstraction = self.last, self.abs
+        if out is None or out.means is None or out.covs is None or not abstraction.num_atoms:
+            return
+        K = out.means.shape[0] - 1
+        truth = np.stack(
+            [
+                abstraction.truth(out.means[k], out.covs[k], int(plan.modes[k]) if k else -1)
+                for k in range(K + 1)
+            ],
+            axis=1,
+        )
+        proposer.guide(plan, truth)
+
+    def below_target(self) -> None:
+        """Stop searching modes (see ``context.BELOW_TARGET_MIN``): the search scores modes on the
+        MLO plan LP and would map the proposer's mode sequences back to the plan set aside."""
+        self.mode_search = False
 
     def _solve(
         self,

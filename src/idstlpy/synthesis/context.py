@@ -1,0 +1,163 @@
+"""The context of one solve: what every step of the synthesis loop reads, in one object.
+
+A :class:`SolveContext` holds the problem, the options, the wall-clock :class:`~.interfaces.Budget`
+and the :class:`~.results.SolveStats` of one solve, the problem's propositions
+(:class:`~.abstraction.Abstraction`) and units (:class:`~.plan_lp.Scaling`), what the guarantee
+asks (closed loop, execution target) and whether proofs carry over to it, and the little state
+the loop keeps between candidates: the best verified plan set aside below the execution target,
+the closest partial plan a teacher reported, the last predicted execution. The loop and its parts
+(:mod:`.cegis`, :mod:`.eager`, :mod:`.optimise`, :mod:`.final_check`, :mod:`.finish`) take it
+instead of repeating ``problem, options, budget, stats, abstraction, scaling`` in every signature.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from ..errors import IdstlpyError
+from ..executor.predict import predict_closed_loop
+from ..trajectory import ProbabilisticTSTrajectory
+from .abstraction import Abstraction
+from .interfaces import Budget
+from .options import SolverOptions
+from .plan_lp import Scaling, lp_exact
+from .results import PredictedExecution, SolveStats
+
+__all__ = [
+    "BELOW_TARGET_EXTRA",
+    "BELOW_TARGET_MIN",
+    "PREDICT_SAMPLES",
+    "SolveContext",
+    "Verified",
+    "Verify",
+]
+
+logger = logging.getLogger(__name__)
+
+PREDICT_SAMPLES = 1000
+"""Model samples (and particles of the particle closure) of each predicted execution: the
+estimates' standard error is at most 1.6 points, 0.7 near a 95% rate."""
+BELOW_TARGET_EXTRA = 2.0
+"""Under ``guarantee="execution"``, after the first verified plan below target (found after ``c``
+candidates) the search goes on for at most ``BELOW_TARGET_EXTRA * c`` more candidates ..."""
+BELOW_TARGET_MIN = 200
+"""... and at least this many (a work budget: the same seed gives the same plan). From then on
+the plan LP's mode search (issue 24) is off: it scores modes on the MLO plan LP, and maps the
+proposer's mode sequences back to the plan just set aside (a "look on the last step"); the
+proposer's own enumeration of mode sequences is what finds plans that hold when executed."""
+
+
+class Verified(NamedTuple):
+    """A plan that passed the monitor: the MLO plan, its margin and, under closed_loop, the
+    predicted true-state distribution the margin is about."""
+
+    traj: ProbabilisticTSTrajectory
+    margin: float
+    predicted: ProbabilisticTSTrajectory | None
+    execution: PredictedExecution | None = None
+
+
+Verify = Callable[[np.ndarray, np.ndarray], Verified | None]
+"""The loop's verify step for a plan's modes and controls (``cegis._verify``), as the parts that
+verify plans of their own (the eager MILP) are handed it."""
+
+
+class SolveContext:
+    """One solve: the problem, its options, budget, statistics, units, and the loop's memory.
+
+    Parameters
+    ----------
+    problem : Problem
+    options : SolverOptions
+    start : float
+        ``time.perf_counter()`` at the first line of ``solve``: the wall-clock cap counts from it.
+    """
+
+    def __init__(self, problem: Any, options: SolverOptions, start: float) -> None:
+        self.problem = problem
+        self.options = options
+        self.formula = problem.stl_formula
+        self.budget = Budget(options.total_time_cap, start)
+        self.stats = SolveStats()
+        system, init = problem.switched_system, problem.initial_state
+        self.abstraction = Abstraction(self.formula, system.n)
+        self.units = Scaling.compute(system, problem.control_domain, init.mean, init.cov, self.abstraction)
+        self.closed_loop = options.guarantee == "closed_loop"
+        self.execution = options.guarantee == "execution"
+        # Under closed_loop, MLO proofs carry over only when the filter covariance is the MLO one.
+        self.proofs_hold = not self.closed_loop or lp_exact(system)
+        # Joint chance constraints are planned at one risk allocation (a sufficient condition):
+        # a refutation under it proves nothing about the others.
+        self.joint = any(ap.joints for ap in self.formula.atomic_propositions())
+        # Candidates abandoned for want of work (a budget option can change them).
+        self.budget_abandoned = 0
+        # The closest partial plan a teacher reported (actions, controls, progress), for a
+        # budget_exhausted result to show what the search got to.
+        self.closest: tuple[np.ndarray, np.ndarray, float] | None = None
+        # Under "execution": the best verified plan below target so far, and the candidate count
+        # at which the search stops looking for one that meets it.
+        self.below: Verified | None = None
+        self.below_until: int | None = None
+        self.unrepaired: set[tuple[int, ...]] = set()  # mode sequences whose repair fell short
+        self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        """``options.effort_weights`` as an array, shape (m,) (``None``: every input weighs 1)."""
+        w = self.options.effort_weights
+        return None if w is None else np.asarray(w, dtype=float)
+
+    def counts(self) -> str:
+        """The candidates so far, as a reason's tail."""
+        s = self.stats
+        return f"{s.candidates} candidates: {s.refuted} refuted by proofs, {s.abandoned} abandoned"
+
+    def predict(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
+        """The plan's predicted execution against the target (the last one is remembered).
+
+        The planner's reading of the execution: the true start drawn from the prior, the
+        model's noise, the modes' tracking gains, inputs clipped to the control domain. A
+        prediction that cannot be made (a diverging loop) counts as below target (NaN rates).
+        """
+        if self._predicted is not None and self._predicted[0] is traj:
+            return self._predicted[1]
+        problem, stats = self.problem, self.stats
+        target = self.options.execution_target
+        with stats.clock("time_prediction"):
+            try:
+                pred = predict_closed_loop(
+                    problem,
+                    traj,
+                    real_initial_cov=problem.initial_state.cov,
+                    samples=PREDICT_SAMPLES,
+                    particles=PREDICT_SAMPLES,
+                    seed=0,
+                )
+                out = PredictedExecution.from_prediction(pred, target)
+            except IdstlpyError as exc:
+                logger.info("the plan's execution could not be predicted: %s", exc)
+                nan = float("nan")
+                out = PredictedExecution(nan, nan, nan, nan, {}, target)
+        stats.predictions += 1
+        self._predicted = (traj, out)
+        return out
+
+    def set_aside(self, checked: Verified) -> None:
+        """Keep a verified plan below target if it is the best so far; start the extra search."""
+        stats = self.stats
+        stats.below_target += 1
+        ex = checked.execution
+        if self.below is None or (
+            ex is not None
+            and self.below.execution is not None
+            and ex.shortfall < self.below.execution.shortfall
+        ):
+            self.below = checked
+        if self.below_until is None:
+            c = stats.candidates
+            extra = max(BELOW_TARGET_MIN, int(np.ceil(BELOW_TARGET_EXTRA * c)))
+            self.below_until = c if self.options.termination.first_found else c + extra

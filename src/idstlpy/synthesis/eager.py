@@ -1,0 +1,325 @@
+"""The eager MILP as a strategy of the loop: when to take over, and what it returns.
+
+On an LP-exact, single-mode problem whose lazy loop has not converged (:func:`.milp.switch_to_eager`
+decides, from the proven conflicts and the count of candidates), the eager MILP (:mod:`.milp`)
+chooses the discrete plan over the proposer's encoding, growing the bound until it finds a plan or
+proves there is none; the plan is re-timed by the plan LP on its witness and verified by the
+loop's verify step. :meth:`EagerMILP.solve` returns a typed outcome: a plan with what the MILP
+proved about its objective (:class:`MILPProof`), the end of the search (:class:`EagerEnd`:
+``infeasible`` or ``budget_exhausted``), or :class:`EagerDeclined` (the lazy loop goes on). The
+optimiser asks it for the optimum over the whole horizon (:meth:`EagerMILP.optimum`) and for the
+best bound it proved on the way (:attr:`EagerMILP.proven_bound`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..backends import Backend, get_backend
+from ..trajectory import ProbabilisticTSTrajectory
+from .context import SolveContext, Verified, Verify
+from .interfaces import Proposer
+from .milp import MILPOutcome, solve_milp, switch_to_eager
+from .objectives import better, objective_value
+from .options import Objective
+from .plan import DiscretePlan, extract_witness
+from .plan_lp import PlanLPContext
+from .plan_solve import TIGHTEN, LPGoal, solve_plan_lp
+from .teacher import execution_margin
+
+__all__ = ["EagerDeclined", "EagerEnd", "EagerMILP", "EagerOutcome", "EagerPlan", "MILPProof"]
+
+logger = logging.getLogger(__name__)
+
+RETIME_TIGHTENINGS = (1e-12, 1e-10, 1e-8, TIGHTEN)
+"""Room (relative to the smallest state unit) the effort re-timing keeps, tried in turn until
+the monitor's exact re-check accepts the plan (:meth:`EagerMILP._retime`)."""
+
+
+@dataclass(frozen=True)
+class MILPProof:
+    """What the eager MILP proved about the objective of the plan it chose.
+
+    Attributes
+    ----------
+    proven : bool
+        The MILP proved its plan optimal, and no bound on the way was borderline.
+    scope : str
+        The plans the bound is over: ``"horizon"`` or ``"plans of at most N steps"``.
+    bound : float
+        The MILP's proven bound (``nan`` without an objective).
+    """
+
+    proven: bool
+    scope: str
+    bound: float
+
+
+@dataclass(frozen=True)
+class EagerPlan:
+    """The eager MILP's plan, verified, and what it proved."""
+
+    plan: Verified
+    proof: MILPProof
+    how: str = "the eager MILP chose the plan, the LP timed it, the monitor agrees"
+
+
+@dataclass(frozen=True)
+class EagerEnd:
+    """The eager MILP ended the search without a plan (``infeasible`` is a proof)."""
+
+    status: Literal["infeasible", "budget_exhausted"]
+    reason: str
+
+
+@dataclass(frozen=True)
+class EagerDeclined:
+    """No answer from the eager MILP: the model cannot be bounded soundly, or its plan did not
+    survive verification. The lazy loop goes on (and the MILP is not tried again)."""
+
+    why: str
+
+
+EagerOutcome = EagerPlan | EagerEnd | EagerDeclined
+
+
+class EagerMILP:
+    """The eager model over the proposer's encoding (see the module docstring).
+
+    Parameters
+    ----------
+    ctx : SolveContext
+    proposer : Proposer
+        Its encoding (:meth:`~.interfaces.Proposer.export`) is the MILP's discrete part; the
+        strategy grows it.
+    verify : Verify
+        The loop's verify step, for the MILP's plans.
+    enabled : bool
+        Whether the strategy may take over (an LP-exact, single-mode problem).
+    """
+
+    def __init__(self, ctx: SolveContext, proposer: Proposer, verify: Verify, enabled: bool) -> None:
+        self.ctx = ctx
+        self.proposer = proposer
+        self.verify = verify
+        self.enabled = enabled
+        # An optimum over the horizon is the MILP's job: with an objective, go there at once.
+        options = ctx.options
+        self.lazy_budget = 0 if options.objective is not None else options.lazy_candidates
+        self.proven_bound: tuple[float, str] | None = None
+        """An objective's bound the MILP proved over a scope (every plan of it, under the paper's
+        semantics, which every returned plan meets), kept when its own plan is not returned (set
+        aside below the execution target): ``(bound, scope)`` or None."""
+
+    def due(self) -> bool:
+        """Whether the MILP takes over now (:func:`~.milp.switch_to_eager`)."""
+        ctx = self.ctx
+        return self.enabled and switch_to_eager(
+            self.proposer.hard, ctx.stats.candidates, self.lazy_budget, ctx.options.lazy_conflict_size
+        )
+
+    def solve(self) -> EagerOutcome:
+        """Choose the plan with the MILP, growing the bound until a plan or a proof."""
+        ctx, proposer = self.ctx, self.proposer
+        objective = ctx.options.objective
+        if objective in ("effort", "margin"):
+            while proposer.grow():  # the optimum over the whole horizon, not the first bound
+                pass
+        bounded = self._bounded()
+        if not isinstance(bounded, tuple):
+            if isinstance(bounded, EagerDeclined):
+                self.enabled = False
+            return bounded
+        out, borderline = bounded
+        if out.claims is None or out.controls is None:
+            self.enabled = False
+            return EagerDeclined("the MILP returned no plan")
+        # Re-timed with only the LP's own tightening (2e-7 of the smallest state unit), a plan
+        # can graze a face whose unit is larger (ReachAvoid's position, 10x the velocity's: 2e-8
+        # on the scaled row, below HiGHS' tolerance) and fail the monitor by rounding (-1e-15),
+        # which cost a second re-timing. Without an objective that reads the margin, the
+        # re-timing leaves room of 1e-5 of the largest state unit inside every required face.
+        room = 1e-5 * float(np.max(ctx.units.dx)) if objective in (None, "time") else 0.0
+        whole = proposer.bound >= proposer.H or objective == "time"  # shorter plans are all inside
+        scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
+        if objective is not None and out.proven and not borderline:
+            self.proven_bound = (out.bound, scope)
+        checked = self._retime(out.claims, out.controls, objective, room)
+        if checked is None:
+            self.enabled = False
+            return EagerDeclined("the MILP's plan failed verification")
+        return EagerPlan(checked, MILPProof(out.proven and not borderline, scope, out.bound))
+
+    def _bounded(self) -> tuple[MILPOutcome, bool] | EagerEnd | EagerDeclined:
+        """The MILP at growing bounds: its first plan and whether a bound on the way was
+        borderline (no shorter plan is proven absent then), or how the search ends."""
+        ctx, proposer = self.ctx, self.proposer
+        backend = get_backend(ctx.options.milp_backend, integer=True)
+        borderline = False  # some bound's infeasibility rested on a tolerance (time's search)
+        while True:
+            logger.info(
+                "%d candidates tried: the eager MILP takes over at %d steps",
+                ctx.stats.candidates,
+                proposer.bound + 1,
+            )
+            out = self._milp(backend, ctx.options.objective)
+            if out.status == "unsupported":
+                logger.info("eager MILP not used: %s", out.why)
+                return EagerDeclined(out.why)
+            if out.status == "timeout":
+                ctx.budget.check("the eager MILP")
+                return EagerEnd("budget_exhausted", f"the eager MILP stopped: {out.why}; {ctx.counts()}")
+            if out.status == "borderline":
+                # No proof either way at this bound: at the horizon that is the answer; below it
+                # the search goes on, but no shorter plan is proven absent any more.
+                if proposer.bound >= proposer.H or proposer.bound >= proposer.cap:
+                    return EagerEnd("budget_exhausted", f"{out.why}; {ctx.counts()}")
+                borderline = True
+                proposer.grow()
+                continue
+            if out.status == "infeasible":
+                end = self._infeasible()
+                if end is not None:
+                    return end
+                proposer.grow()
+                continue
+            return out, borderline
+
+    def _infeasible(self) -> EagerEnd | None:
+        """What the MILP's proof at the current bound ends, if anything (else: grow the bound)."""
+        ctx, proposer = self.ctx, self.proposer
+        if proposer.bound >= proposer.H:
+            return EagerEnd(
+                "infeasible", f"the eager MILP proved that no plan exists within the horizon; {ctx.counts()}"
+            )
+        if proposer.bound >= proposer.cap:
+            return EagerEnd(
+                "budget_exhausted",
+                f"no plan of at most max_plan_length = {ctx.options.max_plan_length} steps (eager MILP); "
+                f"{ctx.counts()}",
+            )
+        return None
+
+    def _milp(self, backend: Backend, objective: Objective | None) -> MILPOutcome:
+        """The MILP over the proposer's current encoding."""
+        ctx = self.ctx
+        problem, stats = ctx.problem, ctx.stats
+        init = problem.initial_state
+        with stats.clock("time_lp"):
+            out = solve_milp(
+                self.proposer.export(),
+                ctx.abstraction,
+                problem.switched_system,
+                problem.control_domain,
+                init.mean,
+                init.cov,
+                ctx.units,
+                backend,
+                ctx.budget,
+                objective,
+                ctx.weights,
+            )
+        stats.milp_calls += 1
+        return out
+
+    def optimum(self, name: Objective) -> tuple[ProbabilisticTSTrajectory, bool, float, bool] | None:
+        """The MILP's optimum of objective ``name`` over every plan up to the horizon (or
+        ``max_plan_length``).
+
+        Returns ``(plan, proven, bound, whole_horizon)`` or ``None`` when the MILP cannot be
+        built soundly or finds nothing.
+        """
+        proposer = self.proposer
+        while proposer.grow():
+            pass
+        out = self._milp(get_backend(self.ctx.options.milp_backend, integer=True), name)
+        if out.status != "found" or out.claims is None or out.controls is None:
+            return None
+        if out.proven and proposer.bound >= proposer.H:
+            self.proven_bound = (out.bound, "horizon")
+        checked = self._retime(out.claims, out.controls, name)
+        if checked is None:
+            return None
+        return checked.traj, out.proven, out.bound, proposer.bound >= proposer.H
+
+    def _retime(
+        self, claims: np.ndarray, controls: np.ndarray, objective: Objective | None, room: float = 0.0
+    ) -> Verified | None:
+        """Verify a MILP's plan, first re-solved by the plan LP on its witness (exact re-timing).
+
+        ``room`` is the least margin (state units) the re-timing leaves inside the required
+        faces. Without an objective (or for ``"time"``, whose value is the length) the re-timing
+        also keeps the execution margin (:func:`~.teacher.execution_margin`). For ``"effort"`` and
+        ``"margin"`` it solves the problem as stated (issue 25: the margin kept for execution is
+        not part of the optimum the MILP proves): ``"effort"`` tries the tightenings of
+        :data:`RETIME_TIGHTENINGS` in turn (the first plan the monitor accepts, so the value is
+        the LP's optimum to ~1e-12 of the state's unit instead of 2e-7 of it divided by the
+        input gain), and the MILP's own plan is verified too; the better of the two is returned.
+        """
+        formula = self.ctx.formula
+        witness = extract_witness(
+            formula, claims, self.ctx.abstraction.index, prefer_late=objective != "time"
+        )
+        optimising = objective in ("effort", "margin")
+        found: list[Verified] = []
+        if witness is not None:
+            required, L = witness
+            plan = DiscretePlan(required[:, :L], np.zeros(L, dtype=int), L)
+            solved, timed = self._timed(plan, objective, room)
+            if solved and not optimising:
+                return timed  # the re-timed plan or nothing, as without an objective
+            if timed is not None:
+                found.append(timed)
+        if optimising or not found:
+            raw = self.verify(np.zeros(controls.shape[0], dtype=int), controls)
+            if raw is not None:
+                found.append(raw)
+        if not found:
+            return None
+        if objective is None or objective == "time":
+            return found[0]
+        values = [objective_value(objective, v.traj, formula, self.ctx.weights) for v in found]
+        best = 0
+        for i in range(1, len(found)):
+            if better(objective, values[i], values[best]):
+                best = i
+        return found[best]
+
+    def _timed(
+        self, plan: DiscretePlan, objective: Objective | None, room: float
+    ) -> tuple[bool, Verified | None]:
+        """The plan LP's re-timing of the MILP's witness ``plan``, verified (see :meth:`_retime`);
+        for ``"effort"`` the first of :data:`RETIME_TIGHTENINGS` that passes.
+
+        Returns ``(solved, plan)``: ``solved`` is False when the last LP found no plan.
+        """
+        ctx = self.ctx
+        problem, stats = ctx.problem, ctx.stats
+        system, init = problem.switched_system, problem.initial_state
+        optimising = objective in ("effort", "margin")
+        keep = room if optimising else max(execution_margin(system, init, ctx.abstraction, plan), room)
+        for tighten in RETIME_TIGHTENINGS if objective == "effort" else (TIGHTEN,):
+            context = PlanLPContext.of(
+                problem, ctx.abstraction, ctx.units, get_backend(ctx.options.lp_backend)
+            )
+            goal = LPGoal(objective if optimising else None, ctx.weights, tighten)
+            with stats.clock("time_lp"):
+                lp = solve_plan_lp(
+                    context,
+                    plan,
+                    keep,
+                    goal=goal,
+                    time_limit=max(ctx.budget.remaining(), 1e-3),
+                    phases="witness",  # the MILP's witness: no elastic phase when it holds
+                )
+            stats.lp_calls += 1
+            if not (lp.feasible and lp.controls is not None):
+                return False, None
+            checked = self.verify(np.zeros(plan.length - 1, dtype=int), lp.controls)
+            if not optimising or checked is not None:
+                return True, checked
+        return True, None

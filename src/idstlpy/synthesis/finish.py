@@ -1,0 +1,157 @@
+"""The solve's result, built once (:func:`finish`): status, reason, plan, prediction, objective.
+
+Every way the loop ends comes here with what it knows, and the :class:`~.results.SolveResult` is
+made in one piece: a ``found`` plan gets its predicted execution (and an
+:class:`~idstlpy.errors.ExecutionTargetWarning` when that is below target), a search that ends
+without a plan returns the best plan set aside below the execution target when there is one, an
+``infeasible`` that is no proof under the guarantee (or the risk allocation) becomes
+``budget_exhausted``, and a ``budget_exhausted`` says what to raise and shows the closest
+partial plan.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import warnings
+from typing import NamedTuple
+
+from ..belief import rollout
+from ..errors import ExecutionTargetWarning
+from .advice import budget_advice
+from .allocation import NO_PROOF
+from .context import SolveContext, Verified
+from .objectives import objective_value
+from .options import Objective
+from .results import PredictedExecution, SolveResult, Status
+
+__all__ = ["ObjectiveClaim", "finish"]
+
+logger = logging.getLogger(__name__)
+
+
+class ObjectiveClaim(NamedTuple):
+    """What a result says about the objective: its value and, where proven, a bound.
+
+    ``bound`` is proven over ``scope`` (``nan``: none); ``optimal`` only when the value is within
+    the tolerance of it (:data:`.optimise.OPTIMALITY_TOL`).
+    """
+
+    name: Objective
+    value: float
+    bound: float = float("nan")
+    optimal: bool = False
+    scope: str = ""
+
+
+def finish(
+    ctx: SolveContext,
+    status: Status,
+    reason: str,
+    plan: Verified | None = None,
+    claim: ObjectiveClaim | None = None,
+) -> SolveResult:
+    """The solve's :class:`~.results.SolveResult` (see the module docstring).
+
+    Parameters
+    ----------
+    ctx : SolveContext
+    status : {"found", "infeasible", "budget_exhausted"}
+        As the loop ended (a plan set aside may turn it into ``found``).
+    reason : str
+    plan : Verified, optional
+        The plan found (``status == "found"``).
+    claim : ObjectiveClaim, optional
+        The found plan's objective (the optimiser's).
+    """
+    stats = ctx.stats
+    below = ctx.below if status != "found" else None
+    if below is not None:
+        # Under "execution": no plan met the target, but a verified one was set aside.
+        reason = (
+            f"no plan met the execution target {ctx.options.execution_target} before the search "
+            f"stopped ({reason}); the best verified plan is returned, predicted below target"
+        )
+        status, plan = "found", below
+        name = ctx.options.objective
+        if name is not None:  # the plan set aside: its objective's value, no optimality claimed
+            claim = ObjectiveClaim(name, objective_value(name, below.traj, ctx.formula, ctx.weights))
+    stats.time_total = ctx.budget.elapsed()
+    if status != "found":
+        status, reason = _unfound(ctx, status, reason)
+    traj = None if plan is None else plan.traj
+    execution = None
+    if status == "found" and traj is not None:
+        execution = ctx.predict(traj)
+        _warn_below_target(ctx, execution)
+        stats.time_total = ctx.budget.elapsed()
+    logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
+    closest = None
+    if status == "budget_exhausted" and ctx.closest is not None:
+        acts, ctrls, _ = ctx.closest
+        closest = rollout(ctx.problem.switched_system, ctx.problem.initial_state, acts, ctrls)
+    if claim is not None and ctx.joint:  # optimal (and bounded) at the planned risk allocation only
+        claim = claim._replace(optimal=False, scope="", bound=float("nan"))
+    return SolveResult(
+        status,
+        traj,
+        reason,
+        float("nan") if plan is None else plan.margin,
+        stats,
+        str(ctx.formula),
+        objective=None if claim is None else claim.name,
+        objective_value=float("nan") if claim is None else claim.value,
+        objective_bound=float("nan") if claim is None else claim.bound,
+        optimal=False if claim is None else claim.optimal,
+        optimal_scope="" if claim is None else claim.scope,
+        guarantee=ctx.options.guarantee,
+        predicted=None if plan is None else plan.predicted,
+        closest=closest,
+        execution=execution,
+    )
+
+
+def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, str]:
+    """The status and reason of a solve that ends without a plan, with what qualifies them."""
+    if status == "infeasible" and not ctx.proofs_hold:
+        status = "budget_exhausted"
+        reason += (
+            " under the MLO reading; with state-dependent sensor noise that is no proof for "
+            "guarantee='closed_loop'"
+        )
+    if status == "infeasible" and ctx.joint:
+        status = "budget_exhausted"
+        reason += NO_PROOF  # allocation.prove_infeasible may prove it on the relaxation
+    if status == "budget_exhausted":
+        advice = budget_advice(reason, ctx.stats, ctx.options, ctx.formula.horizon, ctx.budget_abandoned)
+        reason += f"; {advice}" if advice else ""
+    if "time_limit" in ctx.stats.caps_hit:
+        reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
+    return status, reason
+
+
+def _warn_below_target(ctx: SolveContext, execution: PredictedExecution) -> None:
+    """An :class:`~idstlpy.errors.ExecutionTargetWarning` for a returned plan below target."""
+    if execution.meets_target:
+        return
+    warnings.warn(
+        ExecutionTargetWarning(
+            f"the returned plan falls short of the execution target {execution.target}: "
+            f"predicted to hold for the executed belief in "
+            f"{100 * execution.belief_estimate:.1f}% and for the true state in "
+            f"{100 * execution.state_estimate:.1f}% of executions "
+            f"(guarantee={ctx.options.guarantee!r}); see result.execution"
+        ),
+        stacklevel=_user_stacklevel(),
+    )
+
+
+def _user_stacklevel() -> int:
+    """The ``stacklevel`` (for a ``warnings.warn`` in the caller) of the first frame outside the
+    package, so that a warning names the user's line."""
+    package = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    level, frame = 1, sys._getframe(1)  # stacklevel 1: the caller of warnings.warn
+    while frame.f_back is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level
