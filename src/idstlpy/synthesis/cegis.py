@@ -250,7 +250,8 @@ def _stop(ctx: SolveContext) -> str | None:
     spent = termination.work_done(stats.candidates, stats.lp_calls)
     if spent is not None:
         return f"{spent}; {ctx.counts()}"
-    if ctx.below_until is not None and stats.candidates >= ctx.below_until:
+    below_until = ctx.target.below_until
+    if below_until is not None and stats.candidates >= below_until:
         spent = "first_found" if termination.first_found else "the search budget"
         return f"{spent} after a plan below target; {ctx.counts()}"
     return None
@@ -337,9 +338,10 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
     """Under ``guarantee="execution"``: the verified plan if its predicted execution meets the
     target, else its closed-loop repair (:func:`~.certify.certify`) if that keeps the paper's
     semantics and meets it; otherwise the better of the two is set aside
-    (:meth:`~.context.SolveContext.set_aside`) and None returned (the candidate is abandoned, the
+    (:meth:`~.context.TargetWatch.set_aside`) and None returned (the candidate is abandoned, the
     search goes on)."""
-    execution = ctx.predict(checked.traj)
+    target = ctx.target
+    execution = target.predict(checked.traj)
     checked = checked._replace(execution=execution)
     if execution.meets_target:
         return checked
@@ -347,7 +349,7 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
     room = ctx.stats.execution_room
     modes = tuple(int(a) for a in checked.traj.get_action())
     repaired = None
-    if modes not in ctx.unrepaired:  # the repair keeps the modes: once per mode sequence
+    if modes not in target.unrepaired:  # the repair keeps the modes: once per mode sequence
         try:
             repaired = _certify(ctx, checked.traj)
         finally:
@@ -356,16 +358,16 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
     if repaired is not None:
         margin = robustness(repaired.traj, ctx.formula)
         if margin >= 0:  # the repair keeps the MLO semantics (it should: its covariances are larger)
-            ex = ctx.predict(repaired.traj)
+            ex = target.predict(repaired.traj)
             fixed = Verified(repaired.traj, margin, None, ex)
             if ex.meets_target:
                 logger.info("the closed-loop repair meets the execution target (%s)", ex.summary())
                 return fixed
             if ex.shortfall < execution.shortfall:
                 best = fixed
-    ctx.unrepaired.add(modes)
+    target.unrepaired.add(modes)
     logger.info("plan set aside below the execution target: %s", (best.execution or execution).summary())
-    ctx.set_aside(best)
+    target.set_aside(best)
     return None
 
 

@@ -4,8 +4,9 @@ A :class:`SolveContext` holds the problem, the options, the wall-clock :class:`~
 and the :class:`~.results.SolveStats` of one solve, the problem's propositions
 (:class:`~.abstraction.Abstraction`) and units (:class:`~.plan_lp.Scaling`), what the guarantee
 asks (closed loop, execution target) and whether proofs carry over to it, and the little state
-the loop keeps between candidates: the best verified plan set aside below the execution target,
-the closest partial plan a teacher reported, the last predicted execution. The loop and its parts
+the loop keeps between candidates: the closest partial plan a teacher reported and, in a
+:class:`TargetWatch`, the last predicted execution and the best verified plan set aside below the
+execution target. The loop and its parts
 (:mod:`.cegis`, :mod:`.eager`, :mod:`.optimise`, :mod:`.final_check`, :mod:`.finish`) take it
 instead of repeating ``problem, options, budget, stats, abstraction, scaling`` in every signature.
 """
@@ -32,6 +33,7 @@ __all__ = [
     "BELOW_TARGET_MIN",
     "PREDICT_SAMPLES",
     "SolveContext",
+    "TargetWatch",
     "Verified",
     "Verify",
 ]
@@ -67,7 +69,8 @@ verify plans of their own (the eager MILP) are handed it."""
 
 
 class SolveContext:
-    """One solve: the problem, its options, budget, statistics, units, and the loop's memory.
+    """One solve: the problem, its options, budget, statistics, units, what the guarantee asks,
+    and the loop's memory (the closest partial plan, the execution target's :class:`TargetWatch`).
 
     Parameters
     ----------
@@ -98,23 +101,41 @@ class SolveContext:
         # The closest partial plan a teacher reported (actions, controls, progress), for a
         # budget_exhausted result to show what the search got to.
         self.closest: tuple[np.ndarray, np.ndarray, float] | None = None
+        self.target = TargetWatch(problem, options, self.stats)
+
+    @property
+    def weights(self) -> np.ndarray | None:
+        """The effort weights as an array, shape (m,) (``None``: every input weighs 1)."""
+        return self.options.objectives.weights
+
+    def counts(self) -> str:
+        """The candidates so far, as a reason's tail."""
+        s = self.stats
+        return f"{s.candidates} candidates: {s.refuted} refuted by proofs, {s.abandoned} abandoned"
+
+
+class TargetWatch:
+    """What the loop remembers about the execution target: the last predicted execution, the best
+    verified plan set aside below the target, and when the search for a better one stops.
+
+    Parameters
+    ----------
+    problem : Problem
+    options : SolverOptions
+    stats : SolveStats
+        The solve's statistics (predictions and plans below target are counted there).
+    """
+
+    def __init__(self, problem: Any, options: SolverOptions, stats: SolveStats) -> None:
+        self.problem = problem
+        self.options = options
+        self.stats = stats
         # Under "execution": the best verified plan below target so far, and the candidate count
         # at which the search stops looking for one that meets it.
         self.below: Verified | None = None
         self.below_until: int | None = None
         self.unrepaired: set[tuple[int, ...]] = set()  # mode sequences whose repair fell short
         self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
-
-    @property
-    def weights(self) -> np.ndarray | None:
-        """``options.effort_weights`` as an array, shape (m,) (``None``: every input weighs 1)."""
-        w = self.options.effort_weights
-        return None if w is None else np.asarray(w, dtype=float)
-
-    def counts(self) -> str:
-        """The candidates so far, as a reason's tail."""
-        s = self.stats
-        return f"{s.candidates} candidates: {s.refuted} refuted by proofs, {s.abandoned} abandoned"
 
     def predict(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
         """The plan's predicted execution against the target (the last one is remembered).

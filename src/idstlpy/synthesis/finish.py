@@ -66,7 +66,7 @@ def finish(
         The found plan's objective (the optimiser's).
     """
     stats = ctx.stats
-    below = ctx.below if status != "found" else None
+    below = ctx.target.below if status != "found" else None
     if below is not None:
         # Under "execution": no plan met the target, but a verified one was set aside.
         reason = (
@@ -83,7 +83,7 @@ def finish(
     traj = None if plan is None else plan.traj
     execution = None
     if status == "found" and traj is not None:
-        execution = ctx.predict(traj)
+        execution = ctx.target.predict(traj)
         _warn_below_target(ctx, execution)
         stats.time_total = ctx.budget.elapsed()
     logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
