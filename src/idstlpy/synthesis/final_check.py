@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +21,10 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .context import SolveContext, Verified
 from .plan_lp import Scaling
 from .teacher import closed_loop_check
+
+if TYPE_CHECKING:
+    from ..dynamical_system import SwitchedSystem
+    from ..sets import Polytope
 
 __all__ = ["DOMAIN_TOL", "FAR_INPUTS", "final_check"]
 
@@ -73,7 +77,7 @@ FAR_INPUTS = 1e3
 warned about (:func:`_warn_far_inputs`)."""
 
 
-def _outside_domain(domain: Any, controls: np.ndarray, du: np.ndarray) -> str:
+def _outside_domain(domain: Polytope, controls: np.ndarray, du: np.ndarray) -> str:
     """Why ``controls`` (shape (N, m)) break ``domain``, or ``""`` when every input meets it.
 
     Each face ``h'u + c <= 0`` is measured in the inputs' units: ``(h'u + c) / ||h * du||``
@@ -118,7 +122,7 @@ def _warn_far_inputs(ctx: SolveContext, controls: np.ndarray) -> None:
     warnings.warn(msg, UserWarning, stacklevel=2)
 
 
-def _input_scale(system: Any, domain: Any, units: Scaling) -> np.ndarray | None:
+def _input_scale(system: SwitchedSystem, domain: Polytope, units: Scaling) -> np.ndarray | None:
     """Per input, the scale :func:`_warn_far_inputs` compares a plan's inputs with, shape (m,);
     ``None`` when the control domain is bounded (the domain itself then bounds the inputs).
 

@@ -51,7 +51,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.special import ndtri
@@ -63,6 +63,11 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .plan import DiscretePlan
 from .plan_lp import plan_requirements
+
+if TYPE_CHECKING:
+    from ..closed_loop import ClosedLoopMoments
+    from ..dynamical_system import SwitchedSystem
+    from ..sets import Polytope
 
 __all__ = [
     "BELIEF_FAILURE",
@@ -193,7 +198,9 @@ def _ratio(have: np.ndarray, need: np.ndarray) -> np.ndarray:
     return np.minimum(r, _CAP)
 
 
-def _loop(system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any) -> Any:
+def _loop(
+    system: SwitchedSystem, traj: ProbabilisticTSTrajectory, control_domain: Polytope
+) -> ClosedLoopMoments | None:
     """The planner's closed loop around ``traj`` (module notes), or None when it diverges."""
     n, N = system.n, traj.num_of_steps
     actions = np.asarray(traj.get_action(), dtype=int)[:N]
@@ -245,12 +252,13 @@ def _trials(
 
 def _face_sd(H: np.ndarray, S: np.ndarray) -> np.ndarray:
     """``sqrt(h_f' S h_f)`` per face ``h_f`` (rows of ``H``, shape (F, n)); ``S`` (n, n)."""
-    return np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", H, S, H), 0.0))
+    sd: np.ndarray = np.sqrt(np.maximum(np.einsum("fa,ab,fb->f", H, S, H), 0.0))
+    return sd
 
 
 def execution_room(
-    system: Any,
-    control_domain: Any,
+    system: SwitchedSystem,
+    control_domain: Polytope,
     abstraction: Abstraction,
     plan: DiscretePlan,
     traj: ProbabilisticTSTrajectory,
@@ -301,7 +309,11 @@ def execution_room(
 
 
 def _face_parts(
-    n: int, loop: Any, traj: ProbabilisticTSTrajectory, abstraction: Abstraction, reqs: list[tuple[int, int]]
+    n: int,
+    loop: ClosedLoopMoments,
+    traj: ProbabilisticTSTrajectory,
+    abstraction: Abstraction,
+    reqs: list[tuple[int, int]],
 ) -> list[tuple[np.ndarray, ...]]:
     """Per requirement ``(k, i)``, per face: the room kept, the plan's own back-off term, the
     true state's and the belief's predicted spread along the face, their correlations with the
@@ -335,7 +347,11 @@ def _face_parts(
 
 
 def _input_room(
-    system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any, loop: Any, z_input: float
+    system: SwitchedSystem,
+    traj: ProbabilisticTSTrajectory,
+    control_domain: Polytope,
+    loop: ClosedLoopMoments,
+    z_input: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per step and control face: the room the tracking correction needs and the room the
     plan's inputs leave (both (N, F_u))."""

@@ -28,7 +28,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import DTypeLike
@@ -42,6 +42,10 @@ from .plan import DiscretePlan, evaluate_bool
 from .plan_lp import Scaling, lp_exact, noise_depends_on_state
 from .results import SolveStats
 from .room import give_room
+
+if TYPE_CHECKING:  # problem.py imports the loop that imports this module
+    from ..dynamical_system import LCS
+    from .problem import Problem
 
 __all__ = ["BeliefSampler", "SamplerOutcome", "SamplerTeacher"]
 
@@ -188,7 +192,7 @@ class BeliefSampler:
 
     def __init__(
         self,
-        problem: Any,
+        problem: Problem,
         abstraction: Abstraction,
         proposer: Proposer,
         options: SolverOptions,
@@ -240,7 +244,7 @@ class BeliefSampler:
         self._sensing = self._sensing_points()
 
     @staticmethod
-    def _steering_gains(mode: Any, horizon: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _steering_gains(mode: LCS, horizon: int) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per ``h = 1..horizon``: ``(A^h, G_h)`` where ``G_h`` maps ``target - A^h x`` to the
         least-norm ``h``-step input sequence reaching ``target`` (pseudo-inverse of the ``h``-step
         controllability matrix, shape (h m, n)): steering that respects any linear dynamics.
@@ -257,7 +261,7 @@ class BeliefSampler:
         return out
 
     @staticmethod
-    def _controllability_index(mode: Any, horizon: int) -> int:
+    def _controllability_index(mode: LCS, horizon: int) -> int:
         """Fewest steps in which the mode's inputs can move the mean anywhere (``horizon`` if never).
 
         At most ``n`` steps are tried: what ``n`` steps cannot reach, no number can
@@ -888,7 +892,7 @@ class SamplerTeacher(Teacher):
 
     def __init__(
         self,
-        problem: Any,
+        problem: Problem,
         abstraction: Abstraction,
         proposer: Proposer,
         options: SolverOptions,
@@ -902,11 +906,11 @@ class SamplerTeacher(Teacher):
         self.seeds = seeds
         self.sampler = BeliefSampler(problem, abstraction, proposer, options)
 
-    def applies(self, problem: Any) -> bool:
+    def applies(self, problem: Problem) -> bool:
         """Only problems the plan LP is not exact for (:func:`~.plan_lp.lp_exact`) need sampling."""
         return not lp_exact(problem.switched_system)
 
-    def exact(self, problem: Any) -> bool:
+    def exact(self, problem: Problem) -> bool:
         """Sampling never proves a candidate impossible."""
         return False
 
