@@ -53,7 +53,7 @@ import functools
 import logging
 import time
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -78,6 +78,9 @@ from .results import SolveResult, Status
 from .sampler import SamplerTeacher
 from .teacher import LPTeacher
 
+if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)
+    from .problem import Problem
+
 __all__ = ["synthesize"]
 
 logger = logging.getLogger(__name__)
@@ -88,7 +91,7 @@ _check = final_check
 """The final check under the name tests use."""
 
 
-def synthesize(problem: Any, options: SolverOptions, start: float | None = None) -> SolveResult:
+def synthesize(problem: Problem, options: SolverOptions, start: float | None = None) -> SolveResult:
     """Run the CEGIS loop on ``problem`` (see the module docstring).
 
     Parameters

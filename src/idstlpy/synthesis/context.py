@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from .interfaces import Budget
 from .options import SolverOptions
 from .plan_lp import Scaling, lp_exact
 from .results import PredictedExecution, SolveStats
+
+if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)
+    from .problem import Problem
 
 __all__ = [
     "BELOW_TARGET_EXTRA",
@@ -80,7 +83,7 @@ class SolveContext:
         ``time.perf_counter()`` at the first line of ``solve``: the wall-clock cap counts from it.
     """
 
-    def __init__(self, problem: Any, options: SolverOptions, start: float) -> None:
+    def __init__(self, problem: Problem, options: SolverOptions, start: float) -> None:
         self.problem = problem
         self.options = options
         self.formula = problem.stl_formula
@@ -126,7 +129,7 @@ class TargetWatch:
         The solve's statistics (predictions and plans below target are counted there).
     """
 
-    def __init__(self, problem: Any, options: SolverOptions, stats: SolveStats) -> None:
+    def __init__(self, problem: Problem, options: SolverOptions, stats: SolveStats) -> None:
         self.problem = problem
         self.options = options
         self.stats = stats
