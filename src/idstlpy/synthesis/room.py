@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -25,6 +25,10 @@ from .plan_lp import PlanLPContext, PlanRows, Scaling, build_plan_rows, covarian
 from .plan_solve import TrustRegion, margin_phase
 from .repair import repair
 from .results import SolveStats
+
+if TYPE_CHECKING:
+    from ..formulas import STLFormula
+    from .problem import Problem
 from .room_measure import (
     BELIEF_FAILURE,
     ROOM_FLOOR,
@@ -58,7 +62,7 @@ INPUT_LEVELS = (1.0, 0.5, 0.0)
 keep the inputs off their bounds still gives the required faces their room)."""
 
 
-def _row_room(rows: Any, room: Room, abstraction: Abstraction) -> np.ndarray:
+def _row_room(rows: PlanRows, room: Room, abstraction: Abstraction) -> np.ndarray:
     """The needed room of every face row of ``rows`` (raw units), in row order.
 
     The plan LP drops the faces that do not read the mean (their room is zero); rows of one
@@ -230,7 +234,9 @@ class RoomState:
     room: Room
 
 
-def room_state(context: PlanLPContext, formula: Any, traj: ProbabilisticTSTrajectory) -> RoomState | None:
+def room_state(
+    context: PlanLPContext, formula: STLFormula, traj: ProbabilisticTSTrajectory
+) -> RoomState | None:
     """``traj``'s witness (:func:`~.plan.trajectory_plan`) and its execution room, or None."""
     plan = trajectory_plan(formula, context.abstraction, traj)
     if plan is None:
@@ -240,7 +246,7 @@ def room_state(context: PlanLPContext, formula: Any, traj: ProbabilisticTSTrajec
 
 
 def give_room(
-    problem: Any,
+    problem: Problem,
     abstraction: Abstraction,
     scaling: Scaling,
     traj: ProbabilisticTSTrajectory,
@@ -296,7 +302,7 @@ class _RoomSteps:
 
     name = "room"
 
-    def __init__(self, context: PlanLPContext, problem: Any, stats: SolveStats) -> None:
+    def __init__(self, context: PlanLPContext, problem: Problem, stats: SolveStats) -> None:
         self.context = context
         self.formula = problem.stl_formula
         self.init = problem.initial_state

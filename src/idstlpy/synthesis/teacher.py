@@ -10,8 +10,8 @@ and its plan LP with room for the tracking correction (:func:`closed_loop_lp`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -27,6 +27,13 @@ from .plan_lp import PlanLPContext, Scaling, covariance_schedule, lp_exact
 from .plan_solve import TIGHTEN, LPGoal, LPOutcome, Phases, solve_plan_lp
 from .results import SolveStats
 from .room import give_room
+
+if TYPE_CHECKING:
+    from ..belief import GaussianBelief
+    from ..dynamical_system import SwitchedSystem
+    from ..formulas import STLFormula
+    from ..sets import Polytope
+    from .problem import Problem
 
 __all__ = [
     "LPOutcome",
@@ -60,14 +67,16 @@ def _prefix_conflict(plan: DiscretePlan, out: LPOutcome, num_modes: int) -> Conf
     return Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})")
 
 
-def _noisy(system: Any, init: Any) -> bool:
+def _noisy(system: SwitchedSystem, init: GaussianBelief) -> bool:
     """Whether a plan will meet noise: an uncertain start, process noise or a sensor."""
     return bool(np.any(init.cov != 0)) or any(
         np.any(mode.process_cov != 0) or mode.p > 0 for mode in system.system_modes
     )
 
 
-def execution_margin(system: Any, init: Any, abstraction: Abstraction, plan: DiscretePlan) -> float:
+def execution_margin(
+    system: SwitchedSystem, init: GaussianBelief, abstraction: Abstraction, plan: DiscretePlan
+) -> float:
     """Room to leave inside required regions when the plan will meet noise (0 when it will not).
 
     Half the Chebyshev radius of the smallest bounded required region (one unit of the largest
@@ -92,7 +101,7 @@ step first; the last level is what :func:`idstlpy.closed_loop.trackable` asks of
 
 
 def closed_loop_check(
-    system: Any, traj: ProbabilisticTSTrajectory, control_domain: Any, formula: Any
+    system: SwitchedSystem, traj: ProbabilisticTSTrajectory, control_domain: Polytope, formula: STLFormula
 ) -> tuple[ProbabilisticTSTrajectory, float, bool, bool]:
     """What ``guarantee="closed_loop"`` verifies of a plan.
 
@@ -145,9 +154,9 @@ def closed_loop_check(
 
 
 def closed_loop_lp(
-    system: Any,
+    system: SwitchedSystem,
     traj: ProbabilisticTSTrajectory,
-    control_domain: Any,
+    control_domain: Polytope,
     predicted: ProbabilisticTSTrajectory,
     solve: Callable[[np.ndarray | None, np.ndarray], LPOutcome],
 ) -> LPOutcome:
@@ -219,7 +228,7 @@ class LPTeacher(Teacher):
 
     def __init__(
         self,
-        problem: Any,
+        problem: Problem,
         abstraction: Abstraction,
         scaling: Scaling,
         backend: Backend,
@@ -274,11 +283,11 @@ class LPTeacher(Teacher):
         moved = give_room(problem, self.abs, self.scaling, traj, ROOM_ROUNDS, stats, deadline)
         return np.asarray(moved.get_action(), dtype=int), np.asarray(moved.get_control(), dtype=float)
 
-    def applies(self, problem: Any) -> bool:
+    def applies(self, problem: Problem) -> bool:
         """The LP is a sound relaxation of every problem."""
         return True
 
-    def exact(self, problem: Any) -> bool:
+    def exact(self, problem: Problem) -> bool:
         """Exact when no mode's noise depends on the state."""
         return lp_exact(problem.switched_system)
 
@@ -453,7 +462,7 @@ class LPTeacher(Teacher):
                 found = cand
             return got
 
-        def moves(modes: np.ndarray, k0: int):
+        def moves(modes: np.ndarray, k0: int) -> Iterator[np.ndarray]:
             """Single changes (nearest before ``k0`` first), then a switch moved one step."""
             order = list(range(min(k0, K), 0, -1)) + list(range(min(k0, K) + 1, K + 1))
             for j in order:
