@@ -74,6 +74,7 @@ from .plan_lp import PlanLPContext, Scaling, build_plan_rows
 if TYPE_CHECKING:
     from ..dynamical_system import SwitchedSystem
     from ..sets import Polytope
+    from .options import Objective
 
 __all__ = ["MILPOutcome", "solve_milp", "switch_to_eager"]
 
@@ -697,7 +698,7 @@ def solve_milp(
     scaling: Scaling,
     backend: Backend,
     budget: Budget,
-    objective: str | None = None,
+    objective: Objective | None = None,
     effort_weights: np.ndarray | None = None,
 ) -> MILPOutcome:
     """Solve the bounded synthesis problem as one MILP (single mode, mean-independent covariance).

@@ -50,7 +50,7 @@ OBJECTIVES: tuple[Objective, ...] = OPTION_OBJECTIVES
 
 
 def objective_value(
-    name: str, traj: ProbabilisticTSTrajectory, formula: STLFormula, weights: np.ndarray | None = None
+    name: Objective, traj: ProbabilisticTSTrajectory, formula: STLFormula, weights: np.ndarray | None = None
 ) -> float:
     """The value of objective ``name`` on a plan (see the module docstring).
 
@@ -78,7 +78,7 @@ def objective_value(
     raise ValueError(f"unknown objective {name!r}")
 
 
-def better(name: str, a: float, b: float) -> bool:
+def better(name: Objective, a: float, b: float) -> bool:
     """Whether value ``a`` improves on ``b`` (by more than a relative 1e-9).
 
     Parameters

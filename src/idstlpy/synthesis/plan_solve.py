@@ -35,6 +35,7 @@ from .plan_lp import PlanLPContext, PlanRows, build_plan_rows, covariance_jacobi
 
 if TYPE_CHECKING:
     from ..sets import Polytope
+    from .options import Objective
 
 __all__ = ["LPGoal", "LPOutcome", "Phases", "TIGHTEN", "TrustRegion", "margin_phase", "solve_plan_lp"]
 
@@ -129,7 +130,7 @@ class LPGoal:
         :data:`TIGHTEN`); an objective's exact re-timing asks for less (issue 25).
     """
 
-    objective: str | None = None
+    objective: Objective | None = None
     effort_weights: np.ndarray | None = None
     tighten: float = TIGHTEN
 

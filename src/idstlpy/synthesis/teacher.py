@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from ..dynamical_system import SwitchedSystem
     from ..formulas import STLFormula
     from ..sets import Polytope
+    from .options import Objective
     from .problem import Problem
 
 __all__ = [
@@ -233,7 +234,7 @@ class LPTeacher(Teacher):
         scaling: Scaling,
         backend: Backend,
         rounds: int = 3,
-        objective: str | None = None,
+        objective: Objective | None = None,
         effort_weights: np.ndarray | None = None,
         closed_loop: bool = False,
     ) -> None:
