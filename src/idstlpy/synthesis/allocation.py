@@ -131,7 +131,7 @@ def refine_allocation(
     SolveResult
         The re-solve's when it found a plan with a larger margin, else ``result``.
     """
-    if result.status != "found" or options.objective is not None or result.trajectory is None:
+    if result.status != "found" or options.objectives.objective is not None or result.trajectory is None:
         return result
     beliefs = result.predicted if result.predicted is not None else result.trajectory
     formula = reallocate(problem.stl_formula, beliefs.get_mean(), beliefs.get_cov())

@@ -354,7 +354,8 @@ def _give_room(
     """The room of the composed plan, measured (and given where an LP round can) on the whole
     problem (:func:`.room.give_room`): the blocks' own rooms are about their own formulas."""
     stats.execution_room = None
-    if not options.polish_rounds:
+    polish = options.sampler.polish_rounds  # the sampler's polish, on the composed plan
+    if not polish:
         return actions, controls
     from .room import give_room  # (room imports the plan LP; kept out of the import-time graph)
 
@@ -362,7 +363,7 @@ def _give_room(
     traj = rollout(system, init, actions, controls)
     abstraction = Abstraction(problem.stl_formula, system.n)
     scaling = Scaling.compute(system, problem.control_domain, init.mean, init.cov, abstraction)
-    rounds = 2 * max(options.polish_rounds, 4)
+    rounds = 2 * max(polish, 4)
     traj = give_room(problem, abstraction, scaling, traj, rounds, stats, budget.deadline)
     return np.asarray(traj.get_action(), dtype=int), np.asarray(traj.get_control(), dtype=float)
 
@@ -402,7 +403,7 @@ def solve_decoupled(
         len(blocks),
         [int(b.states.size) for b in blocks],
     )
-    seeds = np.random.SeedSequence(options.seed).spawn(len(blocks))
+    seeds = np.random.SeedSequence(options.search.seed).spawn(len(blocks))
     m = problem.switched_system.m
     mode = problem.switched_system.system_modes[0]
     dom = problem.control_domain

@@ -105,7 +105,7 @@ class BMCProposer:
         self.budget = budget
         self.stats = stats
         self.H = formula.horizon
-        self.cap = min(self.H, options.max_plan_length - 1)
+        self.cap = min(self.H, self.options.max_plan_length - 1)
         need = min_plan_length(formula)
         self.min_depth = int(need - 1) if math.isfinite(need) else self.H + 1
         self.hard: list[list[SymLit]] = []
