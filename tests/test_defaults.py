@@ -100,13 +100,17 @@ def test_issue_problems_default_plan_holds_or_is_flagged(name):
 
 
 def test_issue_one_d_and_drive_look_meet_the_target():
-    """The 1-D problem and the noise-free drive/look problem: the default plan meets the target
-    (their MLO plans held in 30% / 60% of executions in the issue)."""
-    for name in ("one_d", "drive_look"):
+    """The 1-D problem, the noise-free drive/look problem and the second two-mode problem (drive
+    blind or sense slowly): the default plan meets the target (their MLO plans held in 30% / 60%
+    / 1% of executions in the issue), the two-mode ones within tens of candidates (the mode
+    search reads the execution)."""
+    for name in ("one_d", "drive_look", "drive_sense"):
         problem = dp.build(name)
         result, caught = solve(problem, seed=0, time_limit=60, max_candidates=400)
         assert result.found and result.meets_target, (name, result)
         assert not caught
+        if problem.switched_system.num_modes > 1:
+            assert result.stats.candidates <= 50, (name, result.stats.candidates)
         mlo, _ = solve(problem, seed=0, time_limit=60, max_candidates=400, guarantee="mlo")
         assert mlo.found and mlo.guarantee == "mlo"
         assert mlo.execution is not None and not mlo.meets_target  # the paper's reading, flagged

@@ -30,7 +30,8 @@ the true start drawn from the prior) reaches ``options.execution_target`` on bot
 (:func:`_hold`). A plan below target gets the closed-loop repair (:func:`~.certify.certify`) and is
 predicted again; one still below target is set aside (the best is kept) and the search goes on
 for at most :data:`~.context.BELOW_TARGET_EXTRA` times the candidates it took, at least
-:data:`~.context.BELOW_TARGET_MIN` more. If no plan meets the target by then (or another budget
+:data:`~.context.BELOW_TARGET_MIN` more (:data:`~.context.BELOW_TARGET_SEARCHED` where the mode search
+reads the execution). If no plan meets the target by then (or another budget
 ends the search), the best plan set aside is returned ``found`` with ``meets_target`` False, the
 reason says so and an :class:`~idstlpy.errors.ExecutionTargetWarning` is issued. Every found
 result, under every guarantee, carries its predicted execution (``SolveResult.execution``).
@@ -63,7 +64,7 @@ from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import PruningReport
 from .certify import Certified, certify
-from .context import SolveContext, Verified
+from .context import BELOW_TARGET_SEARCHED, SolveContext, Verified
 from .decoupled import solve_decoupled
 from .eager import EagerEnd, EagerMILP, EagerPlan
 from .final_check import final_check
@@ -190,10 +191,21 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
 def _teachers(ctx: SolveContext, proposer: Proposer, backend: Backend) -> list[Teacher]:
     """The plan LP, then (where it is not exact) the belief-space sampler."""
     problem, options = ctx.problem, ctx.options
+    target = options.execution_target if options.guarantee == "execution" else None
     lp = LPTeacher(
-        problem, ctx.abstraction, ctx.units, backend, 3, options.objective, ctx.weights, ctx.closed_loop
+        problem,
+        ctx.abstraction,
+        ctx.units,
+        backend,
+        3,
+        options.objective,
+        ctx.weights,
+        ctx.closed_loop,
+        target,
     )
     teachers: list[Teacher] = [lp]
+    if lp.reads_execution and problem.switched_system.num_modes > 1 and lp.exact(problem):
+        ctx.target.least_extra = BELOW_TARGET_SEARCHED  # each candidate's modes are searched
     # The sampler serves state-dependent noise only, where the LP is not exact; its set-up
     # (~10 ms) is skipped elsewhere.
     if not lp.exact(problem):
@@ -292,8 +304,13 @@ def _block(ctx: SolveContext, proposer: Proposer, plan: DiscretePlan, verdict: R
 
 
 def _abandon(ctx: SolveContext, proposer: Proposer, plan: DiscretePlan, verdict: Verdict, why: str) -> None:
-    """Set a candidate aside without a proof, remembering what the teachers got closest to."""
-    proposer.abandon(plan)
+    """Set a candidate aside without a proof, remembering what the teachers got closest to (a
+    plan whose modes were searched for the execution: its requirement set, for every mode
+    sequence)."""
+    if isinstance(verdict, Found) and verdict.searched:
+        proposer.set_aside(plan)
+    else:
+        proposer.abandon(plan)
     ctx.stats.abandoned += 1
     if isinstance(verdict, Unknown):
         if verdict.budgeted:

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)
 __all__ = [
     "BELOW_TARGET_EXTRA",
     "BELOW_TARGET_MIN",
+    "BELOW_TARGET_SEARCHED",
     "PREDICT_SAMPLES",
     "SolveContext",
     "TargetWatch",
@@ -54,6 +55,12 @@ BELOW_TARGET_MIN = 200
 the plan LP's mode search (issue 24) is off: it scores modes on the MLO plan LP, and maps the
 proposer's mode sequences back to the plan just set aside (a "look on the last step"); the
 proposer's own enumeration of mode sequences is what finds plans that hold when executed."""
+BELOW_TARGET_SEARCHED = 20
+"""The least extra candidates instead of :data:`BELOW_TARGET_MIN` when the mode search reads the
+execution (:class:`~.mode_search.RoomScore`: several modes, the plan LP exact): each candidate's
+modes were already searched for the plan that holds best, and its requirement set is set aside
+for every mode sequence, so one candidate covers what the proposer's enumeration took hundreds
+for."""
 
 
 class Verified(NamedTuple):
@@ -137,6 +144,9 @@ class TargetWatch:
         # at which the search stops looking for one that meets it.
         self.below: Verified | None = None
         self.below_until: int | None = None
+        # the least extra candidates after a plan below target (BELOW_TARGET_SEARCHED when the
+        # mode search reads the execution)
+        self.least_extra = BELOW_TARGET_MIN
         self.unrepaired: set[tuple[int, ...]] = set()  # mode sequences whose repair fell short
         self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
 
@@ -183,5 +193,5 @@ class TargetWatch:
             self.below = checked
         if self.below_until is None:
             c = stats.candidates
-            extra = max(BELOW_TARGET_MIN, int(np.ceil(BELOW_TARGET_EXTRA * c)))
+            extra = max(self.least_extra, int(np.ceil(BELOW_TARGET_EXTRA * c)))
             self.below_until = c if self.options.termination.first_found else c + extra

@@ -114,6 +114,10 @@ class Found:
     how: str
     exact: bool = False
     """True when the teacher's path is exact (the plan LP without state-dependent noise)."""
+    searched: bool = False
+    """The teacher searched the candidate's modes (its best for the requirement set): should the
+    plan be abandoned (below the execution target), the requirement set is set aside for every
+    mode sequence (not a proof), as :attr:`Refuted.set_aside`."""
 
 
 @dataclass

@@ -94,6 +94,8 @@ def room_lp(
     effort_weights: np.ndarray | None = None,
     t_max: float = 1.0,
     time_limit: float = 1e9,
+    linearise: bool = True,
+    polish: bool = True,
 ) -> tuple[np.ndarray, float] | None:
     """One SCP step toward the room: controls keeping the largest common fraction of it.
 
@@ -123,6 +125,12 @@ def room_lp(
         Largest fraction of the room asked for.
     time_limit : float
         Seconds for each LP.
+    linearise : bool
+        With the covariances' first-order dependence on the means (False: exact without
+        state-dependent noise, and a third of the cost).
+    polish : bool
+        After the common fraction, each face's own (or the effort); False: stop after the
+        common fraction (what the mode search scores).
 
     Returns
     -------
@@ -130,7 +138,7 @@ def room_lp(
         Controls, shape (L - 1, m), and the common fraction reached; None when no LP has an
         optimum (the trust region keeps no plan meeting the requirements).
     """
-    lp = _RoomLP.around(context, plan, traj, room, trust)
+    lp = _RoomLP.around(context, plan, traj, room, trust, linearise)
     if lp is None:
         return None
     first = None
@@ -144,7 +152,9 @@ def room_lp(
     z, t = first
     t_keep = max(0.0, t * (1 - 1e-6))
     second = None
-    if effort_weights is not None:
+    if not polish:
+        pass
+    elif effort_weights is not None:
         effort = np.asarray(effort_weights, dtype=float)
         second = lp.solve(level, effort, t_keep, max(t, 0.0), time_limit)
     elif lp.rows.face_H.shape[0] > 0 and t < t_max - 1e-9:  # at t_max every face has its room
@@ -174,8 +184,10 @@ class _RoomLP:
         traj: ProbabilisticTSTrajectory,
         room: Room,
         trust: float,
+        linearise: bool = True,
     ) -> _RoomLP | None:
-        """The pieces for ``plan`` around ``traj``; None when no LP can be built."""
+        """The pieces for ``plan`` around ``traj``; None when no LP can be built (``linearise``:
+        with the covariances' first-order dependence on the means)."""
         K = plan.num_transitions
         if K <= 0:
             return None
@@ -185,8 +197,10 @@ class _RoomLP:
         reqs = plan_requirements(plan, abstraction)
         if reqs != room.requirements:
             return None
-        jac = covariance_jacobian(context.system.system_modes, actions, means, covs, scaling.dx)
-        rows = build_plan_rows(context, reqs, actions, covs, linearisation=(jac, means))
+        lin = None
+        if linearise:
+            lin = (covariance_jacobian(context.system.system_modes, actions, means, covs, scaling.dx), means)
+        rows = build_plan_rows(context, reqs, actions, covs, linearisation=lin)
         if rows.impossible:
             return None
         need = _row_room(rows, room, abstraction) + 1e-9 * float(np.min(scaling.dx))

@@ -49,12 +49,12 @@ repair loop, :func:`.room.give_room`).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.special import ndtri
+from scipy.special import ndtr, ndtri
 
 from ..chance import std_terms
 from ..closed_loop import TRACKABLE_Z, correction_spread, gains_for, propagate, tracking_backoff
@@ -79,6 +79,7 @@ __all__ = [
     "Z_MIN",
     "Room",
     "execution_room",
+    "plan_have",
 ]
 
 logger = logging.getLogger(__name__)
@@ -128,6 +129,11 @@ class Room:
         Predicted probability (upper bound) that the corrected input is clipped.
     z_belief, z_state : float
         Standard deviations of the predicted deviation kept per face and step (module notes).
+    terms, sd_belief, sd_state, weight_belief, weight_state : list of ndarray
+        Per requirement, shape (F_i,): the plan's own term ``z_eps sd_P``, the predicted spread
+        of the executed belief's mean and of the true state along the face, and the face-step's
+        weight in the Hunter-type count (:func:`_weights`; before the "near" test): what
+        :meth:`failure` reads.
     """
 
     requirements: list[tuple[int, int]]
@@ -138,6 +144,41 @@ class Room:
     clip: np.ndarray
     z_belief: float = 0.0
     z_state: float = 0.0
+    terms: list[np.ndarray] = field(default_factory=list)
+    sd_belief: list[np.ndarray] = field(default_factory=list)
+    sd_state: list[np.ndarray] = field(default_factory=list)
+    weight_belief: list[np.ndarray] = field(default_factory=list)
+    weight_state: list[np.ndarray] = field(default_factory=list)
+
+    def failure(self, have: list[np.ndarray]) -> tuple[float, float]:
+        """Predicted probabilities that an execution breaks a required face, per reading.
+
+        The linear-Gaussian loop's marginal crossing probabilities of the required faces,
+        summed with the Hunter-type weights of :func:`_weights` (a union bound over face-steps
+        that counts a chained face-step's new crossings only), for a plan that keeps ``have``
+        (per requirement, shape (F_i,); e.g. :attr:`have`, or another plan's with the same
+        modes: without state-dependent noise the spreads do not depend on the means).
+
+        Returns
+        -------
+        (belief, state) : tuple of float
+            Upper estimates (not bounds: the loop is linearised) of the failure probability of
+            the executed belief and of the true state's deterministic reading, each at most 1.
+        """
+        if not self.sd_belief:
+            return 0.0, 0.0
+        h = np.concatenate(have)
+        readings = (
+            (h, self.sd_belief, self.weight_belief),
+            (h + np.concatenate(self.terms), self.sd_state, self.weight_state),
+        )
+        out = []
+        for margin, sds, weights in readings:
+            sd, w = np.concatenate(sds), np.concatenate(weights)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                p = np.where(sd > 0, ndtr(-margin / np.where(sd > 0, sd, 1.0)), (margin < 0).astype(float))
+            out.append(float(min(1.0, np.sum(w * p))))
+        return out[0], out[1]
 
     @cached_property
     def _ratios(self) -> np.ndarray:
@@ -246,8 +287,25 @@ def _trials(
     a threshold ``z ~ 3``: ``min(1, 1.7 sqrt(1 - rho))``; an unchained one adds 1.
     """
     near = have < reach * sd
-    w = np.where(chained, np.minimum(1.0, 1.7 * np.sqrt(np.maximum(1.0 - rho, 0.0))), 1.0)
-    return float(np.sum(np.where(near, w, 0.0)))
+    return float(np.sum(np.where(near, _weights(rho, chained), 0.0)))
+
+
+def _weights(rho: np.ndarray, chained: np.ndarray) -> np.ndarray:
+    """Per face-step, its weight in the Hunter-type count (:func:`_trials`): ``min(1, 1.7
+    sqrt(1 - rho))`` when chained to the same face at the previous step, else 1."""
+    return np.where(chained, np.minimum(1.0, 1.7 * np.sqrt(np.maximum(1.0 - rho, 0.0))), 1.0)
+
+
+def plan_have(abstraction: Abstraction, room: Room, traj: ProbabilisticTSTrajectory) -> list[np.ndarray]:
+    """The room ``traj`` keeps on ``room``'s required faces (as :attr:`Room.have`), with the
+    plan's own terms of ``room`` (the same modes: the covariances are those of ``room``'s plan
+    without state-dependent noise)."""
+    means = traj.get_mean()
+    out = []
+    for (k, i), terms in zip(room.requirements, room.terms, strict=True):
+        cone = abstraction.atoms[i].cone
+        out.append(-(cone.H @ means[k] + cone.c + terms))
+    return out
 
 
 def _face_sd(H: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -305,7 +363,14 @@ def execution_room(
     need = [np.maximum(np.maximum(z_b * p[3], z_s * p[2] - p[1]), floor) for p in parts]
     have = [p[0] for p in parts]
     input_need, input_have = _input_room(system, traj, control_domain, loop, z_input)
-    return Room(reqs, need, have, input_need, input_have, loop.clip, z_b, z_s)
+    return Room(
+        reqs, need, have, input_need, input_have, loop.clip, z_b, z_s,
+        terms=[p[1] for p in parts],
+        sd_belief=[p[3] for p in parts],
+        sd_state=[p[2] for p in parts],
+        weight_belief=[_weights(p[5], p[6]) for p in parts],
+        weight_state=[_weights(p[4], p[6]) for p in parts],
+    )  # fmt: skip
 
 
 def _face_parts(

@@ -9,8 +9,9 @@ and its plan LP with room for the tracking correction (:func:`closed_loop_lp`).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,10 +19,12 @@ import numpy as np
 from ..backends import Backend
 from ..belief import rollout
 from ..closed_loop import TRACKABLE_Z, predicted_state, trackable, tracking_backoff, tracking_spread
+from ..execution_target import ExecutionTarget
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget, Conflict, Found, Proposer, Refuted, Teacher, Unknown, Verdict
+from .mode_search import MLOScore, ModeSearch, RoomScore, Score, lp_trial
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext, Scaling, covariance_schedule, lp_exact
 from .plan_solve import TIGHTEN, LPGoal, LPOutcome, Phases, solve_plan_lp
@@ -49,9 +52,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-MODE_SEARCH_LPS = 6
-"""LPs per transition the mode search (:meth:`LPTeacher._search_modes`) may spend on a candidate."""
 
 PREFIX_STEPS = 16
 """Transitions of the first prefix on which :class:`LPTeacher` tries to refute a long plan."""
@@ -223,6 +223,10 @@ class LPTeacher(Teacher):
         ``guarantee="closed_loop"``: a plan is accepted when the true state predicted under the
         executor (:func:`idstlpy.closed_loop.predicted_state`) passes the monitor, and the
         fixed point freezes those predicted covariances instead of the re-rolled MLO ones.
+    execution : ExecutionTarget, optional
+        ``guarantee="execution"``'s target: with several modes, the mode search scores
+        sequences by their plan's predicted execution (:class:`~.mode_search.RoomScore`), and
+        proposed modes whose plan LP is feasible are searched too when it falls short.
     """
 
     name = "lp"
@@ -237,6 +241,7 @@ class LPTeacher(Teacher):
         objective: Objective | None = None,
         effort_weights: np.ndarray | None = None,
         closed_loop: bool = False,
+        execution: ExecutionTarget | None = None,
     ) -> None:
         self.problem = problem
         self.closed_loop = closed_loop
@@ -259,6 +264,13 @@ class LPTeacher(Teacher):
         # Without an objective (whose optimum the room would move) and under the MLO guarantee,
         # a plan gets the room its execution needs (:mod:`.room`), as the sampler's plans do.
         self._room = objective is None and not closed_loop
+        # Under guarantee="execution" the mode search reads the execution as well (the proposed
+        # modes are searched even when their plan LP is feasible).
+        self.target = execution
+        self.reads_execution = (
+            execution is not None and self._room and _noisy(problem.switched_system, problem.initial_state)
+        )
+        self._modes = ModeSearch(problem.switched_system.num_modes, abstraction)
 
     @property
     def _search_applies(self) -> bool:
@@ -308,9 +320,11 @@ class LPTeacher(Teacher):
         proposer.guide(plan, truth)
 
     def below_target(self) -> None:
-        """Stop searching modes (see ``context.BELOW_TARGET_MIN``): the search scores modes on the
-        MLO plan LP and would map the proposer's mode sequences back to the plan set aside."""
-        self.mode_search = False
+        """Stop searching modes (see ``context.BELOW_TARGET_MIN``) unless the search reads the
+        execution: on the MLO plan LP it would map the proposer's mode sequences back to the plan
+        set aside; reading the execution, it looks for the modes that hold better."""
+        if not self.reads_execution:
+            self.mode_search = False
 
     def _solve(
         self,
@@ -360,19 +374,6 @@ class LPTeacher(Teacher):
                 return None
             P *= 4
         return None
-
-    def _allowed_modes(self, plan: DiscretePlan) -> list[list[int]]:
-        """Per step ``k`` (``0..K``), the modes a plan may arrive with (its required mode atoms')."""
-        num = self.problem.switched_system.num_modes
-        out: list[list[int]] = [[]]
-        for k in range(1, plan.length):
-            allowed = set(range(num))
-            for i in np.nonzero(plan.required[:, k])[0]:
-                modes = self.abs.mode_sets[int(i)]
-                if modes is not None:
-                    allowed &= {int(q) for q in modes}
-            out.append(sorted(allowed))
-        return out
 
     def _every_mode_refutation(
         self, plan: DiscretePlan, budget: Budget, stats: SolveStats
@@ -424,114 +425,30 @@ class LPTeacher(Teacher):
     def _search_modes(
         self, plan: DiscretePlan, first: LPOutcome | None, budget: Budget, stats: SolveStats
     ) -> DiscretePlan | None:
-        """Modes for ``plan``'s requirements whose plan LP is feasible, or ``None`` (issue 24).
+        """Modes for ``plan``'s requirements whose plan LP is feasible, or ``None``
+        (:mod:`.mode_search`; under ``guarantee="execution"`` the modes whose plan is predicted
+        to hold best among those).
 
-        A local search over the mode sequence, scored by the elastic plan LP's total violation
-        (which sees what each choice does to the means and to the covariance schedule): one
-        step's mode is changed at a time (the steps just before the earliest violated
-        requirement first: a look before the step that needs it), or a switch is moved by one
-        step, and the first change that lowers the violation is kept. It starts from the best
-        of the proposed modes and each mode held throughout (most plans are one mode with a few
-        switches); from a local minimum it restarts once from the last search's best modes
-        fitted to this length (the next candidate is often one step longer). It stops at a
-        feasible sequence or after :data:`MODE_SEARCH_LPS` LPs per transition (a work budget,
-        so the same problem gives the same plan). The search is no proof of anything: only the
-        refutation of the proposed modes is (the caller keeps it).
+        ``first`` is the proposed modes' whole-plan LP when already solved (its conflict guides
+        the first moves).
         """
-        K = plan.num_transitions
-        allowed = self._allowed_modes(plan)
-        if K == 0 or all(len(a) <= 1 for a in allowed[1:]):
+
+        def solve(trial: DiscretePlan) -> LPOutcome:
+            return self._solve(trial, 0.0, budget, stats, refute_only=True)
+
+        score: Score
+        if self.reads_execution and self.target is not None:
+            target = (self.target.belief, self.target.state)
+            score = RoomScore(self.problem, self.context, solve, budget.remaining, target)
+        else:
+            score = MLOScore(solve)
+        start = None
+        if first is not None and np.isfinite(first.excess):
+            start = lp_trial(plan, first)
+        best = self._modes.run(plan, score, start, warm=self.reads_execution, budget=budget)
+        if best is None or best.key[0] < 1:
             return None
-        proposed = plan.modes.copy()
-        out = first
-        if out is None or not np.isfinite(out.excess):
-            out = self._solve(plan, 0.0, budget, stats, refute_only=True)  # the whole plan's score
-        if out.status == "feasible":
-            return plan
-        if out.status != "infeasible" or not np.isfinite(out.excess):
-            return None
-        lps = 0
-        limit = MODE_SEARCH_LPS * K
-        found: DiscretePlan | None = None
-
-        def score(trial: np.ndarray) -> LPOutcome:
-            nonlocal lps, found
-            cand = DiscretePlan(plan.required, trial, plan.length)
-            got = self._solve(cand, 0.0, budget, stats, refute_only=True)
-            lps += 1
-            if got.status == "feasible":
-                found = cand
-            return got
-
-        def moves(modes: np.ndarray, k0: int) -> Iterator[np.ndarray]:
-            """Single changes (nearest before ``k0`` first), then a switch moved one step."""
-            order = list(range(min(k0, K), 0, -1)) + list(range(min(k0, K) + 1, K + 1))
-            for j in order:
-                for q in allowed[j]:
-                    if q != modes[j]:
-                        trial = modes.copy()
-                        trial[j] = q
-                        yield trial
-            for j in order:
-                if j < K and modes[j] != modes[j + 1]:
-                    if modes[j + 1] in allowed[j] and modes[j] in allowed[j + 1]:
-                        trial = modes.copy()
-                        trial[j], trial[j + 1] = modes[j + 1], modes[j]
-                        yield trial
-
-        def descend(modes: np.ndarray, out: LPOutcome) -> tuple[np.ndarray, float]:
-            """First-improvement descent from ``modes``; its local minimum (or a feasible plan)."""
-            best = out.excess
-            while lps < limit and found is None:
-                budget.check("the mode search")
-                k0 = min((k for k, _ in out.conflict), default=K)
-                improved = False
-                for trial in moves(modes, k0):
-                    if lps >= limit:
-                        break
-                    got = score(trial)
-                    if found is not None:
-                        return trial, 0.0
-                    if got.status == "infeasible" and got.excess < best * (1.0 - 1e-6):
-                        modes, out, best, improved = trial, got, got.excess, True
-                        break
-                if not improved:
-                    break
-            return modes, best
-
-        # The first start: the best of the proposed modes and each mode held throughout.
-        modes, best = proposed, out.excess
-        for q in range(self.problem.switched_system.num_modes):
-            trial = np.array([proposed[0]] + [q if q in a else a[0] for a in allowed[1:]], dtype=int)
-            if np.array_equal(trial, proposed) or any(not a for a in allowed[1:]):
-                continue
-            got = score(trial)
-            if found is not None:
-                self._best_modes = trial
-                return found
-            if got.status == "infeasible" and got.excess < best:
-                modes, out, best = trial, got, got.excess
-        modes, best = descend(modes, out)
-        prev = self.__dict__.get("_best_modes")
-        if found is None and prev is not None and prev.shape[0] > 1:
-            # The restart: the last search's best modes, cut or extended (last mode held).
-            tail = np.full(max(0, plan.length - prev.shape[0]), prev[-1])
-            fitted = np.concatenate([prev[: plan.length], tail]).astype(int)
-            fitted[0] = proposed[0]
-            fits = all(int(fitted[k]) in allowed[k] for k in range(1, plan.length))
-            if fits and not np.array_equal(fitted, modes) and lps < limit:
-                got = score(fitted)
-                if found is None and got.status == "infeasible":
-                    other, other_best = descend(fitted, got)
-                    if other_best < best:
-                        modes, best = other, other_best
-        if found is not None:
-            logger.debug("mode search: feasible modes after %d LPs", lps)
-            self._best_modes = found.modes.copy()
-            return found
-        logger.debug("mode search: no modes after %d LPs (violation %.3g)", lps, best)
-        self._best_modes = modes
-        return None
+        return DiscretePlan(plan.required, best.modes, plan.length)
 
     def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
         """Solve the plan LP for ``plan`` (see :func:`solve_plan_lp`).
@@ -550,7 +467,8 @@ class LPTeacher(Teacher):
             out = self._solve(plan, margin, budget, stats)
         set_aside = False
         proposed: tuple[DiscretePlan, LPOutcome] | None = None  # refuted, then modes searched
-        if out.status == "infeasible" and system.num_modes > 1 and self._search_applies:
+        searches = system.num_modes > 1 and self._search_applies
+        if out.status == "infeasible" and searches:
             proposed = (plan, out)
             every = self._every_mode_refutation(plan, budget, stats)
             if every is not None:
@@ -566,10 +484,20 @@ class LPTeacher(Teacher):
                 if again.status != "infeasible":
                     plan, out = searched, again
             set_aside = out.status == "infeasible"
+        elif out.status == "feasible" and searches and self.reads_execution:
+            # Met on paper; the modes may still leave the execution no room (a look on the last
+            # step): the search keeps them unless it finds modes predicted to hold better.
+            searched = self._search_modes(plan, None, budget, stats)
+            if searched is not None and not np.array_equal(searched.modes, plan.modes):
+                again = self._solve(searched, margin, budget, stats)
+                if again.feasible:
+                    plan, out = searched, again
         self.last = out
         if out.status == "infeasible":
             return Refuted(_prefix_conflict(plan, out, system.num_modes), set_aside=set_aside)
         verdict = self._decide(plan, out, margin, budget, stats)
+        if isinstance(verdict, Found) and searches and self.reads_execution:
+            verdict = dataclasses.replace(verdict, searched=True)
         if isinstance(verdict, Unknown) and proposed is not None and self.exact(problem):
             # The searched modes met the LP but not the monitor's promise (e.g. the predicted
             # closed loop): the proposed modes' refutation stands (a proof) and the requirement
