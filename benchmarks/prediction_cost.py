@@ -136,8 +136,17 @@ def _load() -> None:
 
 
 def capture(names: list[str], seed: int = 0) -> list[dict[str, Any]]:
-    """Solve each problem once and keep every prediction request the planner made."""
-    from idstlpy.synthesis import context
+    """Solve each problem once and keep every prediction request the planner made.
+
+    The planner's call is in ``synthesis/context.py`` (``SolveContext.predict``); before the loop
+    was split (a01afad and earlier) it was in ``synthesis/cegis.py`` (``_Run.predict``).
+    """
+    import importlib
+
+    try:
+        context: Any = importlib.import_module("idstlpy.synthesis.context")
+    except ImportError:
+        context = importlib.import_module("idstlpy.synthesis.cegis")
 
     requests: list[dict[str, Any]] = []
     original = context.predict_closed_loop
@@ -149,7 +158,7 @@ def capture(names: list[str], seed: int = 0) -> list[dict[str, Any]]:
             requests.append({"name": _name, "problem": problem, "plan": plan, "options": options})
             return original(problem, plan, **options)
 
-        context.predict_closed_loop = spy  # type: ignore[assignment]
+        context.predict_closed_loop = spy
         try:
             build().solve_result(seed=seed, time_limit=TIME_LIMIT, **kw)
         finally:
