@@ -37,6 +37,21 @@ def _drive_look() -> stl.Problem:
     )
 
 
+def holds_when_executed(problem: stl.Problem, result) -> None:
+    """300 executions on the real plant (the modes without noise models: the planning model's
+    noise): both readings reach the target within the Wilson interval, and the prediction the
+    result carries agrees with the Monte Carlo."""
+    real = stl.mk_switched_sys(
+        [stl.mk_lcs(A=np.eye(2), B=0.5 * np.eye(2)), stl.mk_lcs(A=np.eye(2), B=np.zeros((2, 2)))]
+    )
+    report = stl.validate(problem, result.trajectory, real, runs=300, seed=1)
+    b_lo, b_hi = wilson_interval(round(report.belief_success_rate * 300), 300)
+    s_lo, s_hi = wilson_interval(round(report.state_success_rate * 300), 300)
+    assert b_hi >= 0.90 and s_hi >= 0.95, report.summary()
+    assert b_lo - 0.03 <= result.execution.belief_estimate <= b_hi + 0.03
+    assert s_lo - 0.03 <= result.execution.state_estimate <= s_hi + 0.03
+
+
 @pytest.fixture(scope="module")
 def solved():
     from idstlpy.synthesis.teacher import LPTeacher
@@ -65,15 +80,7 @@ def test_the_default_search_finds_a_plan_that_holds_without_the_fallback():
     assert "guarantee='closed_loop'" not in result.reason
     assert result.stats.candidates <= 50
     assert not [w for w in caught if issubclass(w.category, stl.ExecutionTargetWarning)]
-    real = stl.mk_switched_sys(
-        [stl.mk_lcs(A=np.eye(2), B=0.5 * np.eye(2)), stl.mk_lcs(A=np.eye(2), B=np.zeros((2, 2)))]
-    )
-    report = stl.validate(problem, result.trajectory, real, runs=300, seed=1)
-    b_lo, b_hi = wilson_interval(round(report.belief_success_rate * 300), 300)
-    s_lo, s_hi = wilson_interval(round(report.state_success_rate * 300), 300)
-    assert b_hi >= 0.90 and s_hi >= 0.95, report.summary()
-    assert b_lo - 0.03 <= result.execution.belief_estimate <= b_hi + 0.03
-    assert s_lo - 0.03 <= result.execution.state_estimate <= s_hi + 0.03
+    holds_when_executed(problem, result)
 
 
 def test_the_fallback_returns_a_plan_that_keeps_every_promise(solved):
@@ -112,16 +119,7 @@ def test_the_fallback_counts_both_solves(solved):
 
 def test_the_fallback_plan_holds_when_executed(solved):
     problem, result, _ = solved
-    real = stl.mk_switched_sys(
-        [stl.mk_lcs(A=np.eye(2), B=0.5 * np.eye(2)), stl.mk_lcs(A=np.eye(2), B=np.zeros((2, 2)))]
-    )
-    report = stl.validate(problem, result.trajectory, real, runs=300, seed=1)
-    b_lo, b_hi = wilson_interval(round(report.belief_success_rate * 300), 300)
-    s_lo, s_hi = wilson_interval(round(report.state_success_rate * 300), 300)
-    assert b_hi >= 0.90 and s_hi >= 0.95, report.summary()
-    # and the prediction the result carries agrees with the Monte Carlo
-    assert b_lo - 0.03 <= result.execution.belief_estimate <= b_hi + 0.03
-    assert s_lo - 0.03 <= result.execution.state_estimate <= s_hi + 0.03
+    holds_when_executed(problem, result)
 
 
 def test_mlo_and_closed_loop_never_fall_back():
