@@ -233,9 +233,9 @@ def test_hard_state_box_is_a_constraint_not_part_of_the_margin(x_hi, optimum):
 def test_margin_optimisation_after_the_ladder_is_still_a_proof(monkeypatch, backend):
     # No rung after the first plan: the optimisation above its level decides (and refutes it).
     pytest.importorskip("pyscipopt") if backend == "scip" else None
-    from idstlpy.synthesis import milp
+    from idstlpy.synthesis import milp_solve
 
-    monkeypatch.setattr(milp, "_LADDER_RUNGS", 0)
+    monkeypatch.setattr(milp_solve, "_LADDER_RUNGS", 0)
     problem = _problem(_cap_not_attained)
     result = problem.solve_result(seed=0, objective="margin", milp_backend=backend)
     expected = CASES["cap not attained"][1]()

@@ -72,11 +72,11 @@ def test_highs_direct_path_matches_linprog_fallback():
 def test_exclusion_cliques_keep_the_same_integer_points():
     import itertools
 
-    from idstlpy.synthesis.milp import _clique_cover, _exclusion_cliques
+    from idstlpy.synthesis.milp_model import clique_cover, exclusion_cliques
 
     # Five propositions, all mutually exclusive but 3-4: the cover holds every pair in true cliques.
     edges = frozenset((i, j) for i, j in itertools.combinations(range(5), 2) if (i, j) != (3, 4))
-    cover = _clique_cover(edges)
+    cover = clique_cover(edges)
     held = {(u, v) for c in cover for u, v in itertools.combinations(sorted(c), 2)}
     assert held == set(edges) and len(cover) < len(edges)
     # As clauses of a 5 x 2 letter grid (variables 1..10): step 1's pairs become cliques, the
@@ -85,7 +85,7 @@ def test_exclusion_cliques_keep_the_same_integer_points():
     p = np.arange(1, 11).reshape(5, 2)
     clauses = [[-int(p[i, 1]), -int(p[j, 1])] for i, j in sorted(edges)]
     clauses += [[-int(p[0, 0]), -int(p[1, 1])], [int(p[2, 0]), int(p[3, 0])], [-int(p[0, 0]), -int(p[1, 0])]]
-    rest, step1 = _exclusion_cliques(clauses, p)
+    rest, step1 = exclusion_cliques(clauses, p)
     assert rest == clauses[-3:]
     assert len(step1) == len(cover) and all(v in p[:, 1] for c in step1 for v in c)
     # Every 0/1 assignment of step 1 meets the pairs exactly when it meets the cliques.
