@@ -125,7 +125,7 @@ def test_closed_loop_check_screens_an_untrackable_plan_with_the_gaussian_closure
     """The particle closure (ten Gaussian ones) only for an untrackable plan whose Gaussian
     prediction passes; one whose Gaussian prediction fails is rejected on it (here the particles
     agree: the linearisation under-states the rectifier's spread)."""
-    from idstlpy.synthesis import teacher
+    from idstlpy.synthesis import closed_loop_plan as teacher
 
     real = teacher.predicted_state
     closures: list[str] = []

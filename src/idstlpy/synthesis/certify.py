@@ -1,11 +1,11 @@
 """The closed-loop repair: make a plan keep its promise under the executor.
 
 Under ``guarantee="closed_loop"`` (and for a plan below the execution target) a verified plan
-whose predicted true state (:func:`~.teacher.closed_loop_check`) breaks the formula is repaired
+whose predicted true state (:func:`~.closed_loop_plan.closed_loop_check`) breaks the formula is repaired
 by the trust-region repair loop (:mod:`.repair`), its score the predicted true state's margin.
 Each round freezes the predicted covariances in the plan LP of the requirements the plan meets
 (its witness), leaves the execution margin where it can and keeps room for the tracking
-correction (:func:`~.teacher.closed_loop_lp`); the re-rolled plan is checked again. Under
+correction (:func:`~.closed_loop_plan.closed_loop_lp`); the re-rolled plan is checked again. Under
 constant sensor noise and without clipping the predicted covariances depend on the modes only,
 so one round is exact; otherwise the means may move at most ``trust`` per round (halved after
 a round that did not help) and the round takes the first fraction of the LP's step that passes
@@ -25,13 +25,13 @@ import numpy as np
 
 from ..belief import rollout
 from ..trajectory import ProbabilisticTSTrajectory
+from .closed_loop_plan import closed_loop_check, closed_loop_lp, execution_margin
 from .interfaces import Budget
 from .plan import DiscretePlan, trajectory_plan
 from .plan_lp import PlanLPContext
 from .plan_solve import LPOutcome, TrustRegion, solve_plan_lp
 from .repair import STOP, RepairSteps, Stop, repair
 from .results import SolveStats
-from .teacher import closed_loop_check, closed_loop_lp, execution_margin
 
 if TYPE_CHECKING:
     from .problem import Problem
@@ -57,7 +57,7 @@ class Certified(NamedTuple):
 
 
 class Checked(NamedTuple):
-    """A plan and what :func:`~.teacher.closed_loop_check` says of it."""
+    """A plan and what :func:`~.closed_loop_plan.closed_loop_check` says of it."""
 
     traj: ProbabilisticTSTrajectory
     predicted: ProbabilisticTSTrajectory
@@ -219,7 +219,7 @@ class _CertifySteps:
     def _solver(
         self, state: Checked, plan: DiscretePlan, trust: float
     ) -> Callable[[np.ndarray | None, np.ndarray], LPOutcome]:
-        """The plan LP :func:`~.teacher.closed_loop_lp` asks for, given a back-off and covariances."""
+        """The plan LP :func:`~.closed_loop_plan.closed_loop_lp` asks for (a back-off, covariances)."""
         L = plan.length
         target = execution_margin(
             self.context.system, self.problem.initial_state, self.context.abstraction, plan
@@ -276,7 +276,7 @@ def line_search(
     -0.012), while a fraction of the same step passes. The roll-out's means are linear in the
     controls, so a fraction ``a`` moves every mean ``a`` times as far. Each fraction of
     :data:`STEP_FRACTIONS` is checked in turn (the Gaussian screen of
-    :func:`~.teacher.closed_loop_check` first, which makes the failing ones cheap).
+    :func:`~.closed_loop_plan.closed_loop_check` first, which makes the failing ones cheap).
 
     Parameters
     ----------
