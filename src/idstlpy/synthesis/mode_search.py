@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -44,6 +44,11 @@ from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
 from .room import room_lp
 from .room_measure import execution_room, plan_have
+
+if TYPE_CHECKING:
+    from .plan_solve import LPOutcome
+    from .problem import Problem
+    from .room_measure import Room
 
 __all__ = [
     "MODE_SEARCH_LPS",
@@ -108,7 +113,7 @@ class Score(Protocol):
         ...
 
 
-LPSolve = Callable[[DiscretePlan], Any]
+LPSolve = Callable[[DiscretePlan], "LPOutcome"]
 """``solve(plan)``: the elastic plan LP of ``plan`` (``refute_only``), an
 :class:`~.teacher.LPOutcome`."""
 
@@ -120,7 +125,7 @@ def _improves(a: Key, b: Key) -> bool:
     return a[1] > b[1] + 1e-6 * abs(b[1])
 
 
-def lp_trial(plan: DiscretePlan, out: Any) -> Trial:
+def lp_trial(plan: DiscretePlan, out: LPOutcome) -> Trial:
     """A trial scored by the plan LP's outcome alone."""
     K = plan.num_transitions
     if out.status == "feasible":
@@ -174,7 +179,7 @@ class RoomScore:
 
     def __init__(
         self,
-        problem: Any,
+        problem: Problem,
         context: PlanLPContext,
         solve: LPSolve,
         time_left: Callable[[], float],
@@ -212,7 +217,7 @@ class RoomScore:
         return Trial(plan.modes, (1, value), value >= 0.0, _tightest_step(room, have, K))
 
 
-def _tightest_step(room: Any, have: list[np.ndarray], K: int) -> int:
+def _tightest_step(room: Room, have: list[np.ndarray], K: int) -> int:
     """The step of the required face that keeps the smallest fraction of its room."""
     worst, step = np.inf, K
     for (k, _), kept, need in zip(room.requirements, have, room.need, strict=True):
