@@ -210,19 +210,15 @@ class EagerMILP:
         problem, stats = ctx.problem, ctx.stats
         init = problem.initial_state
         with stats.clock("time_lp"):
-            out = solve_milp(
-                self.proposer.export(),
-                ctx.abstraction,
+            context = PlanLPContext(
                 problem.switched_system,
                 problem.control_domain,
                 init.mean,
                 init.cov,
+                ctx.abstraction,
                 ctx.units,
-                backend,
-                ctx.budget,
-                objective,
-                ctx.weights,
             )
+            out = solve_milp(self.proposer.export(), context, backend, ctx.budget, objective, ctx.weights)
         stats.milp_calls += 1
         return out
 

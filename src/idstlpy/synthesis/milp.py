@@ -65,16 +65,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..backends import Backend
-from .abstraction import Abstraction
 from .bmc import BMCEncoder
 from .interfaces import Budget
 from .milp_model import MILPModel, MILPSpec, build_milp
 from .milp_solve import PROOF_TOL, MILPOutcome, recheck, solve_feasibility, solve_margin
-from .plan_lp import PlanLPContext, Scaling
+from .plan_lp import PlanLPContext
 
 if TYPE_CHECKING:
-    from ..dynamical_system import SwitchedSystem
-    from ..sets import Polytope
     from .options import Objective
 
 __all__ = ["MILPOutcome", "solve_milp", "switch_to_eager"]
@@ -162,12 +159,7 @@ def switch_to_eager(
 
 def solve_milp(
     enc: BMCEncoder,
-    abstraction: Abstraction,
-    system: SwitchedSystem,
-    control_domain: Polytope,
-    mean0: np.ndarray,
-    cov0: np.ndarray,
-    scaling: Scaling,
+    context: PlanLPContext,
     backend: Backend,
     budget: Budget,
     objective: Objective | None = None,
@@ -179,12 +171,8 @@ def solve_milp(
     ----------
     enc : BMCEncoder
         The proposer's current encoding (its proven clauses; abandoned ones are switched off).
-    abstraction : Abstraction
-    system : SwitchedSystem
-    control_domain : Polytope
-    mean0 : ndarray, shape (n,)
-    cov0 : ndarray, shape (n, n)
-    scaling : Scaling
+    context : PlanLPContext
+        The system, control domain, prior, abstraction and units (its LP back-end is not used).
     backend : Backend
         A MILP-capable back-end.
     budget : Budget
@@ -200,7 +188,6 @@ def solve_milp(
     MILPOutcome
         With ``value`` and ``bound`` of the objective when one is given.
     """
-    context = PlanLPContext(system, control_domain, mean0, cov0, abstraction, scaling)
     spec = MILPSpec(enc, context, budget, objective, effort_weights)
     built = build_milp(spec)
     if isinstance(built, str):
