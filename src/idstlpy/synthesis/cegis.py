@@ -8,7 +8,7 @@ interfaces it calls:
    (:class:`~.abstraction.Abstraction`: empty letters, disjoint pairs, impossible steps);
 2. **teach**: the teachers (:class:`~.interfaces.Teacher`), in order, decide it: the plan LP
    (:class:`~.teacher.LPTeacher`; exact when the covariance does not depend on the mean), then,
-   under state-dependent noise, the belief-space sampler (:class:`~.sampler.SamplerTeacher`).
+   under state-dependent noise, the belief-space sampler (:class:`~.sampler_teacher.SamplerTeacher`).
    The first ``Found`` or ``Refuted`` settles the candidate; ``Unknown`` passes it on. Each
    teacher may guide the proposer after teaching (``Teacher.guide``), and a refuted candidate
    is offered to every teacher's ``Teacher.rescue`` (the sampler chooses its own modes);
@@ -76,7 +76,7 @@ from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
 from .proposer import BMCProposer
 from .results import SolveResult, Status
-from .sampler import SamplerTeacher
+from .sampler_teacher import SamplerTeacher
 from .teacher import LPTeacher
 
 if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)

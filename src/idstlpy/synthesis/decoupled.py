@@ -302,7 +302,7 @@ def _hold_input(mode: LCS, dom: Polytope, block: Block, mean: np.ndarray) -> np.
     """The block's input after its plan ends: the one that keeps its mean where the plan left it
     (least squares of ``B u = (I - A) mean``) when the control domain admits it, else the domain's
     steering centre. Shape (m_g,)."""
-    from .sampler import steering_center  # (the sampler imports the synthesis parts)
+    from .steering import steering_center  # (the sampler imports the synthesis parts)
 
     s, i = block.states, block.inputs
     A, B = mode.A[np.ix_(s, s)], mode.B[np.ix_(s, i)]

@@ -184,39 +184,64 @@ def extract_witness(
                 need[id(c)] |= hit
                 left &= ~hit
         elif isinstance(f, STLUntil):
-            v1, v2 = values[id(f.left)], values[id(f.right)]
-            first = np.minimum(ks + f.a, L)
-            end = np.minimum(ks + f.b, L - 1)
-            # Witnesses: j in [start, min(end, first failure of the left side)] with the right side.
-            limit = np.minimum(end, _next_true(~v1)[first])
-            if prefer_late:
-                prev = _prev_true(v2)
-                chosen = np.where(first <= limit, prev[np.clip(limit, 0, L - 1)], -1)
-            else:
-                chosen = _next_true(v2)[first]
-                chosen = np.where(chosen <= limit, chosen, -1)
-            if np.any(chosen < first):  # the evaluation said true: unreachable
-                raise RuntimeError("until witness not found on a satisfying trace")
-            need[id(f.right)][chosen] = True
-            if not _is_constant_true(f.left, atom_index):
-                need[id(f.left)] |= _cover(first, chosen, L)
-            last = max(last, int(chosen.max()))
+            last = max(last, _until_witness(f, ks, values, need, atom_index, prefer_late))
         elif isinstance(f, STLRelease):
-            v1, v2 = values[id(f.left)], values[id(f.right)]
-            first = ks + f.a
-            stop = ks + f.b
-            s0 = np.minimum(first, L)
-            fail2 = _next_true(~v2)[s0]
-            both = _next_true(v1 & v2)[s0]
-            hit = (both < fail2) & (both <= np.minimum(stop, L - 1))
-            end = np.where(hit, both, stop)
-            need[id(f.left)][both[hit]] = True
-            if not _is_constant_true(f.right, atom_index):
-                need[id(f.right)] |= _cover(first, end + 1, L)
-            last = max(last, int(end.max()))
+            last = max(last, _release_witness(f, ks, values, need, atom_index))
         else:
             raise TypeError(f"cannot justify {type(f).__name__}")
     return required, last + 1
+
+
+def _until_witness(
+    f: STLUntil,
+    ks: np.ndarray,
+    values: dict[int, np.ndarray],
+    need: dict[int, np.ndarray],
+    atom_index: dict[int, int],
+    prefer_late: bool,
+) -> int:
+    """Mark in ``need`` what ``f`` holding at steps ``ks`` requires; return the last step it touches."""
+    L = need[id(f)].shape[0]
+    v1, v2 = values[id(f.left)], values[id(f.right)]
+    first = np.minimum(ks + f.a, L)
+    end = np.minimum(ks + f.b, L - 1)
+    # Witnesses: j in [start, min(end, first failure of the left side)] with the right side.
+    limit = np.minimum(end, _next_true(~v1)[first])
+    if prefer_late:
+        prev = _prev_true(v2)
+        chosen = np.where(first <= limit, prev[np.clip(limit, 0, L - 1)], -1)
+    else:
+        chosen = _next_true(v2)[first]
+        chosen = np.where(chosen <= limit, chosen, -1)
+    if np.any(chosen < first):  # the evaluation said true: unreachable
+        raise RuntimeError("until witness not found on a satisfying trace")
+    need[id(f.right)][chosen] = True
+    if not _is_constant_true(f.left, atom_index):
+        need[id(f.left)] |= _cover(first, chosen, L)
+    return int(chosen.max())
+
+
+def _release_witness(
+    f: STLRelease,
+    ks: np.ndarray,
+    values: dict[int, np.ndarray],
+    need: dict[int, np.ndarray],
+    atom_index: dict[int, int],
+) -> int:
+    """Mark in ``need`` what ``f`` holding at steps ``ks`` requires; return the last step it touches."""
+    L = need[id(f)].shape[0]
+    v1, v2 = values[id(f.left)], values[id(f.right)]
+    first = ks + f.a
+    stop = ks + f.b
+    s0 = np.minimum(first, L)
+    fail2 = _next_true(~v2)[s0]
+    both = _next_true(v1 & v2)[s0]
+    hit = (both < fail2) & (both <= np.minimum(stop, L - 1))
+    end = np.where(hit, both, stop)
+    need[id(f.left)][both[hit]] = True
+    if not _is_constant_true(f.right, atom_index):
+        need[id(f.right)] |= _cover(first, end + 1, L)
+    return int(end.max())
 
 
 def _parents_first(formula: STLFormula) -> list[STLFormula]:
