@@ -28,7 +28,7 @@ from .errors import DimensionError, InvalidTypeError
 from .loop_moments import ClosedLoopMoments, prob_le, propagate, step_parts
 from .loop_samples import LoopStep, NoiseInterpolant, batched_gain, cubature, sqrt_psd
 from .sets import Polytope
-from .tracking import box_bounds, system_gains
+from .tracking import box_bounds, mode_gains, system_gains
 from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
@@ -107,7 +107,29 @@ def gains_for(
         Mode -> list of gains, each shape (m, n).
     """
 
-    return system_gains(system, lqr_gains, default_lqr, actions.tolist())
+    if lqr_gains is not None or default_lqr is not None:
+        return system_gains(system, lqr_gains, default_lqr, actions.tolist())
+    # The defaults depend on the mode's A and B only, and the planner asks for them hundreds of
+    # times a solve (every candidate's predicted loop): the Riccati recursions are kept by content.
+    out = {}
+    for q in sorted({int(a) for a in actions.tolist()}):
+        mode = system.mode(q)
+        if getattr(mode, "lqr_gains", None) is not None:
+            out[q] = mode_gains(mode)
+            continue
+        key = (mode.A.shape, mode.B.shape, mode.A.tobytes(), mode.B.tobytes())
+        kept = _DEFAULT_GAINS.get(key)
+        if kept is None:
+            kept = _DEFAULT_GAINS[key] = [K.copy() for K in mode_gains(mode)]
+            while len(_DEFAULT_GAINS) > _DEFAULT_GAINS_KEPT:
+                del _DEFAULT_GAINS[next(iter(_DEFAULT_GAINS))]
+        out[q] = [K.copy() for K in kept]  # copies: a caller may change its gains in place
+    return out
+
+
+_DEFAULT_GAINS_KEPT = 64
+_DEFAULT_GAINS: dict[tuple[Any, ...], list[np.ndarray]] = {}
+"""The default tracking gains by the mode's ``(A, B)`` (content), oldest first."""
 
 
 def _planning_loop(

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import ndtr
 
-from .belief import kalman_gain, kalman_update
+from .belief import _joseph, kalman_gain
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import InvalidArgumentError
 from .loop_samples import LoopStep, NoiseInterpolant, ParticleCloud, cubature, sqrt_psd
@@ -84,6 +84,9 @@ def step_parts(
     return mode, real, gain_at(gains[q], remaining), W
 
 
+_SQRT_2PI = np.sqrt(2 * np.pi)
+
+
 def _clipped_moments(
     mu: np.ndarray, sd: np.ndarray, low: np.ndarray, high: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -94,17 +97,33 @@ def _clipped_moments(
     with ``Y``).
     """
     pos = sd > 0
+    if pos.all():
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a = (low - mu) / sd
+            b = (high - mu) / sd
+        if np.isfinite(a).all() and np.isfinite(b).all():
+            # A box with both bounds and a spread on every input (the usual case): the general
+            # expressions below without their guards, the same numbers at a third of the cost.
+            Fa, Fb = ndtr(a), ndtr(b)
+            pa = np.exp(-0.5 * a**2) / _SQRT_2PI
+            pb = np.exp(-0.5 * b**2) / _SQRT_2PI
+            p_in = Fb - Fa
+            e1 = low * Fa + high * (1 - Fb) + mu * p_in + sd * (pa - pb)
+            e2 = (
+                low**2 * Fa
+                + high**2 * (1 - Fb)
+                + (mu**2 + sd**2) * p_in
+                + 2 * mu * sd * (pa - pb)
+                + sd**2 * (a * pa - b * pb)
+            )
+            return e1, np.maximum(e2 - e1**2, 0.0), p_in
     s = np.where(pos, sd, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         a = (low - mu) / s
         b = (high - mu) / s
     Fa, Fb = ndtr(a), ndtr(b)
-    pa = np.where(np.isfinite(a), np.exp(-0.5 * np.where(np.isfinite(a), a, 0.0) ** 2), 0.0) / np.sqrt(
-        2 * np.pi
-    )
-    pb = np.where(np.isfinite(b), np.exp(-0.5 * np.where(np.isfinite(b), b, 0.0) ** 2), 0.0) / np.sqrt(
-        2 * np.pi
-    )
+    pa = np.where(np.isfinite(a), np.exp(-0.5 * np.where(np.isfinite(a), a, 0.0) ** 2), 0.0) / _SQRT_2PI
+    pb = np.where(np.isfinite(b), np.exp(-0.5 * np.where(np.isfinite(b), b, 0.0) ** 2), 0.0) / _SQRT_2PI
     apa = np.where(np.isfinite(a), np.where(np.isfinite(a), a, 0.0) * pa, 0.0)  # no inf * 0
     bpb = np.where(np.isfinite(b), np.where(np.isfinite(b), b, 0.0) * pb, 0.0)
     lo_t = np.where(np.isfinite(low), low, 0.0)
@@ -285,6 +304,26 @@ class _Run:
     particles: int
     cub: tuple[np.ndarray, np.ndarray] | None  # the cubature of sensor_noise="expected"
     rng: np.random.Generator
+    # What does not change within a call, read once (the planner propagates hundreds of loops a
+    # solve, each a few dozen steps of small matrices: the per-step overhead is the cost).
+    _parts: dict[tuple[int, int], _Parts] = field(init=False, default_factory=dict)
+    _plan: tuple[np.ndarray, np.ndarray, np.ndarray] = field(init=False)
+    _eye: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self._plan = (self.plan.get_action(), self.plan.get_mean(), self.plan.get_control())
+        self._eye = np.eye(self.system.n)
+
+    def parts(self, q: int, remaining: int) -> _Parts:
+        """:func:`step_parts` and what follows from them alone, kept per mode and steps left."""
+        key = (q, remaining if remaining < _horizon(self.gains[q]) else -1)
+        kept = self._parts.get(key)
+        if kept is None:
+            mode, real_or_none, Kt, W = step_parts(
+                self.system, self.real_modes, self.gains, self.process_noise, q, remaining
+            )
+            kept = self._parts[key] = _Parts.of(mode, real_or_none, Kt, W, self.system.n)
+        return kept
 
     def moments(self, N: int, z0: np.ndarray, S0: np.ndarray, P0: np.ndarray) -> ClosedLoopMoments:
         """The result's arrays, the start filled in."""
@@ -318,12 +357,11 @@ class _Run:
         """Step ``k``: linearise the loop at the moments ``z, S`` (the samples' under particles),
         record it in ``out`` and return the next moments and filter covariance."""
         n, m = self.system.n, self.system.m
-        q = int(self.plan.get_action()[k])
-        mode, real_or_none, Kt, W = step_parts(
-            self.system, self.real_modes, self.gains, self.process_noise, q, self.plan.num_of_steps - k
-        )
-        real = mode if real_or_none is None else real_or_none  # (never None: real_modes is a list)
-        means, v = self.plan.get_mean(), self.plan.get_control()[k]
+        actions, means, controls = self._plan
+        q = int(actions[k])
+        parts = self.parts(q, self.plan.num_of_steps - k)
+        mode, real, Kt, state_dep = parts.mode, parts.real, parts.K, parts.state_dep
+        v = controls[k]
         m_k, m_next = means[k], means[k + 1]
         if cloud is not None:  # the moments the linearisation below is taken at are the samples'
             z, S = cloud.zc, cloud.Sp
@@ -331,37 +369,41 @@ class _Run:
         nominal_pred = mode.A @ m_k + mode.B @ v
         r = m_next - nominal_pred
         d = real.A @ m_k + real.B @ v - m_next
-        K_eff, c_u, E, clip = _input(Kt, v, eta, S[n : 2 * n, n : 2 * n], self.box, self.domain, m)
+        if self.box is None and self.domain is None:  # the input is never clipped
+            K_eff, c_u, E, clip, A_eta = Kt, parts.zero_m, None, 0.0, parts.A_eta
+        else:
+            K_eff, c_u, E, clip = _input(Kt, v, eta, S[n : 2 * n, n : 2 * n], self.box, self.domain, m)
+            A_eta = parts.A_eta if self.box is None else mode.A - mode.B @ K_eff
         out.clip[k] = clip
-        A_eta = mode.A - mode.B @ K_eff
-        # The filter's predicted mean is m_next + eta_pred, eta_pred = A_eta eta + B c_u - r + B e.
-        eta_pred_mean = A_eta @ eta + mode.B @ c_u - r
-        if cloud is not None:
-            eta_pred_mean = cloud.predicted_eta(mode, Kt, v, self.box, n) - r
         # Filter: its noise is evaluated at its own (random) predicted mean, linearised at the plan's
         # nominal one ("plan": the plan's MLO covariances) or at the predicted one (otherwise).
-        state_dep = bool(mode.p) and mode.has_state_dependent_noise
         plan_point = self.sensor_noise == "plan" or not state_dep
-        x_lin = nominal_pred if plan_point else m_next + eta_pred_mean
-        Lk, P_next, LC = _filter(mode, P, x_lin, n)
+        if plan_point:
+            x_lin = nominal_pred
+        else:
+            # The filter's predicted mean is m_next + eta_pred, eta_pred = A_eta eta + B c_u - r + B e.
+            eta_pred_mean = A_eta @ eta + mode.B @ c_u - r
+            if cloud is not None:
+                eta_pred_mean = cloud.predicted_eta(mode, Kt, v, self.box, n) - r
+            x_lin = m_next + eta_pred_mean
+        Lk, P_next, LC = _filter(mode, P, x_lin, n, self._eye)
         lin = _Linear(mode, real, K_eff, c_u, E, r, d, LC, Lk, A_eta, m_next, x_lin, state_dep)
-        F, g, J = lin.transition(self.D, self.sens)
-        Qw = W @ W.T if W is not None and W.shape[1] else np.zeros((n, n))
+        F, g, J = lin.transition(self.D, self.sens, self._eye)
+        Qw = parts.Qw
         Qk = lin.noise(Qw)
         z = F @ z + g
         S_pre = F @ S @ F.T + Qk
         fitted = None  # the sensor's noise interpolant, for samples drawing it at their own state
         if cloud is not None and state_dep and mode.p:
             fitted = NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n])
-        R_true = np.zeros((mode.p, mode.p))
+        R_true = parts.zero_p
         if mode.p:
             R_true = self.sensor_cov(mode, state_dep, m_next, z[:n], S_pre[:n, :n], fitted)
-            LRL = np.zeros((self.D, self.D))
-            LRL[n : 2 * n, n : 2 * n] = Lk @ R_true @ Lk.T
-            Qk = Qk + LRL
-            S_pre = S_pre + LRL
+            LRL = Lk @ R_true @ Lk.T
+            Qk[n : 2 * n, n : 2 * n] += LRL  # Qk and S_pre are this step's own arrays
+            S_pre[n : 2 * n, n : 2 * n] += LRL
         S = 0.5 * (S_pre + S_pre.T)
-        step = lin.loop_step(Kt, v, self.box, F, J, Qw, R_true, self.sens)
+        step = lin.loop_step(Kt, v, self.box, F, J, parts, R_true, self.sens)
         if fitted is not None:
             step.noise = fitted
             step.m_next, step.C, step.Qp = m_next, mode.C, mode.process_cov
@@ -370,7 +412,10 @@ class _Run:
         if cloud is not None:
             z, S, F, g, Qk = cloud.advance(step, self.rng)
         P = P_next
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))):
+        # (a finite sum has finite terms; only a non-finite one needs the elementwise look)
+        if not np.isfinite(z.sum() + S.sum() + P.sum()) and not (
+            np.all(np.isfinite(z)) and np.all(np.isfinite(S)) and np.all(np.isfinite(P))
+        ):
             raise InvalidArgumentError(
                 f"the predicted closed loop diverged at step {k + 1} (non-finite moments)"
             )
@@ -422,7 +467,7 @@ def _input(
     K_eff, c_u, E, clip = Kt, np.zeros(m), np.zeros((m, m)), 0.0
     if box is not None:
         mu_y = v - Kt @ eta
-        sd_y = np.sqrt(np.maximum(np.diag(Kt @ S_eta @ Kt.T), 0.0))
+        sd_y = np.sqrt(np.maximum((Kt @ S_eta @ Kt.T).diagonal(), 0.0))
         e1, var, p_in = _clipped_moments(mu_y, sd_y, box[0], box[1])
         K_eff = p_in[:, None] * Kt
         c_u = e1 - v + K_eff @ eta
@@ -436,15 +481,59 @@ def _input(
     return K_eff, c_u, E, clip
 
 
-def _filter(mode: LCS, P: np.ndarray, x_lin: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The filter's step at the linearisation point ``x_lin``: Kalman gain, covariance, ``L C``."""
+def _filter(
+    mode: LCS, P: np.ndarray, x_lin: np.ndarray, n: int, eye: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The filter's step at the linearisation point ``x_lin``: Kalman gain, covariance, ``L C``
+    (:func:`~idstlpy.belief.kalman_update`'s covariance, its gain computed once)."""
     P_pred = mode.A @ P @ mode.A.T + mode.process_cov
     if mode.p:
         R_filter = mode.noise_cov(x_lin)
         Lk = kalman_gain(mode.C, P_pred, R_filter)
-        _, P_next = kalman_update(mode, x_lin, P_pred, R=R_filter)
-        return Lk, P_next, Lk @ mode.C
+        return Lk, _joseph(Lk, mode.C, P_pred, R_filter), Lk @ mode.C
     return np.zeros((n, 0)), 0.5 * (P_pred + P_pred.T), np.zeros((n, n))
+
+
+def _horizon(gains: Sequence[np.ndarray]) -> int:
+    """The steps left from which :func:`~idstlpy.tracking.gain_at` gives ``K_0``."""
+    return len(gains)
+
+
+@dataclass
+class _Parts:
+    """A mode's step parts (:func:`step_parts`) and what follows from them alone."""
+
+    mode: LCS
+    real: LCS
+    K: np.ndarray  # the tracking gain
+    Qw: np.ndarray  # the process noise's covariance (zero without one)
+    W_root: np.ndarray  # its root, (n, 0) without one
+    A_eta: np.ndarray  # A - B K: the estimate's deviation, the input unclipped
+    state_dep: bool  # a sensor whose noise depends on the state
+    zero_m: np.ndarray  # (read-only zeros)
+    zero_p: np.ndarray
+    R_root: np.ndarray | None = None  # the root of a constant sensor noise, once asked for
+
+    @staticmethod
+    def of(mode: LCS, real: LCS | None, K: np.ndarray, W: np.ndarray | None, n: int) -> _Parts:
+        Qw = W @ W.T if W is not None and W.shape[1] else np.zeros((n, n))
+        zero_m, zero_p = np.zeros(mode.m), np.zeros((mode.p, mode.p))
+        zero_m.flags.writeable = zero_p.flags.writeable = False
+        return _Parts(
+            mode, mode if real is None else real,  # (never None: real_modes is a list)
+            K, Qw, sqrt_psd(Qw) if Qw.any() else np.zeros((n, 0)), mode.A - mode.B @ K,
+            bool(mode.p) and mode.has_state_dependent_noise, zero_m, zero_p,
+        )  # fmt: skip
+
+    def sensor_root(self, R: np.ndarray) -> np.ndarray:
+        """The root of the sensor noise ``R`` acting at this step (kept when it is constant)."""
+        if not self.mode.p:
+            return np.zeros((0, 0))
+        if self.state_dep:
+            return sqrt_psd(R)
+        if self.R_root is None:
+            self.R_root = sqrt_psd(R)
+        return self.R_root
 
 
 @dataclass
@@ -455,7 +544,7 @@ class _Linear:
     real: LCS
     K_eff: np.ndarray
     c_u: np.ndarray
-    E: np.ndarray
+    E: np.ndarray | None  # None: the input is not clipped (c_u = 0, E = 0)
     r: np.ndarray
     d: np.ndarray
     LC: np.ndarray
@@ -467,26 +556,40 @@ class _Linear:
     Gw: np.ndarray = field(init=False)  # how the process noise enters
     Ge: np.ndarray = field(init=False)  # how the clipping residual enters
 
-    def transition(self, D: int, sens: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    def transition(
+        self, D: int, sens: bool, I: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """``F``, ``g`` and the sensitivity's ``J`` (None unless a state-dependent sensor's
-        sensitivity is carried)."""
+        sensitivity is carried); ``I`` the identity (n, n)."""
         A, B, Ar, Br = self.mode.A, self.mode.B, self.real.A, self.real.B
         n, m = A.shape[0], B.shape[1]
         LC, K_eff, c_u, r = self.LC, self.K_eff, self.c_u, self.r
-        I = np.eye(n)
         ILC = I - LC
         BrK = Br @ K_eff
         F = np.zeros((D, D))
-        F[: 2 * n, : 2 * n] = np.block([[Ar, -BrK], [LC @ Ar, ILC @ self.A_eta - LC @ BrK]])
-        drift = Br @ c_u + self.d
+        F[:n, :n] = Ar
+        F[:n, n : 2 * n] = -BrK
+        F[n : 2 * n, :n] = LC @ Ar
+        F[n : 2 * n, n : 2 * n] = ILC @ self.A_eta - LC @ BrK
         g = np.zeros(D)
-        g[: 2 * n] = np.concatenate([drift, ILC @ (B @ c_u - r) + LC @ drift])
+        if self.E is None:  # the input unclipped: c_u = 0
+            drift = self.d
+            g[n : 2 * n] = ILC @ -r + LC @ drift
+        else:
+            drift = Br @ c_u + self.d
+            g[n : 2 * n] = ILC @ (B @ c_u - r) + LC @ drift
+        g[:n] = drift
         self.Gw = np.zeros((D, n))
-        self.Gw[: 2 * n] = np.vstack([I, LC])
+        self.Gw[:n] = I
+        self.Gw[n : 2 * n] = LC
         self.Ge = np.zeros((D, m))
-        self.Ge[: 2 * n] = np.vstack([Br, ILC @ B + LC @ Br])
+        if self.E is not None:
+            self.Ge[:n] = Br
+            self.Ge[n : 2 * n] = ILC @ B + LC @ Br
         J = None
         if sens:
+            self.Ge[:n] = Br
+            self.Ge[n : 2 * n] = ILC @ B + LC @ Br
             Phi = ILC @ A
             F[2 * n :, 2 * n :] = np.kron(Phi, Phi)
             if self.state_dep:
@@ -500,7 +603,10 @@ class _Linear:
 
     def noise(self, Qw: np.ndarray) -> np.ndarray:
         """The covariance of the process noise and of the clipping residual (``transition`` first)."""
-        return self.Gw @ Qw @ self.Gw.T + self.Ge @ self.E @ self.Ge.T
+        Qk: np.ndarray = self.Gw @ Qw @ self.Gw.T
+        if self.E is not None:
+            Qk += self.Ge @ self.E @ self.Ge.T
+        return Qk
 
     def loop_step(
         self,
@@ -509,7 +615,7 @@ class _Linear:
         box: tuple[np.ndarray, np.ndarray] | None,
         F: np.ndarray,
         J: np.ndarray | None,
-        Qw: np.ndarray,
+        parts: _Parts,
         R_true: np.ndarray,
         sens: bool,
     ) -> LoopStep:
@@ -523,6 +629,5 @@ class _Linear:
             K=Kt, v=v, low=None if box is None else box[0], high=None if box is None else box[1],
             Ar=self.real.A, Br=self.real.B, A=self.mode.A, B=self.mode.B, d=self.d, r=self.r,
             LC=self.LC, Lk=self.Lk,
-            W_root=sqrt_psd(Qw) if Qw.any() else np.zeros((n, 0)),
-            R_root=sqrt_psd(R_true) if self.mode.p else np.zeros((0, 0)), sens=sens_map,
+            W_root=parts.W_root, R_root=parts.sensor_root(R_true), sens=sens_map,
         )  # fmt: skip
