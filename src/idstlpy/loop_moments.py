@@ -104,14 +104,27 @@ def _clipped_moments(
             X = (np.stack((low, high)) - mu) / sd  # (a, b)
         if np.isfinite(X).all():
             # A box with both bounds and a spread on every input (the usual case): the general
-            # expressions below without their guards (a and b stacked: the same elementwise
-            # operations), the same numbers at a third of the cost.
-            (Fa, Fb), PX = ndtr(X), np.exp(-0.5 * X**2) / _SQRT_2PI
-            XP = X * PX
-            p_in, F_up, dp, s2 = Fb - Fa, 1 - Fb, PX[0] - PX[1], sd**2
-            e1 = low * Fa + high * F_up + mu * p_in + sd * dp
-            e2 = low**2 * Fa + high**2 * F_up + (mu**2 + s2) * p_in + 2 * mu * sd * dp + s2 * (XP[0] - XP[1])
-            return e1, np.maximum(e2 - e1**2, 0.0), p_in
+            # expressions below without their guards, per input on Python floats (a handful of
+            # inputs: numpy's per-call cost would dominate). Elementwise IEEE operations either
+            # way, squares as products: the same numbers.
+            Fx, Px = ndtr(X).tolist(), (np.exp(-0.5 * X**2) / _SQRT_2PI).tolist()
+            e1s, vs, ps = [], [], []
+            for lo, hi, m_i, s, a, b, Fa, Fb, pa, pb in zip(
+                low.tolist(), high.tolist(), mu.tolist(), sd.tolist(), *X.tolist(), *Fx, *Px, strict=True
+            ):
+                p_in, F_up, dp, s2 = Fb - Fa, 1 - Fb, pa - pb, s * s
+                e1 = lo * Fa + hi * F_up + m_i * p_in + s * dp
+                e2 = (
+                    lo * lo * Fa
+                    + hi * hi * F_up
+                    + (m_i * m_i + s2) * p_in
+                    + 2 * m_i * s * dp
+                    + s2 * (a * pa - b * pb)
+                )
+                e1s.append(e1)
+                vs.append(max(e2 - e1 * e1, 0.0))
+                ps.append(p_in)
+            return np.array(e1s), np.array(vs), np.array(ps)
     s = np.where(pos, sd, 1.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         a = (low - mu) / s
@@ -362,7 +375,8 @@ class _Run:
         n, D = self.system.n, self.D
         eye = self._eye
         actions, means, controls = self._plan
-        parts = [self.parts(int(actions[k]), self.plan.num_of_steps - k) for k in range(N)]
+        total = self.plan.num_of_steps
+        parts = [self.parts(int(q), total - k) for k, q in enumerate(actions[:N].tolist())]
         A = np.stack([pt.mode.A for pt in parts])
         B = np.stack([pt.mode.B for pt in parts])
         Ar = np.stack([pt.real.A for pt in parts])
