@@ -55,6 +55,7 @@ CASES = {
     "reach-avoid (eager MILP)": (lambda: reach_avoid(25), {**LISTING, "seed": 0, "lazy_candidates": 3}),
     "reach-avoid, effort (MILP optimum)": (lambda: reach_avoid(25), {"seed": 0, "objective": "effort"}),
     "two modes (mode search, set aside)": (drive_look, {"seed": 0, "guarantee": "mlo"}),
+    "two modes, the default (mode search reads the execution)": (drive_look, {"seed": 0}),
 }
 
 
@@ -65,7 +66,16 @@ def test_the_loop_uses_only_what_the_protocols_declare(monkeypatch: pytest.Monke
     undeclared: list[str] = []
     proposers, teachers = _declared(Proposer), _declared(Teacher)
     assert {"propose", "block", "abandon", "set_aside", "guide", "grow", "export", "hard"} <= proposers
-    assert {"teach", "guide", "rescue", "below_target", "exact", "applies", "name"} <= teachers
+    assert {
+        "teach",
+        "guide",
+        "rescue",
+        "below_target",
+        "searches_modes",
+        "exact",
+        "applies",
+        "name",
+    } <= teachers
 
     def wrap(cls: Any, allowed: frozenset[str]) -> Any:
         return lambda *args, **kwargs: _Only(cls(*args, **kwargs), allowed, undeclared)

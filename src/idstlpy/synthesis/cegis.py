@@ -204,7 +204,7 @@ def _teachers(ctx: SolveContext, proposer: Proposer, backend: Backend) -> list[T
         target,
     )
     teachers: list[Teacher] = [lp]
-    if lp.reads_execution and problem.switched_system.num_modes > 1 and lp.exact(problem):
+    if lp.searches_modes(problem):
         ctx.target.least_extra = BELOW_TARGET_SEARCHED  # each candidate's modes are searched
     # The sampler serves state-dependent noise only, where the LP is not exact; its set-up
     # (~10 ms) is skipped elsewhere.

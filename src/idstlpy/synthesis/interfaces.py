@@ -266,3 +266,9 @@ class Teacher(Protocol):
     def below_target(self) -> None:
         """Hear that a verified plan was set aside below the execution target (default: nothing)."""
         return None
+
+    def searches_modes(self, problem: Problem) -> bool:
+        """Whether this teacher searches each candidate's modes for the plan predicted to hold
+        best when executed (its requirement set is then not offered again with other modes, and
+        the loop's search after a plan below target can be short; default: no)."""
+        return False

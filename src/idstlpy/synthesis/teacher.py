@@ -183,6 +183,10 @@ class LPTeacher(Teacher):
         )
         proposer.guide(plan, truth)
 
+    def searches_modes(self, problem: Problem) -> bool:
+        """With several modes and the plan LP exact, under ``guarantee="execution"``."""
+        return self.reads_execution and problem.switched_system.num_modes > 1 and self.exact(problem)
+
     def below_target(self) -> None:
         """Stop searching modes (see ``context.BELOW_TARGET_MIN``) unless the search reads the
         execution: on the MLO plan LP it would map the proposer's mode sequences back to the plan
