@@ -16,7 +16,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, Literal
@@ -124,33 +124,8 @@ class ExecutorSpec:
             )
         project = control_projector(control_domain, system.m)
         box = box_bounds(control_domain, system.m)
-        if plant is not None:
-            if real_system is not None:
-                raise InvalidArgumentError(
-                    "give either real_system (a linear plant) or plant (a step function)"
-                )
-            if not callable(plant):
-                raise InvalidTypeError(
-                    f"plant must be a step function (state, input, mode, rng) -> next_state, "
-                    f"got {type(plant).__name__}"
-                )
-            if process_noise == "real":
-                raise InvalidArgumentError(
-                    "process_noise='real' needs a linear real_system; a step-function plant draws its own "
-                    "disturbance (use 'none', or 'model' to add the planning mode's W w)"
-                )
-            real_modes = None
-        else:
-            real_modes = tuple(real_modes_for(real_system, system, np.zeros(0, dtype=int)))
-        gains = system_gains(system, lqr_gains, default_lqr, modes)
-        frozen = {}
-        for q, Ks in gains.items():
-            arrays = []
-            for K in Ks:
-                K = np.array(K, dtype=float)
-                K.flags.writeable = False
-                arrays.append(K)
-            frozen[q] = tuple(arrays)
+        real_modes = _real_modes(system, real_system, plant, process_noise)
+        frozen = _frozen_gains(system_gains(system, lqr_gains, default_lqr, modes))
         return cls(
             system=system,
             control_domain=control_domain,
@@ -194,3 +169,40 @@ class ExecutorSpec:
         missing = sorted(set(actions.tolist()) - set(self.gains))
         if missing:
             raise InvalidArgumentError(f"the executor has no tracking gains for modes {missing}")
+
+
+def _real_modes(
+    system: SwitchedSystem,
+    real_system: SwitchedSystem | LCS | None,
+    plant: PlantStep | None,
+    process_noise: ProcessNoise,
+) -> tuple[LCS, ...] | None:
+    """The linear plant's modes (None for a step-function ``plant``, after checking it)."""
+    if plant is None:
+        return tuple(real_modes_for(real_system, system, np.zeros(0, dtype=int)))
+    if real_system is not None:
+        raise InvalidArgumentError("give either real_system (a linear plant) or plant (a step function)")
+    if not callable(plant):
+        raise InvalidTypeError(
+            f"plant must be a step function (state, input, mode, rng) -> next_state, "
+            f"got {type(plant).__name__}"
+        )
+    if process_noise == "real":
+        raise InvalidArgumentError(
+            "process_noise='real' needs a linear real_system; a step-function plant draws its own "
+            "disturbance (use 'none', or 'model' to add the planning mode's W w)"
+        )
+    return None
+
+
+def _frozen_gains(gains: Mapping[int, Sequence[np.ndarray]]) -> dict[int, tuple[np.ndarray, ...]]:
+    """Read-only copies of every mode's gains (a spec is shared by runs and threads)."""
+    frozen = {}
+    for q, Ks in gains.items():
+        arrays = []
+        for K in Ks:
+            K = np.array(K, dtype=float)
+            K.flags.writeable = False
+            arrays.append(K)
+        frozen[q] = tuple(arrays)
+    return frozen
