@@ -1,6 +1,7 @@
 """The batched propagation of the closed loop's moments (``_Run.batched``, what the planner's
 execution room asks for hundreds of times a solve) gives the step-by-step propagation's numbers,
-bit for bit: every array of :class:`~idstlpy.loop_moments.ClosedLoopMoments` and of its steps,
+bit for bit (cold, and with the filter's steps kept from earlier calls): every array of
+:class:`~idstlpy.loop_moments.ClosedLoopMoments` and of its steps,
 with and without a control domain (a box with bounds on both sides, one side only, a polytope),
 constant and state-dependent sensors (read at the plan), inputs inside, on and beyond the bounds.
 """
@@ -94,9 +95,18 @@ def test_batched_moments_are_the_stepped_ones(
     initial = stl.to_belief(mean=np.array([0.5, 0.0]), cov=0.1 * np.eye(2))
     plan = stl.rollout(system, initial, actions, controls)
     domain = _domain(kind)
+    loop_moments._FILTERS.tries.clear()
     batched = _moments(system, plan, domain, True, monkeypatch)
     stepped = _moments(system, plan, domain, False, monkeypatch)
     _same(batched, stepped)
+    # again, the filter's steps now read from the cache (and a plan sharing only a prefix)
+    _same(_moments(system, plan, domain, True, monkeypatch), stepped)
+    actions[steps // 2 :] = (actions[steps // 2 :] + 1) % system.num_modes
+    other = stl.rollout(system, initial, actions, controls)
+    _same(
+        _moments(system, other, domain, True, monkeypatch),
+        _moments(system, other, domain, False, monkeypatch),
+    )
     assert batched.steps and len(batched.steps) == steps
 
 

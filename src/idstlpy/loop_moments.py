@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.special import ndtr
@@ -386,18 +387,42 @@ class _Run:
         nominal = (A @ m_k[:, :, None])[:, :, 0] + (B @ v[:, :, None])[:, :, 0]
         r = m_next - nominal
         d = (Ar @ m_k[:, :, None])[:, :, 0] + (Br @ v[:, :, None])[:, :, 0] - m_next
-        # the filter, at the plan's nominal prediction
+        # the filter, at the plan's nominal prediction: kept across calls (the planner's
+        # candidates share their start and runs of modes), keyed by its inputs' content
         Ps, Ls, LCs, LRLs, roots = [P0], [], [], [], []
         P = P0
+        node = _FILTERS.root(P0)
+        mode_keys: dict[int, tuple[Any, ...]] = {}
         try:
             for k, pt in enumerate(parts):
-                Lk, P, LC = _filter(pt.mode, P, nominal[k], n, eye)
+                mode = pt.mode
+                mk = mode_keys.get(id(mode))
+                if mk is None:
+                    C = mode.C if mode.p else np.zeros((0, n))
+                    mk = mode_keys[id(mode)] = (
+                        mode.A.shape,
+                        mode.A.tobytes(),
+                        mode.process_cov.tobytes(),
+                        C.shape,
+                        C.tobytes(),
+                    )
+                R_f = R_t = pt.zero_p
+                key: tuple[Any, ...] = mk
+                if mode.p:
+                    R_f, R_t = mode.noise_cov(nominal[k]), mode.noise_cov(m_next[k])
+                    key = (mk, R_f.tobytes(), R_t.tobytes())
+                hit = node.get(key)
+                if hit is None:
+                    Lk, P_next, LC = _filter(mode, P, nominal[k], n, eye, R_f)
+                    LRL = Lk @ R_t @ Lk.T if mode.p else None
+                    hit = node[key] = ((Lk, P_next, LC, LRL, pt.sensor_root(R_t)), {})
+                    _FILTERS.added(hit[0])
+                (Lk, P, LC, LRL, root), node = hit
                 Ps.append(P)
                 Ls.append(Lk)
                 LCs.append(LC)
-                R_true = pt.mode.noise_cov(m_next[k]) if pt.mode.p else pt.zero_p
-                LRLs.append(Lk @ R_true @ Lk.T if pt.mode.p else None)
-                roots.append(pt.sensor_root(R_true))
+                LRLs.append(LRL)
+                roots.append(root)
         except np.linalg.LinAlgError:
             return None
         Pst = np.stack(Ps)
@@ -607,16 +632,49 @@ def _input(
 
 
 def _filter(
-    mode: LCS, P: np.ndarray, x_lin: np.ndarray, n: int, eye: np.ndarray
+    mode: LCS, P: np.ndarray, x_lin: np.ndarray, n: int, eye: np.ndarray, R: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The filter's step at the linearisation point ``x_lin``: Kalman gain, covariance, ``L C``
-    (:func:`~idstlpy.belief.kalman_update`'s covariance, its gain computed once)."""
+    (:func:`~idstlpy.belief.kalman_update`'s covariance, its gain computed once); ``R``: the
+    sensor's noise there, when the caller has it."""
     P_pred = mode.A @ P @ mode.A.T + mode.process_cov
     if mode.p:
-        R_filter = mode.noise_cov(x_lin)
+        R_filter = mode.noise_cov(x_lin) if R is None else R
         Lk = kalman_gain(mode.C, P_pred, R_filter)
         return Lk, _joseph(Lk, mode.C, P_pred, R_filter), Lk @ mode.C
     return np.zeros((n, 0)), 0.5 * (P_pred + P_pred.T), np.zeros((n, n))
+
+
+class _FilterCache:
+    """The filter's steps (gain, covariance, ``L C``, ``L R L'``, the sensor noise's root) as a
+    trie per prior covariance, each step keyed by the content of what it reads (the mode's
+    ``A``, process covariance and ``C``, the sensor's noise at the step); read-only arrays.
+    Cleared whole past :attr:`KEPT` steps."""
+
+    KEPT = 20_000
+
+    def __init__(self) -> None:
+        self.tries: dict[bytes, dict[Any, Any]] = {}
+        self.count = 0
+
+    def root(self, P0: np.ndarray) -> dict[Any, Any]:
+        key = np.asarray(P0.shape).tobytes() + P0.tobytes()
+        node = self.tries.get(key)
+        if node is None:
+            node = self.tries[key] = {}
+        return node
+
+    def added(self, arrays: tuple[np.ndarray | None, ...]) -> None:
+        for a in arrays:
+            if a is not None:
+                a.flags.writeable = False
+        self.count += 1
+        if self.count > self.KEPT:
+            self.tries.clear()
+            self.count = 0
+
+
+_FILTERS = _FilterCache()
 
 
 def _horizon(gains: Sequence[np.ndarray]) -> int:
