@@ -651,7 +651,7 @@ class _FilterCache:
     ``A``, process covariance and ``C``, the sensor's noise at the step); read-only arrays.
     Cleared whole past :attr:`KEPT` steps."""
 
-    KEPT = 20_000
+    KEPT = 10_000  # (about 1 kB a step)
 
     def __init__(self) -> None:
         self.tries: dict[bytes, dict[Any, Any]] = {}
