@@ -401,13 +401,15 @@ class _Walk:
 
     def descend(self, current: Trial) -> Trial:
         """First-improvement descent from ``current``: a local optimum or a trial that is done."""
+        widened = False
         while self.count < self.limit:
             if self.budget is not None:
                 self.budget.check("the mode search")
             improved = False
             # Among sequences the plan LP meets, the room's moves stay near the step that is
-            # short of it: a local optimum is then known after a window's scores, not 2K.
-            window = ROOM_WINDOW if current.key[0] == 1 else None
+            # short of it (a look serves the steps just after it); at a local optimum of the
+            # window, every step is tried once before the descent stops.
+            window = ROOM_WINDOW if current.key[0] == 1 and not widened else None
             for modes in self.moves(current.modes, current.focus, window):
                 if self.count >= self.limit:
                     break
@@ -417,7 +419,11 @@ class _Walk:
                 if trial.key[0] >= 0 and _improves(trial.key, current.key):
                     current, improved = trial, True
                     break
-            if not improved:
+            if improved:
+                widened = False
+            elif window is not None:
+                widened = True
+            else:
                 break
         return current
 
