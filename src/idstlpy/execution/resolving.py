@@ -175,7 +175,7 @@ class _RiskModel:
             formula=psi,
             control_domain=spec.control_domain,
             process_noise="model" if spec.process_noise == "model" else "none",
-            lqr_gains=[list(Ks) for Ks in spec.gains.values()],
+            lqr_gains={q: list(Ks) for q, Ks in spec.gains.items()},  # by mode, not position
             initial_belief=belief,
             real_initial_cov=belief.cov,
             samples=self.samples if self.measure == "estimate" else 0,
