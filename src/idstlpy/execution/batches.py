@@ -125,7 +125,8 @@ def execute_runs(
         system, formula = problem.switched_system, problem.stl_formula
     else:
         system, formula = payload.system, payload.formula
-    assert formula is not None
+    if formula is None:
+        raise InvalidArgumentError("formula: a batch needs the formula its runs are judged on, got None")
     promised = promises(formula, payload.plan, payload.num_of_steps + 1)
     # (a plant step function draws from the generator it is given: one run at a time)
     if payload.policy is None and payload.batched and payload.plant is None:
@@ -143,7 +144,8 @@ def execute_runs(
         if payload.policy is not None:
             from .replanning import execute
 
-            assert problem is not None
+            if problem is None:
+                raise InvalidArgumentError("problem: re-planning runs need the problem to re-solve, got None")
             # execute draws from default_rng(ss): the same noise as simulate below
             run = execute(problem, payload.plan, None, x0, seed=ss, policy=payload.policy, spec=spec)
             res = run_record(formula, promised, run.belief, run.real)
