@@ -31,7 +31,9 @@ the true start drawn from the prior) reaches ``options.execution_target`` on bot
 predicted again; one still below target is set aside (the best is kept) and the search goes on
 for at most :data:`~.context.BELOW_TARGET_EXTRA` times the candidates it took, at least
 :data:`~.context.BELOW_TARGET_MIN` more (:data:`~.context.BELOW_TARGET_SEARCHED` where the mode search
-reads the execution). If no plan meets the target by then (or another budget
+reads the execution), and only while the plans set aside keep improving on the best
+(:data:`~.context.BELOW_TARGET_PATIENCE` in a row that do not end it). If no plan meets the target
+by then (or another budget
 ends the search), the best plan set aside is returned ``found`` with ``meets_target`` False, the
 reason says so and an :class:`~idstlpy.errors.ExecutionTargetWarning` is issued. Every found
 result, under every guarantee, carries its predicted execution (``SolveResult.execution``).
@@ -265,9 +267,8 @@ def _stop(ctx: SolveContext) -> str | None:
     spent = termination.work_done(stats.candidates, stats.lp_calls)
     if spent is not None:
         return f"{spent}; {ctx.counts()}"
-    below_until = ctx.target.below_until
-    if below_until is not None and stats.candidates >= below_until:
-        spent = "first_found" if termination.first_found else "the search budget"
+    spent = ctx.target.stop_reason(stats.candidates)
+    if spent is not None:
         return f"{spent} after a plan below target; {ctx.counts()}"
     return None
 

@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)
 __all__ = [
     "BELOW_TARGET_EXTRA",
     "BELOW_TARGET_MIN",
+    "BELOW_TARGET_PATIENCE",
     "BELOW_TARGET_SEARCHED",
     "PREDICT_SAMPLES",
     "SolveContext",
@@ -61,6 +62,15 @@ execution (:class:`~.mode_search.RoomScore`: several modes, the plan LP exact): 
 modes were already searched for the plan that holds best, and its requirement set is set aside
 for every mode sequence, so one candidate covers what the proposer's enumeration took hundreds
 for."""
+BELOW_TARGET_PATIENCE = 6
+"""The search after a plan below target also stops once this many verified plans in a row were
+set aside without a smaller shortfall than the best one's (a cost-convergence termination, as
+OMPL's ``CostConvergenceTerminationCondition``, counted in plans, not seconds: the same seed
+gives the same plan). Where the plans improve, they do so every few plans (issue 23's problems,
+2026-11-27: at most 3 in a row without improving before a plan meets the target, 4 on a line
+held to a 100% target); where they do not (the same plan found again and again: the perception
+suite's narrow noisy hold, whose best plan cannot meet the target, ran to its 60 s cap), the
+candidates left in the search's budget would only find it again."""
 
 
 class Verified(NamedTuple):
@@ -148,6 +158,8 @@ class TargetWatch:
         # mode search reads the execution)
         self.least_extra = BELOW_TARGET_MIN
         self.unrepaired: set[tuple[int, ...]] = set()  # mode sequences whose repair fell short
+        # verified plans set aside in a row without improving on the best (BELOW_TARGET_PATIENCE)
+        self.stale = 0
         self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
 
     def predict(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
@@ -181,7 +193,8 @@ class TargetWatch:
         return out
 
     def set_aside(self, checked: Verified) -> None:
-        """Keep a verified plan below target if it is the best so far; start the extra search."""
+        """Keep a verified plan below target if it is the best so far (counting the plans that
+        are not, :attr:`stale`); start the extra search."""
         stats = self.stats
         stats.below_target += 1
         ex = checked.execution
@@ -191,7 +204,24 @@ class TargetWatch:
             and ex.shortfall < self.below.execution.shortfall
         ):
             self.below = checked
+            self.stale = 0
+        else:
+            self.stale += 1
         if self.below_until is None:
             c = stats.candidates
             extra = max(self.least_extra, int(np.ceil(BELOW_TARGET_EXTRA * c)))
             self.below_until = c if self.options.termination.first_found else c + extra
+
+    def stop_reason(self, candidates: int) -> str | None:
+        """Why the search after a plan below target stops before the next candidate (its
+        candidate budget is spent, or :data:`BELOW_TARGET_PATIENCE` plans in a row did not
+        improve on the best), or ``None`` (also before any plan was set aside)."""
+        if self.below_until is None:
+            return None
+        if candidates >= self.below_until:
+            return "first_found" if self.options.termination.first_found else "the search budget"
+        if self.stale >= BELOW_TARGET_PATIENCE:
+            return (
+                f"no better plan in the last {self.stale} verified plans below target (the search converged)"
+            )
+        return None
