@@ -31,9 +31,9 @@ the true start drawn from the prior) reaches ``options.execution_target`` on bot
 predicted again; one still below target is set aside (the best is kept) and the search goes on
 for at most :data:`~.context.BELOW_TARGET_EXTRA` times the candidates it took, at least
 :data:`~.context.BELOW_TARGET_MIN` more (:data:`~.context.BELOW_TARGET_SEARCHED` where the mode search
-reads the execution), and only while the plans set aside keep improving on the best
-(:data:`~.context.BELOW_TARGET_PATIENCE` in a row that do not end it). If no plan meets the target
-by then (or another budget
+reads the execution), and only while it finds new plans (it stops after
+:data:`~.context.BELOW_TARGET_PATIENCE` verified plans in a row it had set aside before; a plan
+found again is not predicted again). If no plan meets the target by then (or another budget
 ends the search), the best plan set aside is returned ``found`` with ``meets_target`` False, the
 reason says so and an :class:`~idstlpy.errors.ExecutionTargetWarning` is issued. Every found
 result, under every guarantee, carries its predicted execution (``SolveResult.execution``).
@@ -362,6 +362,11 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
     (:meth:`~.context.TargetWatch.set_aside`) and None returned (the candidate is abandoned, the
     search goes on)."""
     target = ctx.target
+    known = target.known(checked.traj)
+    if known is not None:  # found again: the same prediction, and its repair was tried
+        logger.info("verified plan set aside before (below the execution target): not predicted again")
+        target.set_aside(known, checked)
+        return None
     execution = target.predict(checked.traj)
     checked = checked._replace(execution=execution)
     if execution.meets_target:
@@ -388,7 +393,7 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
                 best = fixed
     target.unrepaired.add(modes)
     logger.info("plan set aside below the execution target: %s", (best.execution or execution).summary())
-    target.set_aside(best)
+    target.set_aside(best, checked)
     return None
 
 

@@ -64,13 +64,13 @@ for every mode sequence, so one candidate covers what the proposer's enumeration
 for."""
 BELOW_TARGET_PATIENCE = 6
 """The search after a plan below target also stops once this many verified plans in a row were
-set aside without a smaller shortfall than the best one's (a cost-convergence termination, as
-OMPL's ``CostConvergenceTerminationCondition``, counted in plans, not seconds: the same seed
-gives the same plan). Where the plans improve, they do so every few plans (issue 23's problems,
-2026-11-27: at most 3 in a row without improving before a plan meets the target, 4 on a line
-held to a 100% target); where they do not (the same plan found again and again: the perception
-suite's narrow noisy hold, whose best plan cannot meet the target, ran to its 60 s cap), the
-candidates left in the search's budget would only find it again."""
+plans it had already set aside (the same modes and controls, so the same predicted execution):
+the search has converged, and the candidates left in its budget would only find them again (the
+perception suite's narrow noisy hold: the sampler's plan, given its room, came back identical
+six times in a row and the search ran to its 60 s cap). Counted in plans, not seconds: the same
+seed gives the same plan. New plans that do not improve on the best do not count: the sampler's
+plans are fresh draws, and on the recurrent-sensing family the plan that meets the target came
+after 6 new plans in a row that did not improve."""
 
 
 class Verified(NamedTuple):
@@ -158,8 +158,10 @@ class TargetWatch:
         # mode search reads the execution)
         self.least_extra = BELOW_TARGET_MIN
         self.unrepaired: set[tuple[int, ...]] = set()  # mode sequences whose repair fell short
-        # verified plans set aside in a row without improving on the best (BELOW_TARGET_PATIENCE)
-        self.stale = 0
+        # each verified plan set aside (its modes and controls) and what was set aside for it
+        self.seen: dict[bytes, Verified] = {}
+        # verified plans in a row that had been set aside before (BELOW_TARGET_PATIENCE)
+        self.repeats = 0
         self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
 
     def predict(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
@@ -192,11 +194,26 @@ class TargetWatch:
         self._predicted = (traj, out)
         return out
 
-    def set_aside(self, checked: Verified) -> None:
-        """Keep a verified plan below target if it is the best so far (counting the plans that
-        are not, :attr:`stale`); start the extra search."""
+    def known(self, traj: ProbabilisticTSTrajectory) -> Verified | None:
+        """What was set aside for the same plan (modes and controls) before, or ``None``: its
+        predicted execution is the same (the prediction's seed is fixed), so it is below target."""
+        return self.seen.get(_plan_key(traj))
+
+    def set_aside(self, checked: Verified, plan: Verified | None = None) -> None:
+        """Keep a verified plan below target if it is the best so far; start the extra search.
+
+        ``checked`` is what is set aside for the verified plan ``plan`` (default ``checked``
+        itself; its closed-loop repair when that did better): a plan set aside before counts
+        toward :data:`BELOW_TARGET_PATIENCE` (:attr:`repeats`), a new one resets the count.
+        """
         stats = self.stats
         stats.below_target += 1
+        key = _plan_key((checked if plan is None else plan).traj)
+        if key in self.seen:
+            self.repeats += 1
+        else:
+            self.repeats = 0
+            self.seen[key] = checked
         ex = checked.execution
         if self.below is None or (
             ex is not None
@@ -204,9 +221,6 @@ class TargetWatch:
             and ex.shortfall < self.below.execution.shortfall
         ):
             self.below = checked
-            self.stale = 0
-        else:
-            self.stale += 1
         if self.below_until is None:
             c = stats.candidates
             extra = max(self.least_extra, int(np.ceil(BELOW_TARGET_EXTRA * c)))
@@ -214,14 +228,21 @@ class TargetWatch:
 
     def stop_reason(self, candidates: int) -> str | None:
         """Why the search after a plan below target stops before the next candidate (its
-        candidate budget is spent, or :data:`BELOW_TARGET_PATIENCE` plans in a row did not
-        improve on the best), or ``None`` (also before any plan was set aside)."""
+        candidate budget is spent, or the last :data:`BELOW_TARGET_PATIENCE` verified plans had
+        all been set aside before), or ``None`` (also before any plan was set aside)."""
         if self.below_until is None:
             return None
         if candidates >= self.below_until:
             return "first_found" if self.options.termination.first_found else "the search budget"
-        if self.stale >= BELOW_TARGET_PATIENCE:
+        if self.repeats >= BELOW_TARGET_PATIENCE:
             return (
-                f"no better plan in the last {self.stale} verified plans below target (the search converged)"
+                f"the last {self.repeats} verified plans had all been set aside before (the search converged)"
             )
         return None
+
+
+def _plan_key(traj: ProbabilisticTSTrajectory) -> bytes:
+    """A plan's modes and controls, byte for byte (the same plan found again)."""
+    actions = np.ascontiguousarray(traj.get_action(), dtype=np.int64)
+    controls = np.ascontiguousarray(traj.get_control(), dtype=np.float64)
+    return actions.tobytes() + b"|" + controls.tobytes()
