@@ -46,6 +46,13 @@ class PruningReport:
     out_of_reach : dict of int to str
         Propositions no belief can satisfy at any step ``>= 1`` (their confidence needs less
         covariance than a sound lower bound allows), with the proof in words.
+    impossible_gaps : list of (int, int, int)
+        ``(i, j, d)`` with ``d >= 2``: no mean in region ``i`` reaches region ``j`` in exactly
+        ``d`` steps, whatever the modes (``Abstraction.prune(..., reach=True)``).
+    roomless_gaps : list of (int, int, int)
+        ``(i, j, d)``: region ``i``'s centre cannot reach region ``j``'s in ``d`` steps (but
+        some mean in ``i`` reaches ``j``): a transition with no room for the execution. Not a
+        proof; the proposer only prefers plans without such transitions.
     """
 
     empty_atoms: list[int]
@@ -53,6 +60,8 @@ class PruningReport:
     impossible_steps: list[tuple[int, int, int]]
     initial_false: list[int]
     out_of_reach: dict[int, str] = field(default_factory=dict)
+    impossible_gaps: list[tuple[int, int, int]] = field(default_factory=list)
+    roomless_gaps: list[tuple[int, int, int]] = field(default_factory=list)
 
 
 class Abstraction:
@@ -268,6 +277,8 @@ class Abstraction:
         max_step_lps: int = 400,
         backend: Backend | None = None,
         units: tuple[np.ndarray, np.ndarray] | None = None,
+        reach: bool = False,
+        max_gap: int = 0,
     ) -> PruningReport:
         """Prove letters empty, pairs disjoint and steps impossible (mean relaxation).
 
@@ -286,6 +297,13 @@ class Abstraction:
         units : (ndarray (n,), ndarray (m,)), optional
             Units of the state and input coordinates: the LPs are solved in them, with
             normalised rows, so that infeasibility is judged relative to the problem's scale.
+        reach : bool
+            Also prove multi-step gaps (:meth:`_impossible_gaps`) and take the one-step LPs over
+            half-plane regions too (a door's "before" and "after" sides): more proven clauses,
+            so the proposer offers fewer candidates a teacher must refute. Off by default: the
+            extra clauses change which models the SAT solver returns first.
+        max_gap : int
+            The longest gap ``d`` tried (the formula's horizon: a longer one excludes nothing).
         """
         regions = [self.region(i) for i in range(self.num_atoms)]
         empty = [i for i, r in enumerate(regions) if r.H.shape[0] and r.is_empty()]
@@ -309,17 +327,97 @@ class Abstraction:
             max_step_lps,
             backend or HighsBackend(),
             units,
+            reach,
         )
-        report = PruningReport(empty, disjoint, steps, initial_false)
+        gaps: list[tuple[int, int, int]] = []
+        roomless: list[tuple[int, int, int]] = []
+        if reach and max_gap >= 2:
+            first = [(i, j) for i, j, q in steps if q == -1]
+            gaps, roomless = self._impossible_gaps(
+                system,
+                control_domain,
+                regions,
+                first,
+                max_gap,
+                budget,
+                max_step_lps,
+                backend or HighsBackend(),
+                units,
+            )
+        report = PruningReport(
+            empty, disjoint, steps, initial_false, impossible_gaps=gaps, roomless_gaps=roomless
+        )
         logger.info(
             "LP pruning: %d empty letters, %d disjoint pairs, %d impossible steps, "
-            "%d letters false at step 0",
+            "%d impossible gaps (%d without room), %d letters false at step 0",
             len(empty),
             len(disjoint),
             len(steps),
+            len(gaps),
+            len(roomless),
             len(initial_false),
         )
         return report
+
+    def _impossible_gaps(
+        self,
+        system: SwitchedSystem,
+        U: Polytope,
+        regions: list[Polytope],
+        first: list[tuple[int, int]],
+        max_gap: int,
+        budget: Budget | None,
+        max_lps: int,
+        backend: Backend,
+        units: tuple[np.ndarray, np.ndarray] | None,
+    ) -> tuple[list[tuple[int, int, int]], list[tuple[int, int, int]]]:
+        """Multi-step gaps: ``(proven, roomless)`` lists of ``(i, j, d)`` with ``d >= 2``.
+
+        ``proven``: no mean in region ``i`` reaches region ``j`` in ``d`` steps. For each pair
+        no mode can join in one step (``first``), ``d = 2, 3, ...`` until an LP is feasible.
+        The modes must share ``A`` (else nothing is claimed): then ``x_d = A^d x_0 + sum_t
+        A^(d-1-t) v_t`` with every ``v_t`` in the convex hull of the modes' ``B_q U`` (the
+        perspective formulation ``v_t = sum_q B_q w_qt``, ``H w_qt + lambda_qt c <= 0``,
+        ``sum_q lambda_qt = 1``): a relaxation of every mode sequence, so an infeasible LP is a
+        proof.
+
+        ``roomless``: no mean at region ``i``'s Chebyshev centre reaches region ``j``'s in ``d``
+        steps (same relaxation; bounded regions only), for the ``d`` between the last proven gap
+        and the first that reaches. Such a transition goes from edge to edge at full speed: no
+        room for the execution's deviations (not a proof: the proposer only prefers plans
+        without them). At most ``max_lps`` LPs in all, and ``d <= max_gap``.
+        """
+        modes = system.system_modes
+        if not first or any(not np.array_equal(mode.A, modes[0].A) for mode in modes[1:]):
+            return [], []
+        proven: list[tuple[int, int, int]] = []
+        roomless: list[tuple[int, int, int]] = []
+        lps = 0
+        for i, j in first:
+            d = 2
+            while d <= max_gap and lps < max_lps:
+                if budget is not None:
+                    budget.check("LP pruning")
+                lps += 1
+                if _reaches(system, U, regions[i], regions[j], d, backend, budget, units):
+                    break
+                proven.append((i, j, d))
+                d += 1
+            if not (np.isfinite(self.radius(i)) and np.isfinite(self.radius(j))):
+                continue
+            ci, cj = _point(regions[i].chebyshev_center()[0]), _point(regions[j].chebyshev_center()[0])
+            while d <= max_gap and lps < max_lps:
+                if budget is not None:
+                    budget.check("LP pruning")
+                lps += 1
+                if _reaches(system, U, ci, cj, d, backend, budget, units):
+                    break
+                roomless.append((i, j, d))
+                d += 1
+            else:
+                # (no centre-to-centre route within the cap: claim nothing for this pair)
+                roomless = [g for g in roomless if g[:2] != (i, j)]
+        return proven, roomless
 
     def _impossible_steps(
         self,
@@ -331,15 +429,20 @@ class Abstraction:
         max_lps: int,
         backend: Backend,
         units: tuple[np.ndarray, np.ndarray] | None,
+        reach: bool = False,
     ) -> list[tuple[int, int, int]]:
-        bounded = []
+        bounded, faced = [], []
         for i, r in enumerate(regions):
             if i in empty or not r.H.shape[0]:
                 continue
+            faced.append(i)
             low, high = r.bounding_box()
             if np.all(np.isfinite(low)) and np.all(np.isfinite(high)):
                 bounded.append(i)
         pairs = [(i, j) for i in bounded for j in bounded if i != j]
+        wide = [(i, j) for i in faced for j in faced if i != j]
+        if reach and len(wide) * system.num_modes <= max_lps:
+            pairs = wide  # half-planes too (the LPs are feasibility problems: unbounded is fine)
         if len(pairs) * system.num_modes > max_lps:
             logger.debug("skipping one-step pruning: %d pairs", len(pairs))
             return []
@@ -381,3 +484,73 @@ class Abstraction:
             else:
                 out.extend((i, j, q) for q in bad_modes)
         return out
+
+
+def _point(x: np.ndarray) -> Polytope:
+    """The polytope ``{x}`` (two inequalities per coordinate)."""
+    n = x.shape[0]
+    return Polytope(np.vstack([np.eye(n), -np.eye(n)]), np.concatenate([-x, x]))
+
+
+def _reaches(
+    system: SwitchedSystem,
+    U: Polytope,
+    Ri: Polytope,
+    Rj: Polytope,
+    d: int,
+    backend: Backend,
+    budget: Budget | None,
+    units: tuple[np.ndarray, np.ndarray] | None,
+) -> bool:
+    """Whether some mean in ``Ri`` may reach ``Rj`` in ``d`` steps (the convex relaxation of
+    :meth:`Abstraction._impossible_gaps`; the modes share ``A``). False only when the LP is
+    infeasible."""
+    modes = system.system_modes
+    A = modes[0].A
+    n, m, Q = system.n, system.m, len(modes)
+    xs, us = units if units is not None else (np.ones(n), np.ones(m))
+    # Columns: x0 (n), then per step t and mode q: w_qt (m), lambda_qt (1).
+    width = n + d * Q * (m + 1)
+    rows: list[np.ndarray] = []
+    lo: list[np.ndarray] = []
+    hi: list[np.ndarray] = []
+
+    def add(block: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
+        rows.append(block)
+        lo.append(low)
+        hi.append(high)
+
+    start = np.zeros((Ri.H.shape[0], width))
+    start[:, :n] = Ri.H
+    add(start, np.full(Ri.H.shape[0], -np.inf), -Ri.c)
+    last = np.zeros((Rj.H.shape[0], width))
+    last[:, :n] = Rj.H @ np.linalg.matrix_power(A, d)
+    for t in range(d):
+        Ap = np.linalg.matrix_power(A, d - 1 - t)
+        total = np.zeros((1, width))
+        for q, mode in enumerate(modes):
+            c0 = n + (t * Q + q) * (m + 1)
+            dom = np.zeros((U.H.shape[0], width))
+            dom[:, c0 : c0 + m] = U.H
+            dom[:, c0 + m] = U.c
+            add(dom, np.full(U.H.shape[0], -np.inf), np.zeros(U.H.shape[0]))
+            last[:, c0 : c0 + m] = Rj.H @ Ap @ mode.B
+            total[0, c0 + m] = 1.0
+        add(total, np.ones(1), np.ones(1))
+    add(last, np.full(Rj.H.shape[0], -np.inf), -Rj.c)
+    scale = np.concatenate([xs, np.tile(np.concatenate([us, [1.0]]), d * Q)])
+    M = np.vstack(rows) * scale[None, :]
+    norms = np.linalg.norm(M, axis=1)
+    norms = np.where(norms > 0, norms, 1.0)
+    col_lo = np.full(width, -np.inf)
+    col_lo[n + np.arange(d * Q) * (m + 1) + m] = 0.0
+    model = LinearModel(
+        np.zeros(width),
+        csr_matrix(M / norms[:, None]),
+        np.concatenate(lo) / norms,
+        np.concatenate(hi) / norms,
+        col_lo,
+        np.full(width, np.inf),
+    )
+    limit = budget.remaining() if budget is not None else 60.0
+    return bool(backend.solve(model, max(limit, 1e-3)).status != "infeasible")

@@ -127,6 +127,10 @@ class BMCEncoder:
             self.budget.check(f"SAT encoding of {self.H + 1} steps")
         return self._nvars
 
+    def new_selector(self) -> int:
+        """A fresh variable for a family of guarded clauses (the proposer's preferences)."""
+        return self._new()
+
     @property
     def num_vars(self) -> int:
         """Number of SAT variables."""

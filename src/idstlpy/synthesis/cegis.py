@@ -167,7 +167,9 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
     """LP pruning's proven facts (:meth:`~.abstraction.Abstraction.prune`), counted in the stats."""
     problem, options, stats, budget = ctx.problem, ctx.options, ctx.stats, ctx.budget
     system, init, units = problem.switched_system, problem.initial_state, ctx.units
+    horizon = min(ctx.formula.horizon, options.max_plan_length)
     with stats.clock("time_lp"):
+        # (multi-step gaps only off guarantee="mlo", whose plans stay as recorded)
         report = ctx.abstraction.prune(
             system,
             problem.control_domain,
@@ -177,8 +179,9 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
             options.max_pruning_lps,
             backend,
             (units.dx, units.du),
+            reach=options.guarantee != "mlo",
+            max_gap=horizon,
         )
-        horizon = min(ctx.formula.horizon, options.max_plan_length)
         report.out_of_reach = ctx.abstraction.out_of_reach(system, init.cov, horizon, budget)
     stats.pruned_letters = (
         len(report.empty_atoms)

@@ -112,6 +112,10 @@ class BMCProposer:
         self.soft: list[list[SymLit]] = []
         self.depth: int | None = None
         self.enc: BMCEncoder | None = None
+        # Transitions with no room for the execution (report.roomless_gaps): a preference, guarded
+        # by a selector of their own that is assumed until no candidate is left without them.
+        self.prefer_room = bool(report.roomless_gaps)
+        self._room = 0
         self.bound = 0
         self._sat_calls_done = 0
         if self.min_depth <= self.cap:
@@ -157,6 +161,14 @@ class BMCProposer:
                 if q >= 0:
                     clause.append(-int(enc.m[q, k + 1]))
                 enc.add_clause(clause)
+        for i, j, d in rep.impossible_gaps:
+            for k in range(H + 1 - d):
+                enc.add_clause([-int(enc.p[i, k]), -int(enc.p[j, k + d])])
+        if rep.roomless_gaps:
+            self._room = enc.new_selector()
+            for i, j, d in rep.roomless_gaps:
+                for k in range(H + 1 - d):
+                    enc.add_clause([-int(enc.p[i, k]), -int(enc.p[j, k + d]), -self._room])
         for i in rep.initial_false:
             enc.add_clause([-int(enc.p[i, 0])])
         for i in rep.out_of_reach:
@@ -216,6 +228,15 @@ class BMCProposer:
                 continue
             if self.grow():
                 continue
+            if self.prefer_room:
+                # Every plan left makes some transition without room: offer those too (shortest
+                # first again).
+                logger.info(
+                    "proposer: no candidate left with room on every transition; dropping the preference"
+                )
+                self.prefer_room = False
+                self.depth = None
+                continue
             return self._dry()
 
     def grow(self) -> bool:
@@ -227,8 +248,11 @@ class BMCProposer:
         self._build()
         return True
 
-    def _assume(self) -> list[int]:
-        return [self._enc().selector] if self.soft else []
+    def _assume(self, room: bool = True) -> list[int]:
+        out = [self._enc().selector] if self.soft else []
+        if room and self.prefer_room:
+            out.append(self._room)
+        return out
 
     def _search(self) -> int | None:
         """Smallest depth (from the last one) with a model under every clause, or None."""
@@ -376,7 +400,8 @@ class BMCProposer:
         if self.num_modes > 1:
             assume += [int(enc.m[q, j + 1]) for j, q in enumerate(modes)]
         with self.stats.clock("time_bmc"):
-            ok = enc.solve(assumptions=assume + self._assume())
+            # (a realised prefix may make a roomless transition: the preference does not apply)
+            ok = enc.solve(assumptions=assume + self._assume(room=False))
         if not ok:
             return None
         required, L = w

@@ -1,0 +1,126 @@
+"""Multi-step reach pruning: proven gaps between regions, and transitions without room."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import idstlpy as stl
+from idstlpy.synthesis.abstraction import Abstraction
+from idstlpy.synthesis.interfaces import Budget, ProposerDry
+from idstlpy.synthesis.options import SolverOptions
+from idstlpy.synthesis.plan import DiscretePlan
+from idstlpy.synthesis.proposer import BMCProposer
+from idstlpy.synthesis.results import SolveStats
+
+X = stl.mk_variable(1)
+U = stl.mk_variable(1, name="u")
+DOMAIN = stl.Polytope(np.array([[1.0], [-1.0]]), np.array([-1.0, -1.0]))  # |u| <= 1
+
+
+def _box(lo: float, hi: float, name: str):
+    return stl.logical_and(stl.prob(X[0] >= lo) >= 0.9, stl.prob(X[0] <= hi) >= 0.9, name=name)
+
+
+def _abstraction(formula):
+    return Abstraction(formula, 1)
+
+
+def _prune(formula, modes, reach=True, max_gap=20):
+    abstraction = _abstraction(formula)
+    report = abstraction.prune(
+        stl.mk_switched_sys(modes),
+        DOMAIN,
+        np.zeros(1),
+        0.01 * np.eye(1),
+        reach=reach,
+        max_gap=max_gap,
+    )
+    return abstraction, report
+
+
+A_BOX, B_BOX = _box(0.0, 0.5, "a"), _box(2.5, 3.0, "b")
+FORMULA = stl.logical_and(stl.eventually(0, 20, A_BOX), stl.eventually(0, 20, B_BOX))
+
+
+def test_gaps_are_proven_then_roomless_for_a_single_integrator():
+    # x' = x + 0.5 u: from a = [0, 0.5] to b = [2.5, 3] is 2.0 at least, 0.5 a step: 4 steps;
+    # centre to centre (0.25 -> 2.75) is 2.5: 5 steps.
+    abstraction, report = _prune(FORMULA, [stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1))])
+    a, b = (abstraction.names().index(n) for n in ("a", "b"))
+    assert (a, b, -1) in report.impossible_steps
+    assert sorted(d for i, j, d in report.impossible_gaps if (i, j) == (a, b)) == [2, 3]
+    assert sorted(d for i, j, d in report.roomless_gaps if (i, j) == (a, b)) == [4]
+    assert sorted(d for i, j, d in report.impossible_gaps if (i, j) == (b, a)) == [2, 3]
+
+
+def test_gaps_take_the_fastest_mode_when_the_modes_share_a():
+    # A slow mode (B = 0.1) does not slow the proof down: the hull holds the fast mode's moves.
+    modes = [
+        stl.mk_lbs(np.eye(1), 0.1 * np.eye(1), 0.01 * np.eye(1)),
+        stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1)),
+    ]
+    abstraction, report = _prune(FORMULA, modes)
+    a, b = (abstraction.names().index(n) for n in ("a", "b"))
+    assert sorted(d for i, j, d in report.impossible_gaps if (i, j) == (a, b)) == [2, 3]
+
+
+def test_no_gap_is_claimed_for_modes_with_different_dynamics_or_without_reach():
+    modes = [
+        stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1)),
+        stl.mk_lbs(0.9 * np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1)),
+    ]
+    _, report = _prune(FORMULA, modes)
+    assert report.impossible_gaps == [] and report.roomless_gaps == []
+    _, report = _prune(FORMULA, [stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1))], reach=False)
+    assert report.impossible_gaps == [] and report.roomless_gaps == []
+
+
+def _proposer(formula, report):
+    opts = SolverOptions(seed=0)
+    return BMCProposer(formula, _abstraction(formula), 1, report, opts, Budget(60.0), SolveStats())
+
+
+def _gap(plan: DiscretePlan, names: list[str]) -> int:
+    a, b = names.index("a"), names.index("b")
+    ka = np.nonzero(plan.required[a])[0]
+    kb = np.nonzero(plan.required[b])[0]
+    return int(kb.min() - ka.max()) if ka.size and kb.size else -1
+
+
+def test_the_proposer_prefers_transitions_with_room_then_drops_the_preference():
+    # a then b (the order matters): the proven gaps exclude 1..3 steps, the roomless one 4.
+    formula = stl.eventually(0, 20, stl.logical_and(A_BOX, stl.eventually(1, 20, B_BOX)))
+    abstraction, report = _prune(formula, [stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1))])
+    names = abstraction.names()
+    proposer = _proposer(formula, report)
+    first = proposer.propose()
+    assert isinstance(first, DiscretePlan)
+    assert _gap(first, names) >= 5  # shortest first, but never a transition without room
+    # Only roomless plans left (every gap of 5 or more set aside): the preference is dropped
+    # and a gap of 4 is offered; no infeasibility is claimed from a preference.
+    for d in range(5, 22):
+        for k in range(0, 22):
+            proposer.soft.append([("p", names.index("a"), k, False), ("p", names.index("b"), k + d, False)])
+            proposer._add(proposer.soft[-1], soft=True)
+    nxt = proposer.propose()
+    assert isinstance(nxt, DiscretePlan) and _gap(nxt, names) == 4
+    assert not proposer.prefer_room
+    proposer.close()
+
+
+def test_a_preference_never_makes_a_proof():
+    # Every plan of this formula makes the a -> b transition in exactly 4 steps (roomless): the
+    # proposer still offers one (never a dry, proven answer).
+    formula = stl.eventually(0, 6, stl.logical_and(A_BOX, stl.eventually(4, 4, B_BOX)))
+    abstraction, report = _prune(formula, [stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1))])
+    assert report.roomless_gaps
+    proposer = _proposer(formula, report)
+    plan = proposer.propose()
+    assert isinstance(plan, DiscretePlan) and _gap(plan, abstraction.names()) == 4
+    proposer.abandon(plan)
+    out = proposer.propose()
+    while isinstance(out, DiscretePlan):
+        proposer.abandon(out)
+        out = proposer.propose()
+    assert isinstance(out, ProposerDry) and not out.proven
+    proposer.close()
