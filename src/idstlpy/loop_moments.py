@@ -21,7 +21,7 @@ from scipy.special import ndtr
 from .belief import _joseph, kalman_gain
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import InvalidArgumentError
-from .loop_samples import LoopStep, NoiseInterpolant, ParticleCloud, cubature, sqrt_psd
+from .loop_samples import LoopStep, NoiseInterpolant, ParticleCloud, SensorDraw, cubature, sqrt_psd
 from .sets import Polytope
 from .tracking import box_bounds, gain_at
 from .trajectory import ProbabilisticTSTrajectory
@@ -540,19 +540,19 @@ class _Run:
         Qk = lin.noise(Qw)
         z = F @ z + g
         S_pre = F @ S @ F.T + Qk
-        fitted = None  # the sensor's noise interpolant, for samples drawing it at their own state
+        noise = None  # the sensor's noise factor, for samples drawing it at their own state
         if cloud is not None and state_dep and mode.p:
-            fitted = NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n])
+            noise = SensorDraw(mode, NoiseInterpolant.fit(mode, m_next + z[:n], S_pre[:n, :n]))
         R_true = parts.zero_p
         if mode.p:
-            R_true = self.sensor_cov(mode, state_dep, m_next, z[:n], S_pre[:n, :n], fitted)
+            R_true = self.sensor_cov(mode, state_dep, m_next, z[:n], S_pre[:n, :n])
             LRL = Lk @ R_true @ Lk.T
             Qk[n : 2 * n, n : 2 * n] += LRL  # Qk and S_pre are this step's own arrays
             S_pre[n : 2 * n, n : 2 * n] += LRL
         S = 0.5 * (S_pre + S_pre.T)
         step = lin.loop_step(Kt, v, self.box, F, J, parts, R_true, self.sens)
-        if fitted is not None:
-            step.noise = fitted
+        if noise is not None:
+            step.noise = noise
             step.m_next, step.C, step.Qp = m_next, mode.C, mode.process_cov
             step.P_prev, step.P_next = P, P_next
         out.steps.append(step)  # type: ignore[union-attr]
@@ -578,7 +578,6 @@ class _Run:
         m_next: np.ndarray,
         delta: np.ndarray,
         S_delta: np.ndarray,
-        fitted: NoiseInterpolant | None,
     ) -> np.ndarray:
         """The sensor noise covariance acting on the loop, ``R`` at the true state (``delta``: its
         predicted mean deviation, ``S_delta`` its covariance) as ``sensor_noise`` reads it."""
@@ -586,10 +585,6 @@ class _Run:
             return mode.noise_cov(m_next)
         if self.sensor_noise == "mean":
             return mode.noise_cov(m_next + delta)
-        if fitted is not None:
-            # the interpolant's nodes are the cubature's points (up to n = 4): reuse them
-            # (the moments below are the samples', so only the step's R_root reads this)
-            return fitted.expectation()
         pts, w = self.cub  # type: ignore[misc]
         xs = m_next + delta + pts @ sqrt_psd(S_delta).T
         # the noise factor directly: R(x) = n(x) n(x)' without noise_cov's per-call checks

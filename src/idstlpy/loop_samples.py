@@ -2,7 +2,8 @@
 
 :class:`LoopStep` pushes samples of the loop's joint state ``z = (delta, eta[, dP])`` through one
 step with the clip of the corrected input itself and, under a state-dependent sensor, each
-sample's own noise (:class:`NoiseInterpolant`) and own Kalman filter (:func:`batched_gain`):
+sample's own noise drawn from the sensor at its own true state (:class:`SensorDraw`) and its
+own Kalman filter, ``R`` at its own predicted mean (:func:`batched_gain`):
 what :func:`idstlpy.closed_loop.propagate` propagates under ``closure="particles"`` and what
 :func:`idstlpy.executor.predict.predict_closed_loop` samples its rates from.
 """
@@ -19,7 +20,15 @@ from .dynamical_system import LCS
 from .errors import InvalidArgumentError
 from .tracking import tracking_input
 
-__all__ = ["LoopStep", "NoiseInterpolant", "ParticleCloud", "batched_gain", "cubature", "sqrt_psd"]
+__all__ = [
+    "LoopStep",
+    "NoiseInterpolant",
+    "ParticleCloud",
+    "batched_gain",
+    "cubature",
+    "SensorDraw",
+    "sqrt_psd",
+]
 
 
 def sqrt_psd(S: np.ndarray) -> np.ndarray:
@@ -109,6 +118,60 @@ class NoiseInterpolant:
         return (self.values.reshape(G, p * q).T @ wts).T.reshape(S, p, q)
 
 
+_CHECKED = 64
+"""Samples (besides the extremes) at which :class:`SensorDraw` compares the interpolant with the
+sensor: a region the interpolant misses that holds 5% of the samples is seen with probability
+0.96."""
+
+
+@dataclass
+class SensorDraw:
+    """A state-dependent sensor's noise factor ``n(x)`` on the samples of one step, as
+    ``simulate`` draws it: at each sample's own state.
+
+    The :class:`NoiseInterpolant` fitted to the step's predicted true state is used when it
+    reproduces ``n`` at the step's first samples' extremes (per direction, both ends, and the
+    farthest from the centre) and at :data:`_CHECKED` others (a factor quadratic in each coordinate: the
+    interpolant is then ``n`` itself, 3 calls per direction instead of one per sample);
+    otherwise every sample calls the sensor (:meth:`~idstlpy.dynamical_system.LCS.noise_batch`:
+    once for the batch when the function takes one, else once per sample), so that a sensor the
+    interpolant cannot follow (a step, the light-dark spot) is drawn from the sensor itself.
+    The choice is made once per step, on the first samples pushed through it (the particle
+    closure's, seeded): deterministic.
+    """
+
+    mode: LCS
+    fitted: NoiseInterpolant
+    use_fitted: bool | None = None  # None: not yet checked
+
+    def check(self, *batches: np.ndarray) -> None:
+        """Choose the interpolant or the sensor from samples (S, n) of the states it will see."""
+        fitted = self.fitted
+        picks = []
+        for X in batches:
+            if not X.shape[0]:
+                continue
+            xi = (X - fitted.center) @ fitted.inv.T  # (S, r)
+            idx = {0, X.shape[0] - 1, *np.linspace(0, X.shape[0] - 1, _CHECKED).astype(int).tolist()}
+            if xi.shape[1]:
+                idx |= {*np.argmin(xi, axis=0).tolist(), *np.argmax(xi, axis=0).tolist()}
+            idx.add(int(np.argmax(np.sum((X - fitted.center) ** 2, axis=1))))
+            picks.append(X[sorted(idx)])
+        if not picks:
+            self.use_fitted = True
+            return
+        P = np.vstack(picks)
+        exact = self.mode.noise_batch(P)
+        scale = 1.0 + float(np.abs(exact).max(initial=0.0))
+        self.use_fitted = bool(np.allclose(fitted(P), exact, rtol=1e-8, atol=1e-10 * scale))
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        """``n(x)`` at samples ``X`` (S, n): shape (S, p, q) (:meth:`check` first)."""
+        if self.use_fitted:
+            return self.fitted(X)
+        return self.mode.noise_batch(X)
+
+
 @dataclass
 class LoopStep:
     """One step of the closed loop around the plan, as a map on samples of ``z = (delta, eta[, dP])``.
@@ -135,9 +198,9 @@ class LoopStep:
     W_root: np.ndarray  # (n, n) process noise root
     R_root: np.ndarray  # (p, p) sensor noise root (at the predicted true state)
     sens: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # (kron(Phi, Phi), J, x_lin - m_next)
-    # A state-dependent sensor, per sample (closure "particles"): its noise factor's interpolant,
+    # A state-dependent sensor, per sample (closure "particles"): its noise factor on samples,
     # the plan's next mean, C, the process covariance and the nominal filter covariances P_k, P_{k+1}.
-    noise: NoiseInterpolant | None = None
+    noise: SensorDraw | None = None
     m_next: np.ndarray | None = None
     C: np.ndarray | None = None
     Qp: np.ndarray | None = None
@@ -147,7 +210,7 @@ class LoopStep:
     def advance(self, Z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Samples (S, D) of ``z_k`` -> samples of ``z_{k+1}`` (fresh noise from ``rng``).
 
-        With a :class:`NoiseInterpolant` the sensor noise is drawn at each sample's true state,
+        With a :class:`SensorDraw` the sensor noise is drawn at each sample's true state,
         and, when the filter-sensitivity coordinates are carried, each sample's filter runs on
         its own covariance (nominal plus the sample's ``dP``) with ``R`` at its own predicted
         mean, as :func:`idstlpy.simulate`'s does; ``dP`` is then the exact deviation.
@@ -188,11 +251,14 @@ class LoopStep:
             raise InvalidArgumentError("a state-dependent loop step needs its noise model")
         n, S = self.A.shape[0], Z.shape[0]
         delta_n, eta_pred = self._track(Z, rng)
-        nx = noise(m_next + delta_n)  # (S, p, q): the sensor at the true state
+        X_true = m_next + delta_n
+        per_sample = Z.shape[1] > 2 * n and self.P_prev is not None and self.P_next is not None
+        if noise.use_fitted is None:
+            noise.check(X_true, m_next + eta_pred) if per_sample else noise.check(X_true)
+        nx = noise(X_true)  # (S, p, q): the sensor at the true state
         nu = (nx @ rng.standard_normal((S, nx.shape[2], 1)))[:, :, 0]
         out = np.empty_like(Z)
         out[:, :n] = delta_n
-        per_sample = Z.shape[1] > 2 * n and self.P_prev is not None and self.P_next is not None
         if not per_sample:
             innov = (delta_n - eta_pred) @ C.T + nu
             out[:, n : 2 * n] = eta_pred + innov @ self.Lk.T

@@ -51,14 +51,25 @@ What is exact and what is approximated
   an input bound makes the clipped loop a rectifier (lags are not corrected and accumulate: the
   true state's spread was 3x the linearisation's on the sensor-switching plan), and a
   state-dependent sensor skews the true state toward the dark. Samples of ``z`` are then pushed
-  through the loop with the clip itself, each drawing the sensor's noise at its own true state
-  (the noise factor's quadratic interpolant over the predicted true state) and, with
-  ``filter_sensitivity``, running its own filter (``R`` at its own predicted mean, its own
-  covariance, whose deviation from the nominal one is the ``dP`` coordinates). The moments are
-  the samples' and ``F, g, Q`` their statistical linear regression; the point estimates below
-  are sampled from the same non-linear loop. What remains approximate: the noise factor's
-  interpolant (exact for a quadratic one) and the Gaussian marginals behind the per-step
-  probabilities and the analytic bound (which is then capped by the sampled one).
+  through the loop with the clip itself (``simulate``'s projection on the box), the process
+  noise of ``simulate``, each sample drawing the sensor's noise from the user's noise function
+  at its own true state and, with ``filter_sensitivity``, running its own filter (``R`` at its
+  own predicted mean, as ``simulate``'s filter evaluates it, its own covariance, whose deviation
+  from the nominal one is the ``dP`` coordinates). The noise function is called on the samples
+  (once for the batch when it takes one, else once per sample), except where the noise factor's
+  quadratic interpolant over the predicted true state reproduces it at the step's extreme
+  samples and 64 others (:class:`~idstlpy.loop_samples.SensorDraw`: a factor quadratic in each
+  coordinate, the interpolant is then exact and 3 calls per direction replace one per sample).
+  A step sensor (light-dark spot) is thereby sampled as executed: the interpolant, which cannot
+  follow a step, had over-predicted the issue's 1-D problem's true-state success by 2.4 points
+  (97.8 against 95.4 measured; now 95.4 / 95.6 against 95.5 +- 0.3, 20000 samples against 4000
+  executions). The moments are the samples' and ``F, g, Q`` their statistical linear regression;
+  the point estimates below are sampled from the same non-linear loop, so for the per-sample
+  law they are unbiased estimates of ``simulate``'s rates (from prior-drawn starts) up to their
+  sampling error. What remains approximate: the interpolant's check is a test (a region of the
+  state where the interpolant is wrong and that fewer than a few percent of the samples visit
+  can go unnoticed), and the Gaussian marginals behind the per-step probabilities and the
+  analytic bound (which is then capped by the sampled one).
 
 From the (augmented) Gaussian, per chance constraint ``P[h'x + c <= 0] >= 1 - eps`` of every
 atomic proposition at every step:
