@@ -83,7 +83,7 @@ def finish(
     traj = None if plan is None else plan.traj
     execution = None
     if status == "found" and traj is not None:
-        execution = ctx.target.predict(traj)
+        execution = ctx.target.report(traj)  # more samples than a candidate's
         _warn_below_target(ctx, execution)
         stats.time_total = ctx.budget.elapsed()
     logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
