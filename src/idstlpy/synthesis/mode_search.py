@@ -42,7 +42,7 @@ from .abstraction import Abstraction
 from .interfaces import Budget
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
-from .room import room_lp
+from .room import InputLevel, room_lp
 from .room_measure import execution_room, plan_have
 
 if TYPE_CHECKING:
@@ -191,6 +191,7 @@ class RoomScore:
         self.solve = solve
         self.time_left = time_left
         self.allowance = (1.0 - float(target[0]), 1.0 - float(target[1]))
+        self.level = InputLevel()  # the sequences of one candidate mostly keep the same input level
 
     def __call__(self, plan: DiscretePlan) -> Trial:
         out = self.solve(plan)
@@ -209,6 +210,7 @@ class RoomScore:
             best = room_lp(
                 self.context, plan, traj, room, np.inf,
                 time_limit=max(self.time_left(), 1e-3), linearise=False, polish=False,
+                level=self.level,
             )  # fmt: skip
             if best is not None:
                 have = plan_have(self.abs, room, rollout(system, init, actions, best[0]))

@@ -42,6 +42,7 @@ from .room_measure import (
 __all__ = [
     "BELIEF_FAILURE",
     "INPUT_LEVELS",
+    "InputLevel",
     "ROOM_FLOOR",
     "STATE_FAILURE",
     "Z_MAX",
@@ -60,6 +61,55 @@ logger = logging.getLogger(__name__)
 INPUT_LEVELS = (1.0, 0.5, 0.0)
 """Fractions of the tracking correction's room the inputs keep, tried in turn (an LP that cannot
 keep the inputs off their bounds still gives the required faces their room)."""
+
+
+class InputLevel:
+    """Where the next :func:`room_lp` starts among :data:`INPUT_LEVELS`: the level the last one
+    kept (a search scores many plans of one candidate, most at the same level).
+
+    The room LP keeps the first level, in :data:`INPUT_LEVELS`' order, whose LP has an optimum.
+    A larger level only backs the control rows off further (the tracking correction's need is
+    not negative), so an LP infeasible at one level is infeasible at every larger one: starting
+    from the last level kept and moving up while the LPs stay feasible, or down while they do
+    not, keeps the same level with fewer LPs (two instead of three when the inputs keep none of
+    their room, sensor-switching candidates' usual case).
+
+    Attributes
+    ----------
+    index : int
+        Index in :data:`INPUT_LEVELS` of the level the next room LP tries first.
+    """
+
+    def __init__(self) -> None:
+        self.index = 0
+
+
+def _first_level(
+    lp: _RoomLP, t_max: float, time_limit: float, start: InputLevel | None
+) -> tuple[float, tuple[np.ndarray, float] | None]:
+    """The first level of :data:`INPUT_LEVELS` whose common-fraction LP has an optimum, and that
+    optimum (``(0.0, None)`` when none has); from ``start`` (:class:`InputLevel`) when given."""
+    levels = INPUT_LEVELS
+    solved: dict[int, tuple[np.ndarray, float] | None] = {}
+
+    def at(i: int) -> tuple[np.ndarray, float] | None:
+        if i not in solved:
+            solved[i] = lp.solve(levels[i], None, 0.0, t_max, time_limit)
+        return solved[i]
+
+    i = 0 if start is None else min(max(start.index, 0), len(levels) - 1)
+    if at(i) is None:
+        while i + 1 < len(levels) and at(i + 1) is None:
+            i += 1
+        i += 1
+        if i >= len(levels):
+            return 0.0, None
+    else:
+        while i > 0 and at(i - 1) is not None:
+            i -= 1
+    if start is not None:
+        start.index = i
+    return levels[i], solved[i]
 
 
 def _row_room(rows: PlanRows, room: Room, abstraction: Abstraction) -> np.ndarray:
@@ -96,6 +146,7 @@ def room_lp(
     time_limit: float = 1e9,
     linearise: bool = True,
     polish: bool = True,
+    level: InputLevel | None = None,
 ) -> tuple[np.ndarray, float] | None:
     """One SCP step toward the room: controls keeping the largest common fraction of it.
 
@@ -131,6 +182,9 @@ def room_lp(
     polish : bool
         After the common fraction, each face's own (or the effort); False: stop after the
         common fraction (what the mode search scores).
+    level : InputLevel, optional
+        Where the search for the first feasible input level starts, updated to the level kept
+        (the same level, with fewer LPs, when consecutive LPs keep the same one).
 
     Returns
     -------
@@ -141,12 +195,7 @@ def room_lp(
     lp = _RoomLP.around(context, plan, traj, room, trust, linearise)
     if lp is None:
         return None
-    first = None
-    level = 0.0
-    for level in INPUT_LEVELS:
-        first = lp.solve(level, None, 0.0, t_max, time_limit)
-        if first is not None:
-            break
+    kept, first = _first_level(lp, t_max, time_limit, level)
     if first is None:
         return None
     z, t = first
@@ -156,9 +205,9 @@ def room_lp(
         pass
     elif effort_weights is not None:
         effort = np.asarray(effort_weights, dtype=float)
-        second = lp.solve(level, effort, t_keep, max(t, 0.0), time_limit)
+        second = lp.solve(kept, effort, t_keep, max(t, 0.0), time_limit)
     elif lp.rows.face_H.shape[0] > 0 and t < t_max - 1e-9:  # at t_max every face has its room
-        second = lp.solve(level, None, t_keep, max(t_max, t_keep), time_limit, per_face=True)
+        second = lp.solve(kept, None, t_keep, max(t_max, t_keep), time_limit, per_face=True)
     if second is not None:
         z = second[0]
     _, controls = lp.rows.unscale(z, context.mean0)
