@@ -110,3 +110,40 @@ def test_the_closest_partial_plan_is_plottable():
     result = problem.solve_result(sampler_iterations=20, max_candidates=3, seed=0)
     artists = plot_workspace(problem, plan=result.closest)
     assert artists is not None
+
+
+def test_a_floorless_state_dependent_sensor_is_named_and_v_floor_turns_it_into_a_proof():
+    """A new user's impossible task (a sensor never better than 0.5) searched to the cap; the
+    reason now says which modes lack ``V_floor``, and declaring it proves ``infeasible``."""
+    import numpy as np
+
+    import idstlpy as stl
+    from idstlpy.synthesis.advice import floorless_modes
+
+    x, u = stl.mk_variable(1, float), stl.mk_variable(1, float)
+
+    def problem(floor: float | None) -> stl.Problem:
+        mode = stl.mk_lbs(
+            A=np.eye(1),
+            B=np.eye(1),
+            W=0.1 * np.eye(1),
+            C=np.eye(1),
+            V=lambda s: (0.5 + 0.2 * abs(float(s[0]) - 3)) * np.eye(1),
+            V_floor=floor,
+        )
+        goal = stl.logical_and(stl.prob(x[0] >= 0.95) >= 0.99, stl.prob(x[0] <= 1.05) >= 0.99, name="tight")
+        return stl.Problem(
+            switched_system=stl.mk_switched_sys([mode]),
+            control_domain=stl.logical_and(u[0] >= -1, u[0] <= 1).region,
+            initial_state=stl.to_belief(mean=np.zeros(1), cov=np.eye(1)),
+            stl_formula=stl.eventually(0, 20, goal),
+        )
+
+    bare = problem(None)
+    assert floorless_modes(bare.switched_system) == [0]
+    r = bare.solve_result(max_candidates=3, seed=0)
+    assert r.status == "budget_exhausted"
+    assert "mode(s) [0] have state-dependent sensor noise without V_floor" in r.reason
+    floored = problem(0.5)
+    assert floorless_modes(floored.switched_system) == []
+    assert floored.solve_result(max_candidates=3, seed=0).status == "infeasible"

@@ -405,3 +405,19 @@ def test_solve_guarantee_flag_reaches_the_result(tmp_path):
     assert result.predicted is not None
     # The predicted true state is wider than the plan's MLO belief somewhere.
     assert (result.predicted.get_cov() - result.trajectory.get_cov()).max() > 0
+
+
+def test_python_dash_m_runs_the_command():
+    """``python -m idstlpy`` is the command where the venv's scripts are not on PATH."""
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-m", "idstlpy", "--version"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("idstlpy ")

@@ -81,7 +81,7 @@ def executor_spec(
     problem: Problem,
     *,
     clip_controls: bool = True,
-    process_noise: ProcessNoise = "model",
+    process_noise: ProcessNoise = "auto",
     lqr_gains: GainsOverride = None,
     default_lqr: Mapping[str, Any] | None = None,
     real_system: SwitchedSystem | LCS | None = None,

@@ -174,7 +174,8 @@ class _RiskModel:
             belief.mean,
             formula=psi,
             control_domain=spec.control_domain,
-            process_noise="model" if spec.process_noise == "model" else "none",
+            # the executor knows only its model: its noise, unless the run has none at all
+            process_noise="none" if spec.process_noise == "none" else "model",
             lqr_gains={q: list(Ks) for q, Ks in spec.gains.items()},  # by mode, not position
             initial_belief=belief,
             real_initial_cov=belief.cov,

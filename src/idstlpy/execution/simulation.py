@@ -90,8 +90,10 @@ def simulate(
 
         - ``control_domain`` (Polytope, optional): admissible inputs (shape ``m``); the
           corrected input is projected on it. ``None`` (the paper's listing) applies it unclipped.
-        - ``process_noise`` ({"model", "real", "none"}): disturbance added to the true state:
-          the planning mode's ``W w`` (default), the real mode's ``W w``, or none.
+        - ``process_noise`` ({"auto", "model", "real", "none"}): disturbance added to the true
+          state: ``"auto"`` (default) the real system's ``W w`` when its modes declare one
+          (made by ``mk_lbs``), else the planning mode's; ``"model"`` the planning mode's
+          ``W w``, ``"real"`` the real mode's, ``"none"`` none.
         - ``lqr_gains`` (mapping or sequence, optional): per planning mode, a list of gains
           (m, n) overriding ``mode.lqr_gains``.
         - ``default_lqr`` (mapping, optional): weights for modes without gains (see

@@ -285,7 +285,7 @@ def _executor_spec(
     spec = ExecutorSpec.make(
         problem.switched_system,
         control_domain=problem.control_domain if opts.get("clip_controls", True) else None,
-        process_noise=opts.get("process_noise", "model"),
+        process_noise=opts.get("process_noise", "auto"),
         lqr_gains=opts.get("lqr_gains"),
         default_lqr=opts.get("default_lqr"),
         real_system=real_system,

@@ -339,7 +339,7 @@ def predict_closed_loop(
           corrected input is projected on: ``"problem"`` (default) the problem's, as
           ``validate(clip_controls=True)``; None: no projection, as ``simulate`` without
           ``control_domain``.
-        - ``process_noise`` ({"model", "real", "none"}): as in ``simulate``.
+        - ``process_noise`` ({"auto", "model", "real", "none"}): as in ``simulate``.
         - ``lqr_gains``, ``default_lqr`` (optional): as in ``simulate`` (per-mode gains (m, n);
           weights for modes without gains).
         - ``initial_belief`` (GaussianBelief, optional): the filter's prior (default the plan's

@@ -23,7 +23,7 @@ from ..formulas import STLFormula
 from ..sets import Polytope
 from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
-from .spec import ExecutorSpec, ProcessNoise
+from .spec import ExecutorSpec, ProcessNoise, resolve_process_noise
 
 if TYPE_CHECKING:  # the synthesis layer is above this one
     from ..synthesis.problem import Problem
@@ -66,7 +66,7 @@ class PredictOptions(TypedDict, total=False):
 
 OPTION_DEFAULTS: dict[str, Any] = {
     "control_domain": "problem",
-    "process_noise": "model",
+    "process_noise": "auto",
     "lqr_gains": None,
     "default_lqr": None,
     "initial_belief": None,
@@ -197,11 +197,7 @@ def executor_parts(
     off ``control_domain``).
     """
     if executor is None:
-        process_noise = keywords["process_noise"]
-        if process_noise not in ("model", "real", "none"):
-            raise InvalidArgumentError(
-                f"process_noise must be 'model', 'real' or 'none', got {process_noise!r}"
-            )
+        process_noise = resolve_process_noise(keywords["process_noise"], keywords["real_system"])
         real_modes = real_modes_for(keywords["real_system"], system, actions)
         gains = gains_for(system, actions, keywords["lqr_gains"], keywords["default_lqr"])
         return real_modes, gains, process_noise, domain
@@ -229,7 +225,7 @@ def executor_parts(
 EXECUTOR_DEFAULTS: dict[str, Any] = {
     "real_system": None,
     "control_domain": "problem",
-    "process_noise": "model",
+    "process_noise": "auto",
     "lqr_gains": None,
     "default_lqr": None,
 }

@@ -10,8 +10,9 @@
 - the plant that moves the true state: the model itself, a linear switched system (one mode for
   all, or one per planning mode) or any step function ``(state, input, mode, rng) -> next_state``
   (a nonlinear robot, a simulator);
-- which process noise disturbs the true state (``"model"``: the planning mode's ``W w``;
-  ``"real"``: the real linear mode's ``W w``; ``"none"``).
+- which process noise disturbs the true state (``"auto"``, the default: the real system's own
+  disturbance when its modes declare one, else the planning mode's; ``"model"``: the planning
+  mode's ``W w``; ``"real"``: the real linear mode's ``W w``; ``"none"``).
 """
 
 from __future__ import annotations
@@ -24,14 +25,50 @@ from typing import Any, Literal
 import numpy as np
 
 from ..closed_loop import real_modes_for
-from ..dynamical_system import LCS, SwitchedSystem
+from ..dynamical_system import LBS, LCS, SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..sets import Polytope
 from ..tracking import GainsOverride, box_bounds, control_projector, system_gains
 
-__all__ = ["ExecutorSpec", "PlantStep", "ProcessNoise"]
+__all__ = ["ExecutorSpec", "PlantStep", "ProcessNoise", "resolve_process_noise"]
 
-ProcessNoise = Literal["model", "real", "none"]
+ProcessNoise = Literal["auto", "model", "real", "none"]
+"""Which disturbance moves the true state (:func:`resolve_process_noise` reads ``"auto"``)."""
+
+
+def resolve_process_noise(
+    process_noise: ProcessNoise | str, real_system: SwitchedSystem | LCS | None
+) -> Literal["model", "real", "none"]:
+    """The process-noise reading an executor runs: ``"auto"`` resolved, any other value checked.
+
+    ``"auto"`` (the default everywhere) is ``"real"`` when a linear ``real_system`` is given
+    whose modes declare their own disturbance (made by :func:`~idstlpy.mk_lbs`, ``W`` possibly
+    zero), and ``"model"`` otherwise (no real system, a noise-free :func:`~idstlpy.mk_lcs` plant,
+    or a step-function plant). A real system's ``W`` is what the user says the world does; the
+    planning model's used to replace it silently, so a stress test with a noisier plant measured
+    the nominal rate.
+
+    Raises
+    ------
+    InvalidArgumentError
+        When ``process_noise`` is not one of ``"auto"``, ``"model"``, ``"real"``, ``"none"``.
+    """
+    if process_noise == "auto":
+        modes = (
+            [real_system]
+            if isinstance(real_system, LCS)
+            else list(real_system.system_modes)
+            if isinstance(real_system, SwitchedSystem)
+            else []
+        )
+        return "real" if modes and any(isinstance(mode, LBS) for mode in modes) else "model"
+    if process_noise in ("model", "real", "none"):
+        return process_noise  # type: ignore[return-value]  # narrowed by the test above
+    raise InvalidArgumentError(
+        f"process_noise must be 'auto', 'model', 'real' or 'none', got {process_noise!r}"
+    )
+
+
 """Which process noise disturbs the true state."""
 
 PlantStep = Callable[[np.ndarray, np.ndarray, int, np.random.Generator], Any]
@@ -49,7 +86,7 @@ class ExecutorSpec:
     control_domain : Polytope or None
         Admissible inputs (dimension ``m``); the corrected input is projected on it.
     process_noise : {"model", "real", "none"}
-        Which disturbance moves the true state.
+        Which disturbance moves the true state (``"auto"`` already resolved).
     gains : mapping int -> tuple of ndarray (m, n)
         The tracking gains ``K_0 .. K_{h-1}`` of every mode, resolved once.
     real_modes : tuple of LCS or None
@@ -74,7 +111,7 @@ class ExecutorSpec:
         system: SwitchedSystem,
         *,
         control_domain: Polytope | None = None,
-        process_noise: ProcessNoise = "model",
+        process_noise: ProcessNoise = "auto",
         lqr_gains: GainsOverride = None,
         default_lqr: Mapping[str, Any] | None = None,
         real_system: SwitchedSystem | LCS | None = None,
@@ -89,9 +126,11 @@ class ExecutorSpec:
             The planning model.
         control_domain : Polytope, optional
             Admissible inputs (dimension ``m``); None applies the corrected input unclipped.
-        process_noise : {"model", "real", "none"}
-            Disturbance of the true state: the planning mode's ``W w`` (default), the real
-            linear mode's ``W w`` (a linear ``real_system`` only), or none. A step-function
+        process_noise : {"auto", "model", "real", "none"}
+            Disturbance of the true state: ``"auto"`` (default) the real linear modes' ``W w``
+            when they declare one (made by ``mk_lbs``), else the planning mode's
+            (:func:`resolve_process_noise`); ``"model"`` the planning mode's ``W w``, ``"real"``
+            the real linear mode's ``W w`` (a linear ``real_system`` only), ``"none"`` none. A step-function
             ``plant`` draws its own disturbance from the generator it is given; ``"model"`` then
             adds the planning mode's ``W w`` on top, ``"none"`` nothing.
         lqr_gains : mapping or sequence, optional
@@ -118,10 +157,7 @@ class ExecutorSpec:
         """
         if not isinstance(system, SwitchedSystem):
             raise InvalidTypeError(f"system must be a SwitchedSystem, got {type(system).__name__}")
-        if process_noise not in ("model", "real", "none"):
-            raise InvalidArgumentError(
-                f"process_noise must be 'model', 'real' or 'none', got {process_noise!r}"
-            )
+        process_noise = resolve_process_noise(process_noise, real_system)
         project = control_projector(control_domain, system.m)
         box = box_bounds(control_domain, system.m)
         real_modes = _real_modes(system, real_system, plant, process_noise)

@@ -8,10 +8,28 @@ solve's counters and options, never guessed from the wording of the reason.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..dynamical_system import POLBSWithNonLinNoise, SwitchedSystem
 from .options import SolverOptions
 from .results import SolveStats
 
-__all__ = ["budget_advice"]
+__all__ = ["budget_advice", "floorless_modes"]
+
+
+def floorless_modes(system: SwitchedSystem) -> list[int]:
+    """The modes whose sensor noise is state-dependent with no declared ``V_floor``.
+
+    Their noise floor is zero, so no covariance-floor proof can show a confidence out of reach:
+    a search that ends on such a problem says how to make the proofs apply.
+    """
+    return [
+        q
+        for q, mode in enumerate(system.system_modes)
+        if isinstance(mode, POLBSWithNonLinNoise) and not np.any(mode.noise_floor)
+    ]
 
 
 def _g(value: float) -> str:
@@ -24,6 +42,7 @@ def budget_advice(
     options: SolverOptions,
     horizon: int | None = None,
     sampler_abandoned: int = 0,
+    floorless: Sequence[int] = (),
 ) -> str:
     """One sentence naming what to raise after a ``budget_exhausted`` answer.
 
@@ -40,6 +59,9 @@ def budget_advice(
     sampler_abandoned : int
         Candidates the belief sampler gave up on (its work budget or its wall-clock cap); the
         other abandoned candidates failed for reasons no budget changes.
+    floorless : sequence of int
+        Modes with state-dependent sensor noise and no declared ``V_floor``
+        (:func:`floorless_modes`): no more budget can turn their search into a proof.
 
     Returns
     -------
@@ -78,4 +100,14 @@ def budget_advice(
         tips.append(f"raise time_limit (it was {_g(cap)} s; try time_limit={_g(4 * cap)})")
     if not tips:
         return ""
-    return "to search further: " + "; ".join(tips)
+    advice = "to search further: " + "; ".join(tips)
+    if floorless:
+        # A new user's impossible task (a sensor never better than 0.5) searched for minutes:
+        # the proofs need the noise's lower bound, which a callable cannot state by itself.
+        advice += (
+            f". If the task may be impossible: mode(s) {list(floorless)} have state-dependent "
+            "sensor noise without V_floor, so no noise-floor proof applies; declare "
+            "mk_lbs(..., V_floor=...) (a constant the noise never goes below) so that a "
+            "confidence out of reach of that floor is proven infeasible"
+        )
+    return advice

@@ -19,7 +19,7 @@ from typing import NamedTuple
 
 from ..belief import rollout
 from ..errors import ExecutionTargetWarning
-from .advice import budget_advice
+from .advice import budget_advice, floorless_modes
 from .allocation import NO_PROOF
 from .context import SolveContext, Verified
 from .objectives import objective_value
@@ -124,7 +124,14 @@ def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, st
         status = "budget_exhausted"
         reason += NO_PROOF  # allocation.prove_infeasible may prove it on the relaxation
     if status == "budget_exhausted":
-        advice = budget_advice(reason, ctx.stats, ctx.options, ctx.formula.horizon, ctx.budget_abandoned)
+        advice = budget_advice(
+            reason,
+            ctx.stats,
+            ctx.options,
+            ctx.formula.horizon,
+            ctx.budget_abandoned,
+            floorless_modes(ctx.problem.switched_system),
+        )
         reason += f"; {advice}" if advice else ""
     if "time_limit" in ctx.stats.caps_hit:
         reason += " (the wall-clock cap decided this; the same seed may differ elsewhere)"
