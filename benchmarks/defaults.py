@@ -16,7 +16,9 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
+import subprocess
 import sys
 import time
 import warnings
@@ -40,6 +42,19 @@ OPTIONS = dict(
     seed=0,
     time_limit=60,
 )
+
+
+def agree(pred: float, n_pred: int, measured: float, n_meas: int, alpha: float = 0.05) -> bool:
+    """Whether a predicted and a measured rate agree by a two-sided two-proportion z-test (pooled)
+    at level ``alpha``: the prediction is itself an estimate from ``n_pred`` model samples."""
+    from scipy.stats import norm
+
+    k = round(pred * n_pred) + round(measured * n_meas)
+    pooled = k / (n_pred + n_meas)
+    se = np.sqrt(pooled * (1 - pooled) * (1 / n_pred + 1 / n_meas))
+    if se == 0:
+        return bool(pred == measured)
+    return bool(2 * norm.sf(abs(pred - measured) / se) >= alpha)
 
 
 def execute(problem: stl.Problem, plan: Any, runs: int, seed: int) -> tuple[int, int]:
@@ -96,6 +111,7 @@ def run_one(name: str, build: Any, runs: int) -> dict[str, Any]:
         row.update(
             pred_b=ex.belief_estimate,
             pred_s=ex.state_estimate,
+            pred_n=ex.samples,
             meets=ex.meets_target,
             mc_b=b / runs,
             mc_s=s / runs,
@@ -112,8 +128,9 @@ def pct(x: float) -> str:
 def table(rows: list[dict[str, Any]], runs: int) -> str:
     head = (
         "| problem | default: status | flag | predicted b / s | measured b / s (95% Wilson) | "
-        "at target (b>=90, s>=95 within CI) or flagged | pred. inside CI (b, s) | time default / mlo (s) | "
-        "ratio | candidates default / mlo |\n|---|---|---|---|---|---|---|---|---|---|"
+        "at target (b>=90, s>=95 within CI) or flagged | pred. inside CI (b, s) | "
+        "pred. samples | agree, two-sample 5% (b, s) | time default / mlo (s) | "
+        "ratio | candidates default / mlo |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     lines = [head]
     for row in rows:
@@ -126,25 +143,32 @@ def table(rows: list[dict[str, Any]], runs: int) -> str:
             row["ok"] = ok
             inside = (cb[0] <= row["pred_b"] <= cb[1], cs[0] <= row["pred_s"] <= cs[1])
             row["inside"] = inside
+            same = (
+                agree(row["pred_b"], row["pred_n"], row["mc_b"], runs),
+                agree(row["pred_s"], row["pred_n"], row["mc_s"], runs),
+            )
+            row["agree"] = same
             lines.append(
                 f"| {row['name']} | {row['execution_status']} | {'meets' if row['meets'] else 'BELOW'} | "
                 f"{pct(row['pred_b'])} / {pct(row['pred_s'])} | "
                 f"{pct(row['mc_b'])} [{pct(cb[0])}, {pct(cb[1])}] / "
                 f"{pct(row['mc_s'])} [{pct(cs[0])}, {pct(cs[1])}] | {'yes' if ok else 'NO'} | "
-                f"{'yes' if inside[0] else 'no'}, {'yes' if inside[1] else 'no'} | "
+                f"{'yes' if inside[0] else 'no'}, {'yes' if inside[1] else 'no'} | {row['pred_n']} | "
+                f"{'yes' if same[0] else 'NO'}, {'yes' if same[1] else 'NO'} | "
                 f"{row['execution_time']:.2f} / {row['mlo_time']:.2f} | {ratio:.2f} | "
                 f"{row['execution_candidates']} / {row['mlo_candidates']} |"
             )
         else:
             lines.append(
                 f"| {row['name']} | {row['execution_status']} (mlo: {row['mlo_status']}) "
-                "| - | - | - | - | - | "
+                "| - | - | - | - | - | - | - | "
                 f"{row['execution_time']:.2f} / {row['mlo_time']:.2f} | {ratio:.2f} | "
                 f"{row['execution_candidates']} / {row['mlo_candidates']} |"
             )
     found = [r for r in rows if "pred_b" in r]
     ratios = [r["ratio"] for r in rows]
     inside = [v for r in found for v in r["inside"]]
+    agreeing = [v for r in found for v in r["agree"]]
     summary = [
         "",
         f"- problems: {len(rows)}, default plans found: {len(found)}; at target or flagged: "
@@ -154,6 +178,8 @@ def table(rows: list[dict[str, Any]], runs: int) -> str:
         f"(wall clock on a shared 2-core machine)",
         f"- predicted rate inside the {runs}-run 95% Wilson interval: {sum(inside)} / {len(inside)} readings "
         f"({100 * sum(inside) / max(1, len(inside)):.0f}%)",
+        f"- predicted and measured rates agree (two-sample test, 5%): {sum(agreeing)} / {len(agreeing)} "
+        f"readings ({100 * sum(agreeing) / max(1, len(agreeing)):.0f}%)",
     ]
     return "\n".join(lines + summary)
 
@@ -168,6 +194,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     names = [n for n in args.problems.split(",") if n]
     rows = []
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+    load = " / ".join(f"{x:.2f}" for x in os.getloadavg())
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
+        ).stdout.strip()
+    except OSError:
+        commit = "?"
     for name, build in problems(names, args.suite):
         row = run_one(name, build, args.runs)
         rows.append(row)
@@ -180,7 +213,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = (
         f"# Default plans executed (issue 23)\n\n`python -m benchmarks.defaults --runs {args.runs}"
         f"{' --suite' if args.suite else ''}{' --problems ' + args.problems if args.problems else ''}`, "
-        f"started {started}. Options: {OPTIONS}. Executions from prior-drawn true starts, "
+        f"started {started} at commit {commit}, load average {load} (1/5/15 min). "
+        f"Options: {OPTIONS}. Executions from prior-drawn true starts, "
         f"{args.runs} per problem; target 90% belief / 95% true state.\n\n" + table(rows, args.runs) + "\n"
     )
     Path(args.out).write_text(text)
