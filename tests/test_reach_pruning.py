@@ -124,3 +124,21 @@ def test_a_preference_never_makes_a_proof():
         out = proposer.propose()
     assert isinstance(out, ProposerDry) and not out.proven
     proposer.close()
+
+
+def test_a_candidate_set_aside_takes_its_step_zero_variants_with_it():
+    # (a or c) at step 0, b at step 1: the prior satisfies a and c, so {a@0, b@1} and {c@0, b@1}
+    # are the same problem for a teacher; setting one aside sets the other aside too (no proof).
+    a = stl.logical_and(stl.prob(X[0] <= 1.0) >= 0.9, name="a")
+    c = stl.logical_and(stl.prob(X[0] >= -1.0) >= 0.9, name="c")
+    b = stl.logical_and(stl.prob(X[0] <= 5.0) >= 0.9, name="b")
+    formula = stl.logical_and(stl.logical_or(a, c), stl.eventually(1, 1, b))
+    _, report = _prune(formula, [stl.mk_lbs(np.eye(1), 0.5 * np.eye(1), 0.01 * np.eye(1))])
+    proposer = _proposer(formula, report)
+    plan = proposer.propose()
+    assert isinstance(plan, DiscretePlan)
+    assert {k for k, _ in plan.requirements()} == {0, 1}
+    proposer.abandon(plan)
+    out = proposer.propose()
+    assert isinstance(out, ProposerDry) and not out.proven
+    proposer.close()

@@ -334,9 +334,21 @@ class BMCProposer:
         self.hard.append(clause)
         self._add(clause, soft=False)
 
+    @staticmethod
+    def _moved(plan: DiscretePlan) -> list[tuple[int, int]]:
+        """``plan``'s requirements after step 0 (all of them when it has none later).
+
+        The prior is fixed: a requirement at step 0 either holds (the teacher's problem is the
+        same without it) or was pruned (``initial_false``). A candidate set aside without a
+        proof takes with it every candidate that differs from it at step 0 only.
+        """
+        reqs = plan.requirements()
+        later = [(k, i) for (k, i) in reqs if k > 0]
+        return later or reqs
+
     def abandon(self, plan: DiscretePlan) -> None:
         """Set ``plan``'s requirement set aside (with its modes) without treating it as a proof."""
-        reqs = plan.requirements()
+        reqs = self._moved(plan)
         clause: list[SymLit] = [("p", i, k, False) for (k, i) in reqs]
         if self.num_modes > 1 and reqs:
             last = max(k for k, _ in reqs)
@@ -352,7 +364,7 @@ class BMCProposer:
         one; like :meth:`abandon`, the clause is guarded by the selector, so it never counts
         toward ``infeasible``.
         """
-        clause: list[SymLit] = [("p", i, k, False) for (k, i) in plan.requirements()]
+        clause: list[SymLit] = [("p", i, k, False) for (k, i) in self._moved(plan)]
         if clause:
             self.soft.append(clause)
             self._add(clause, soft=True)
