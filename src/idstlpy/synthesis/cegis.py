@@ -370,7 +370,7 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
         logger.info("verified plan set aside before (below the execution target): not predicted again")
         target.set_aside(known, checked)
         return None
-    execution = target.predict(checked.traj)
+    execution = target.judge(checked.traj)
     checked = checked._replace(execution=execution)
     if execution.meets_target:
         return checked
@@ -387,7 +387,7 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
     if repaired is not None:
         margin = robustness(repaired.traj, ctx.formula)
         if margin >= 0:  # the repair keeps the MLO semantics (it should: its covariances are larger)
-            ex = target.predict(repaired.traj)
+            ex = target.judge(repaired.traj)
             fixed = Verified(repaired.traj, margin, None, ex)
             if ex.meets_target:
                 logger.info("the closed-loop repair meets the execution target (%s)", ex.summary())

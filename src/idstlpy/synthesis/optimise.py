@@ -62,11 +62,11 @@ def optimise(ctx: SolveContext, first: Verified, how: str, source: Source, milp:
     if name is None:
         return finish(ctx, "found", how, first)
     # The first plan's predicted execution: an optimised plan must not lose a target it meets.
-    first_meets = ctx.target.predict(first.traj).meets_target
+    first_meets = ctx.target.judge(first.traj).meets_target
     traj, claim, improved = _improve(ctx, first.traj, name, how, source, milp)
     final = final_check(ctx, traj)
     if final is not None and ctx.execution and traj is not first.traj:
-        if first_meets and not ctx.target.predict(traj).meets_target:
+        if first_meets and not ctx.target.judge(traj).meets_target:
             final = None  # the optimised plan lost the execution target the first plan met
     if final is None:
         # The optimiser works on the MLO belief; its plan may lose the closed-loop promise the
