@@ -50,6 +50,7 @@ class BeliefTree:
         self.stage = grow(g(self, "stage", None), (), np.int64)
         self.last = grow(g(self, "last", None), (), np.int64)  # region last entered (patrols)
         self.lastk = grow(g(self, "lastk", None), (), np.int64)  # the step it was entered
+        self.fails = grow(g(self, "fails", None), (), np.int64)  # extensions that took no step
         self.cap = cap
 
     def add(
@@ -81,6 +82,7 @@ class BeliefTree:
         self.last[i] = self.last[parent] if parent >= 0 else -1
         self.lastk[i] = self.lastk[parent] if parent >= 0 else 0
         self.active[i] = False
+        self.fails[i] = 0
         self.size += 1
         return i
 
