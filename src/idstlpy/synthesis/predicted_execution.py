@@ -43,7 +43,9 @@ class PredictedExecution:
     target : ExecutionTarget
         The target the rates were held to.
     samples : int
-        Model samples behind the estimates.
+        Model samples behind the estimates: a candidate's 1000; a returned plan's re-sampled until
+        each estimate's 95% interval is about +-0.5 points (or a quarter of its distance from the
+        target; at most 20000; :meth:`idstlpy.synthesis.context.TargetWatch.report`).
     closure : str
         ``"gaussian"`` or ``"particles"`` (how the loop's non-linearities were modelled).
     """
