@@ -24,7 +24,7 @@ from idstlpy.synthesis.plan import DiscretePlan, trajectory_plan
 from idstlpy.synthesis.plan_lp import PlanLPContext, Scaling
 from idstlpy.synthesis.plan_solve import solve_plan_lp
 from idstlpy.synthesis.room import room_lp
-from idstlpy.synthesis.room_measure import Room, execution_room, plan_have
+from idstlpy.synthesis.room_measure import Room, execution_room, mlo_means, plan_have
 
 
 def _room(have, sd_b, sd_s, terms, w_b, w_s) -> Room:
@@ -115,8 +115,23 @@ def test_room_failure_with_other_controls_reuses_the_spreads():
     shifted = stl.rollout(system, problem.initial_state, traj.get_action(), 0.9 * traj.get_control())
     again = execution_room(system, domain, abstraction, plan, shifted)
     assert again is not None
-    for a, b in zip(plan_have(abstraction, room, shifted), again.have, strict=True):
+    for a, b in zip(plan_have(abstraction, room, shifted.get_mean()), again.have, strict=True):
         np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+def test_mlo_means_are_the_rollouts_to_the_bit():
+    """The mode search reads a re-planned sequence's room from mlo_means instead of a roll-out:
+    its decisions stay the same only if the means are the roll-out's exactly."""
+    problem, _, _, _ = _setting("drive_sense")
+    system, init = problem.switched_system, problem.initial_state
+    rng = np.random.default_rng(0)
+    actions = rng.integers(0, system.num_modes, size=30)
+    controls = rng.uniform(-1.0, 1.0, size=(30, system.m))
+    means = mlo_means(system, init.mean, actions, controls)
+    rolled = stl.rollout(system, init, actions, controls).get_mean()
+    assert means.shape == rolled.shape
+    assert np.array_equal(means, rolled)
+    assert not np.array_equal(means[1:], means[:-1])
 
 
 def test_mlo_score_search_is_deterministic_and_respects_mode_atoms():

@@ -147,3 +147,34 @@ def test_plan_lp_path_gives_its_plans_their_room():
     assert result.stats.execution_room is not None and result.stats.execution_room >= 1.0
     report = stl.validate(problem, result.trajectory, pp.real_system(problem), [1.0, 1.0], runs=200, seed=0)
     assert report.belief_success_rate >= 0.9 and report.state_success_rate >= 0.95
+
+
+def test_room_lp_levels_reuse_one_model_to_the_bit():
+    """The input levels' LPs are built once and only their control rows' bounds replaced: the
+    same LP as one built for that level, so the same answer (the mode search's decisions)."""
+    from idstlpy.synthesis.plan_solve import margin_model
+    from idstlpy.synthesis.room import INPUT_LEVELS, _RoomLP
+
+    problem, (actions, controls) = pp.build("listing", "small")
+    abs_, plan, traj, room = _room_of(problem, actions, controls)
+    context = PlanLPContext.of(problem, abs_)
+    reused = _RoomLP.around(context, plan, traj, room, np.inf, linearise=False)
+    assert reused is not None
+    answers = []
+    for level in INPUT_LEVELS:
+        fresh = _RoomLP.around(context, plan, traj, room, np.inf, linearise=False)
+        assert fresh is not None
+        a = reused.solve(level, None, 0.0, 1.0, 1e9)
+        b = fresh.solve(level, None, 0.0, 1.0, 1e9)
+        assert (a is None) == (b is None)
+        if a is not None and b is not None:
+            assert np.array_equal(a[0], b[0]) and a[1] == b[1]
+            answers.append(a[1])
+    assert len(reused.built) == 1 and answers
+    rows = reused.rows
+    b_U = rows.b_U - 0.5 * reused.u_shift
+    built = margin_model(rows, t_lo=0.0, t_hi=1.0, coef=reused.face_coef, region=reused.region, b_U=b_U)
+    swapped = margin_model(rows, t_lo=0.0, t_hi=1.0, coef=reused.face_coef, region=reused.region)
+    swapped = swapped.with_b_U(b_U)
+    assert np.array_equal(built.model.row_hi, swapped.model.row_hi)
+    assert not np.array_equal(swapped.model.row_hi[swapped.u_rows], rows.b_U) or not np.any(reused.u_shift)

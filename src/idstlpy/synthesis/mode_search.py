@@ -43,7 +43,7 @@ from .interfaces import Budget
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
 from .room import InputLevel, room_lp
-from .room_measure import execution_room, plan_have
+from .room_measure import execution_room, mlo_means, plan_have
 
 if TYPE_CHECKING:
     from .plan_solve import LPOutcome
@@ -213,7 +213,9 @@ class RoomScore:
                 level=self.level,
             )  # fmt: skip
             if best is not None:
-                have = plan_have(self.abs, room, rollout(system, init, actions, best[0]))
+                # the same modes keep the covariances: only the means are rolled out again
+                controls = np.asarray(best[0], dtype=float).reshape(K, system.m)
+                have = plan_have(self.abs, room, mlo_means(system, init.mean, actions, controls))
         belief, state = room.failure(have)
         value = min(self.allowance[0] - belief, self.allowance[1] - state)
         return Trial(plan.modes, (1, value), value >= 0.0, _tightest_step(room, have, K))

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal
 
 import numpy as np
@@ -37,7 +37,17 @@ if TYPE_CHECKING:
     from ..sets import Polytope
     from .options import Objective
 
-__all__ = ["LPGoal", "LPOutcome", "Phases", "TIGHTEN", "TrustRegion", "margin_phase", "solve_plan_lp"]
+__all__ = [
+    "LPGoal",
+    "LPOutcome",
+    "MarginModel",
+    "Phases",
+    "TIGHTEN",
+    "TrustRegion",
+    "margin_model",
+    "margin_phase",
+    "solve_plan_lp",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -377,7 +387,70 @@ def margin_phase(
     the ``t_r``); with per-input weights ``effort`` (shape (m,)) it minimises
     ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. The means stay
     in ``region``; ``b_U`` replaces the control rows' right-hand side (a back-off). Returns the
-    scaled columns and the (smallest) ``t``, or ``None`` when the LP has no optimum.
+    scaled columns and the (smallest) ``t``, or ``None`` when the LP has no optimum
+    (:func:`margin_model`, then :meth:`MarginModel.solve`).
+    """
+    return margin_model(
+        rows, t_lo=t_lo, t_hi=t_hi, coef=coef, per_face=per_face, effort=effort, region=region, b_U=b_U
+    ).solve(backend, limit)
+
+
+@dataclass(frozen=True)
+class MarginModel:
+    """The LP of one :func:`margin_phase`, built (:func:`margin_model`) and not yet solved.
+
+    Attributes
+    ----------
+    model : LinearModel
+    ncol : int
+        The plan rows' columns (scaled means, then inputs), first in the model's.
+    nt : int
+        The margin columns after them (one, or one per face).
+    u_rows : slice
+        The control rows among the model's rows (their right-hand side is the back-off).
+    """
+
+    model: LinearModel
+    ncol: int
+    nt: int
+    u_rows: slice
+
+    def with_b_U(self, b_U: np.ndarray) -> MarginModel:
+        """The same LP with the control rows' right-hand side ``b_U`` (nothing rebuilt: the room
+        LP's input levels differ only there)."""
+        hi = self.model.row_hi.copy()
+        hi[self.u_rows] = b_U
+        return replace(self, model=replace(self.model, row_hi=hi))
+
+    def solve(self, backend: Backend, limit: float) -> tuple[np.ndarray, float] | None:
+        """The scaled columns and the (smallest) margin, or ``None`` when the LP has no optimum."""
+        sol = backend.solve(self.model, limit)
+        if sol.status != "optimal" or sol.x is None:
+            return None
+        ncol = self.ncol
+        return sol.x[:ncol], float(np.min(sol.x[ncol : ncol + self.nt]))
+
+
+def margin_model(
+    rows: PlanRows,
+    *,
+    t_lo: float,
+    t_hi: float,
+    coef: np.ndarray,
+    per_face: bool = False,
+    effort: np.ndarray | None = None,
+    region: TrustRegion | None = None,
+    b_U: np.ndarray | None = None,
+) -> MarginModel:
+    """The LP of :func:`margin_phase` (its parameters), not solved: a caller that solves it
+    again with only the control rows' right-hand side changed (the room LP's input levels)
+    builds it once (:meth:`MarginModel.with_b_U`).
+
+    Each required face ``r`` reads ``face_H z + coef_r * t <= -face_off``, with one ``t`` for
+    every face or, ``per_face``, one each. Without ``effort`` the LP maximises ``t`` (the sum of
+    the ``t_r``); with per-input weights ``effort`` (shape (m,)) it minimises
+    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. The means stay
+    in ``region``; ``b_U`` replaces the control rows' right-hand side (a back-off).
     """
     R = rows.face_H.shape[0]
     ncol = rows.nx + rows.nu
@@ -419,7 +492,5 @@ def margin_phase(
         width = region.radius / np.tile(dx, K)
         lb[: rows.nx] = ref - width
         ub[: rows.nx] = ref + width
-    sol = backend.solve(LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub), limit)
-    if sol.status != "optimal" or sol.x is None:
-        return None
-    return sol.x[:ncol], float(np.min(sol.x[ncol : ncol + nt]))
+    model = LinearModel(c, A, np.concatenate(lo), np.concatenate(hi), lb, ub)
+    return MarginModel(model, ncol, nt, slice(nE, nE + nU))

@@ -11,7 +11,7 @@ decoupled planner's plans get their room there, and the objectives' refiner keep
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,7 +22,7 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .plan import DiscretePlan, trajectory_plan
 from .plan_lp import PlanLPContext, PlanRows, Scaling, build_plan_rows, covariance_jacobian, plan_requirements
-from .plan_solve import TrustRegion, margin_phase
+from .plan_solve import MarginModel, TrustRegion, margin_model
 from .repair import repair
 from .results import SolveStats
 
@@ -224,6 +224,9 @@ class _RoomLP:
     face_coef: np.ndarray
     u_shift: np.ndarray
     region: TrustRegion
+    # the LPs built so far, by (t_lo, t_hi, per_face): the input levels' LPs differ only in the
+    # control rows' right-hand side (built once: the model's set-up costs about its solve)
+    built: dict[tuple[float, float, bool], MarginModel] = field(default_factory=dict, compare=False)
 
     @classmethod
     def around(
@@ -274,17 +277,29 @@ class _RoomLP:
         their need, the fraction(s) of the room in ``[t_lo, t_hi]`` maximised (``effort``: the
         weighted effort minimised instead)."""
         rows = self.rows
-        return margin_phase(
-            rows,
-            self.context.backend,
-            time_limit,
+        b_U = rows.b_U - level * self.u_shift
+        if effort is not None:
+            model = self._model(t_lo, t_hi, per_face, effort, b_U)
+        else:
+            key = (t_lo, t_hi, per_face)
+            if key in self.built:
+                model = self.built[key].with_b_U(b_U)
+            else:
+                model = self.built[key] = self._model(t_lo, t_hi, per_face, None, b_U)
+        return model.solve(self.context.backend, time_limit)
+
+    def _model(
+        self, t_lo: float, t_hi: float, per_face: bool, effort: np.ndarray | None, b_U: np.ndarray
+    ) -> MarginModel:
+        return margin_model(
+            self.rows,
             t_lo=t_lo,
             t_hi=t_hi,
             coef=self.face_coef,
             per_face=per_face,
             effort=effort,
             region=self.region,
-            b_U=rows.b_U - level * self.u_shift,
+            b_U=b_U,
         )
 
 

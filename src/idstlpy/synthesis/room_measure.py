@@ -79,6 +79,7 @@ __all__ = [
     "Z_MIN",
     "Room",
     "execution_room",
+    "mlo_means",
     "plan_have",
 ]
 
@@ -296,16 +297,31 @@ def _weights(rho: np.ndarray, chained: np.ndarray) -> np.ndarray:
     return np.where(chained, np.minimum(1.0, 1.7 * np.sqrt(np.maximum(1.0 - rho, 0.0))), 1.0)
 
 
-def plan_have(abstraction: Abstraction, room: Room, traj: ProbabilisticTSTrajectory) -> list[np.ndarray]:
-    """The room ``traj`` keeps on ``room``'s required faces (as :attr:`Room.have`), with the
-    plan's own terms of ``room`` (the same modes: the covariances are those of ``room``'s plan
-    without state-dependent noise)."""
-    means = traj.get_mean()
+def plan_have(abstraction: Abstraction, room: Room, means: np.ndarray) -> list[np.ndarray]:
+    """The room a plan with ``means`` (shape (>= L, n), its MLO roll-out's) keeps on ``room``'s
+    required faces (as :attr:`Room.have`), with the plan's own terms of ``room`` (the same
+    modes: the covariances are those of ``room``'s plan without state-dependent noise)."""
     out = []
     for (k, i), terms in zip(room.requirements, room.terms, strict=True):
         cone = abstraction.atoms[i].cone
         out.append(-(cone.H @ means[k] + cone.c + terms))
     return out
+
+
+def mlo_means(
+    system: SwitchedSystem, mean0: np.ndarray, actions: np.ndarray, controls: np.ndarray
+) -> np.ndarray:
+    """The means of the MLO roll-out (:func:`~idstlpy.belief.rollout_arrays`'s, to the bit)
+    without its covariances: what :func:`plan_have` reads of a plan whose modes keep another
+    plan's covariances (half a roll-out's cost: the covariances are its Kalman updates)."""
+    N = actions.shape[0]
+    modes = system.system_modes
+    means = np.empty((N + 1, mean0.shape[0]))
+    means[0] = mean0
+    for k in range(N):
+        mode = modes[int(actions[k])]
+        means[k + 1] = mode.A @ means[k] + mode.B @ controls[k]
+    return means
 
 
 def _face_sd(H: np.ndarray, S: np.ndarray) -> np.ndarray:
