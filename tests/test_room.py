@@ -178,3 +178,37 @@ def test_room_lp_levels_reuse_one_model_to_the_bit():
     swapped = swapped.with_b_U(b_U)
     assert np.array_equal(built.model.row_hi, swapped.model.row_hi)
     assert not np.array_equal(swapped.model.row_hi[swapped.u_rows], rows.b_U) or not np.any(reused.u_shift)
+
+
+def test_margin_model_matrix_is_the_stacked_blocks():
+    """margin_model assembles its matrix without scipy's stacking; HiGHS reads it column-wise,
+    which must be exactly what the stacked blocks give (else the LPs' answers may differ)."""
+    from scipy.sparse import csr_matrix, diags, hstack, random_array, vstack
+
+    from idstlpy.synthesis.plan_solve import _block_rows
+
+    rng = np.random.default_rng(4)
+    for per_face, na in ((False, 0), (True, 0), (False, 6), (True, 6)):
+        R, ncol = 7, 20
+        A_eq = csr_matrix(random_array((9, ncol), density=0.3, rng=rng))
+        A_U = csr_matrix(random_array((5, ncol), density=0.3, rng=rng))
+        face_H = csr_matrix(random_array((R, ncol), density=0.4, rng=rng))
+        coef = rng.uniform(0.5, 2.0, R)
+        coef[2] = 0.0  # a face without room: csr_matrix drops the entry, diags keeps it
+        nt = R if per_face else 1
+        t_block = diags(coef, format="csr") if per_face else csr_matrix(coef[:, None])
+        aux = csr_matrix(random_array((na, ncol + nt + na), density=0.2, rng=rng)) if na else None
+        old = [
+            hstack([A_eq, csr_matrix((9, nt + na))]),
+            hstack([A_U, csr_matrix((5, nt + na))]),
+            hstack([face_H, t_block, csr_matrix((R, na))]),
+        ]
+        new = [[(A_eq, 0)], [(A_U, 0)], [(face_H, 0), (t_block, ncol)]]
+        if aux is not None:
+            old.append(aux)
+            new.append([(aux, 0)])
+        want = vstack(old).tocsr().tocsc()
+        got = _block_rows(new, ncol + nt + na).tocsc()
+        assert got.shape == want.shape
+        for a, b in ((got.indptr, want.indptr), (got.indices, want.indices), (got.data, want.data)):
+            assert np.array_equal(a, b)

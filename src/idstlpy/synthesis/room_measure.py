@@ -402,21 +402,27 @@ def _face_parts(
     S = loop.cov
     means, covs = traj.get_mean(), traj.get_cov()
     required = set(reqs)
+    # a chained face-step reads its previous step's spreads, the previous requirement's own
+    spreads: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+    def spread(k: int, i: int, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if (k, i) not in spreads:
+            spreads[k, i] = (_face_sd(H, S[k, :n, :n]), _face_sd(H, S[k, n : 2 * n, n : 2 * n]))
+        return spreads[k, i]
+
     parts: list[tuple[np.ndarray, ...]] = []
     for k, i in reqs:
         cone = abstraction.atoms[i].cone
         H = cone.H
         terms = std_terms(H, cone.z, covs[k])
         terms = np.where(np.isfinite(terms), terms, 0.0)
-        sd_x = _face_sd(H, S[k, :n, :n])
-        sd_eta = _face_sd(H, S[k, n : 2 * n, n : 2 * n])
+        sd_x, sd_eta = spread(k, i, H)
         chained = np.full(H.shape[0], (k - 1, i) in required and k >= 1)
         rho_x = np.zeros(H.shape[0])
         rho_eta = np.zeros(H.shape[0])
         if chained[0]:
             C = loop.F[k - 1][: 2 * n, : 2 * n] @ S[k - 1, : 2 * n, : 2 * n]  # Cov(z_k, z_{k-1})
-            prev_x = _face_sd(H, S[k - 1, :n, :n])
-            prev_eta = _face_sd(H, S[k - 1, n : 2 * n, n : 2 * n])
+            prev_x, prev_eta = spread(k - 1, i, H)
             with np.errstate(divide="ignore", invalid="ignore"):
                 rho_x = np.einsum("fa,ab,fb->f", H, C[:n, :n], H) / (sd_x * prev_x)
                 rho_eta = np.einsum("fa,ab,fb->f", H, C[n : 2 * n, n : 2 * n], H) / (sd_eta * prev_eta)
