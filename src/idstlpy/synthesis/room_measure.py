@@ -277,18 +277,17 @@ def _quantile(alpha: float, count: float) -> float:
     return min(max(z, Z_MIN), Z_MAX)
 
 
-def _trials(
-    have: np.ndarray, sd: np.ndarray, rho: np.ndarray, chained: np.ndarray, reach: float = 5.0
-) -> float:
+def _trials(have: np.ndarray, sd: np.ndarray, weights: np.ndarray, reach: float = 5.0) -> float:
     """Effective number of independent chances to break the faces (a Hunter-type union bound).
 
-    Only face-steps with less than ``reach`` standard deviations of room count. A face-step
-    chained to the same face at the previous step (correlation ``rho``) adds the probability of
-    a new crossing, ``P[X_k fails, X_{k-1} does not] ~ P[X_k fails] z sqrt((1 - rho) / pi)`` at
-    a threshold ``z ~ 3``: ``min(1, 1.7 sqrt(1 - rho))``; an unchained one adds 1.
+    Only face-steps with less than ``reach`` standard deviations of room count, each with its
+    ``weights`` (:func:`_weights`): a face-step chained to the same face at the previous step
+    (correlation ``rho``) adds the probability of a new crossing, ``P[X_k fails, X_{k-1} does
+    not] ~ P[X_k fails] z sqrt((1 - rho) / pi)`` at a threshold ``z ~ 3``: ``min(1, 1.7
+    sqrt(1 - rho))``; an unchained one adds 1.
     """
     near = have < reach * sd
-    return float(np.sum(np.where(near, _weights(rho, chained), 0.0)))
+    return float(np.sum(np.where(near, weights, 0.0)))
 
 
 def _weights(rho: np.ndarray, chained: np.ndarray) -> np.ndarray:
@@ -366,26 +365,32 @@ def execution_room(
         return None
     reqs = plan_requirements(plan, abstraction)
     parts = _face_parts(system.n, loop, traj, abstraction, reqs)
-    if parts:
-        cat = [np.concatenate([p[j] for p in parts]) for j in range(7)]
-        have_all, terms_all, sdx_all, sde_all, rx_all, re_all, ch_all = cat
-        z_b = _quantile(belief_failure, _trials(have_all, sde_all, re_all, ch_all))
-        z_s = _quantile(state_failure, _trials(have_all + terms_all, sdx_all, rx_all, ch_all))
-    else:
-        z_b = z_s = Z_MIN
     radii = [abstraction.radius(i) for i in {i for _, i in reqs}]
     finite = [r for r in radii if np.isfinite(r)]
     floor = ROOM_FLOOR * min(finite) if finite else 0.0
-    need = [np.maximum(np.maximum(z_b * p[3], z_s * p[2] - p[1]), floor) for p in parts]
-    have = [p[0] for p in parts]
+    # every face-step's numbers at once (element-wise: the same as per requirement), then split
+    cat = [np.concatenate([p[j] for p in parts]) if parts else np.zeros(0) for j in range(7)]
+    have_all, terms_all, sdx_all, sde_all, rx_all, re_all, ch_all = cat
+    w_b, w_s = _weights(re_all, ch_all), _weights(rx_all, ch_all)
+    if parts:
+        z_b = _quantile(belief_failure, _trials(have_all, sde_all, w_b))
+        z_s = _quantile(state_failure, _trials(have_all + terms_all, sdx_all, w_s))
+    else:
+        z_b = z_s = Z_MIN
+    need_all = np.maximum(np.maximum(z_b * sde_all, z_s * sdx_all - terms_all), floor)
+    cuts = np.cumsum([p[0].shape[0] for p in parts])[:-1]
+
+    def split(a: np.ndarray) -> list[np.ndarray]:
+        return np.split(a, cuts) if parts else []
+
     input_need, input_have = _input_room(system, traj, control_domain, loop, z_input)
     return Room(
-        reqs, need, have, input_need, input_have, loop.clip, z_b, z_s,
+        reqs, split(need_all), [p[0] for p in parts], input_need, input_have, loop.clip, z_b, z_s,
         terms=[p[1] for p in parts],
         sd_belief=[p[3] for p in parts],
         sd_state=[p[2] for p in parts],
-        weight_belief=[_weights(p[5], p[6]) for p in parts],
-        weight_state=[_weights(p[4], p[6]) for p in parts],
+        weight_belief=split(w_b),
+        weight_state=split(w_s),
     )  # fmt: skip
 
 
@@ -410,26 +415,37 @@ def _face_parts(
             spreads[k, i] = (_face_sd(H, S[k, :n, :n]), _face_sd(H, S[k, n : 2 * n, n : 2 * n]))
         return spreads[k, i]
 
+    # per atom, its faces and whether every quantile is finite (std_terms' infinite-quantile
+    # cases then cannot arise: its terms are z * sd, computed here in the same operations)
+    faces: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray, bool]] = {}
+    cross: dict[int, np.ndarray] = {}  # per step k, Cov(z_k, z_{k-1}) (several atoms read it)
     parts: list[tuple[np.ndarray, ...]] = []
-    for k, i in reqs:
-        cone = abstraction.atoms[i].cone
-        H = cone.H
-        terms = std_terms(H, cone.z, covs[k])
-        terms = np.where(np.isfinite(terms), terms, 0.0)
-        sd_x, sd_eta = spread(k, i, H)
-        chained = np.full(H.shape[0], (k - 1, i) in required and k >= 1)
-        rho_x = np.zeros(H.shape[0])
-        rho_eta = np.zeros(H.shape[0])
-        if chained[0]:
-            C = loop.F[k - 1][: 2 * n, : 2 * n] @ S[k - 1, : 2 * n, : 2 * n]  # Cov(z_k, z_{k-1})
-            prev_x, prev_eta = spread(k - 1, i, H)
-            with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k, i in reqs:
+            if i not in faces:
+                cone = abstraction.atoms[i].cone
+                faces[i] = (cone.H, cone.c, cone.z, bool(np.all(np.isfinite(cone.z))))
+            H, c, z, finite_z = faces[i]
+            if finite_z:
+                terms = z * np.sqrt(np.maximum(np.einsum("fi,ij,fj->f", H, covs[k], H), 0.0))
+            else:
+                terms = std_terms(H, z, covs[k])
+            terms = np.where(np.isfinite(terms), terms, 0.0)
+            sd_x, sd_eta = spread(k, i, H)
+            chained = np.full(H.shape[0], (k - 1, i) in required and k >= 1)
+            rho_x = np.zeros(H.shape[0])
+            rho_eta = np.zeros(H.shape[0])
+            if chained[0]:
+                if k not in cross:
+                    cross[k] = loop.F[k - 1][: 2 * n, : 2 * n] @ S[k - 1, : 2 * n, : 2 * n]
+                C = cross[k]
+                prev_x, prev_eta = spread(k - 1, i, H)
                 rho_x = np.einsum("fa,ab,fb->f", H, C[:n, :n], H) / (sd_x * prev_x)
                 rho_eta = np.einsum("fa,ab,fb->f", H, C[n : 2 * n, n : 2 * n], H) / (sd_eta * prev_eta)
-            rho_x = np.where(np.isfinite(rho_x), rho_x, 1.0)
-            rho_eta = np.where(np.isfinite(rho_eta), rho_eta, 1.0)
-        have = -(H @ means[k] + cone.c + terms)
-        parts.append((have, terms, sd_x, sd_eta, rho_x, rho_eta, chained))
+                rho_x = np.where(np.isfinite(rho_x), rho_x, 1.0)
+                rho_eta = np.where(np.isfinite(rho_eta), rho_eta, 1.0)
+            have = -(H @ means[k] + c + terms)
+            parts.append((have, terms, sd_x, sd_eta, rho_x, rho_eta, chained))
     return parts
 
 
