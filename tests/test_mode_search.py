@@ -147,3 +147,29 @@ def test_mlo_score_search_is_deterministic_and_respects_mode_atoms():
     assert all(int(runs[0].modes[k]) in allowed[k] for k in range(1, plan.length))
     if runs[0].done:
         assert solve(DiscretePlan(plan.required, runs[0].modes, plan.length)).feasible
+
+
+def test_room_lp_reads_the_plan_lps_rows_to_the_same_answer():
+    """RoomScore hands the room LP the plan LP's rows (the same plan, covariances and
+    requirements): the answer is the one the room LP's own rows give, to the bit."""
+    problem, abstraction, context, solve = _setting("drive_sense")
+    traj = _mlo_plan(problem)
+    plan = trajectory_plan(problem.stl_formula, abstraction, traj)
+    assert plan is not None
+    out = solve(plan)
+    assert out.status == "feasible" and out.rows is not None
+    system, domain = problem.switched_system, problem.control_domain
+    K = plan.num_transitions
+    rolled = stl.rollout(system, problem.initial_state, plan.modes[1 : K + 1], out.controls)
+    room = execution_room(system, domain, abstraction, plan, rolled)
+    assert room is not None
+    # the condition under which the room LP reads them (else it builds its own)
+    assert np.array_equal(out.rows.covs, rolled.get_cov()[: K + 1])
+    args = (context, plan, rolled, room, np.inf)
+    own = room_lp(*args, linearise=False, polish=False)
+    read = room_lp(*args, linearise=False, polish=False, rows=out.rows)
+    assert own is not None and read is not None
+    assert np.array_equal(own[0], read[0]) and own[1] == read[1]
+    # a plan LP with given covariances keeps no rows (they need not be the plain plan's)
+    given = solve_plan_lp(context, plan, covs=out.covs, phases="refute")
+    assert given.rows is None

@@ -210,7 +210,7 @@ class RoomScore:
             best = room_lp(
                 self.context, plan, traj, room, np.inf,
                 time_limit=max(self.time_left(), 1e-3), linearise=False, polish=False,
-                level=self.level,
+                level=self.level, rows=out.rows,
             )  # fmt: skip
             if best is not None:
                 # the same modes keep the covariances: only the means are rolled out again

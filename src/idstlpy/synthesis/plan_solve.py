@@ -84,6 +84,10 @@ class LPOutcome:
         The elastic LP's total violation (normalised rows; ``inf`` when a requirement is
         impossible on its own, ``nan`` when the elastic phase did not run): the mode search's
         score.
+    rows : PlanRows or None
+        The rows the LP was built from when they are the plain plan rows of the plan (no given
+        covariances, trust region or input back-off): the room LP of the same plan on the same
+        covariances reads them instead of building them again (the mode search's scores).
     """
 
     status: Literal["feasible", "infeasible", "unknown"]
@@ -94,6 +98,7 @@ class LPOutcome:
     covs: np.ndarray | None = None
     why: str = ""
     excess: float = float("nan")
+    rows: PlanRows | None = field(default=None, compare=False, repr=False)
 
     @property
     def feasible(self) -> bool:
@@ -214,7 +219,10 @@ def solve_plan_lp(
         if z2 is not None:
             means, controls = rows.unscale(z2, context.mean0)
             return LPOutcome("feasible", rows.exact, controls, means, [], rows.covs)
-    return _elastic(context, rows, limit, margin, region, goal, phases == "refute")
+    out = _elastic(context, rows, limit, margin, region, goal, phases == "refute")
+    if covs is None and region is None and control_backoff is None:
+        out = dataclasses.replace(out, rows=rows)
+    return out
 
 
 def _plan_rows(

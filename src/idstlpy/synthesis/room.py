@@ -147,6 +147,7 @@ def room_lp(
     linearise: bool = True,
     polish: bool = True,
     level: InputLevel | None = None,
+    rows: PlanRows | None = None,
 ) -> tuple[np.ndarray, float] | None:
     """One SCP step toward the room: controls keeping the largest common fraction of it.
 
@@ -185,6 +186,10 @@ def room_lp(
     level : InputLevel, optional
         Where the search for the first feasible input level starts, updated to the level kept
         (the same level, with fewer LPs, when consecutive LPs keep the same one).
+    rows : PlanRows, optional
+        The plan LP's rows of ``plan`` (:attr:`~.plan_solve.LPOutcome.rows`): used instead of
+        building them when they are the same (not linearised, the same requirements and
+        covariances as ``traj``'s).
 
     Returns
     -------
@@ -192,7 +197,7 @@ def room_lp(
         Controls, shape (L - 1, m), and the common fraction reached; None when no LP has an
         optimum (the trust region keeps no plan meeting the requirements).
     """
-    lp = _RoomLP.around(context, plan, traj, room, trust, linearise)
+    lp = _RoomLP.around(context, plan, traj, room, trust, linearise, rows)
     if lp is None:
         return None
     kept, first = _first_level(lp, t_max, time_limit, level)
@@ -237,9 +242,11 @@ class _RoomLP:
         room: Room,
         trust: float,
         linearise: bool = True,
+        built: PlanRows | None = None,
     ) -> _RoomLP | None:
         """The pieces for ``plan`` around ``traj``; None when no LP can be built (``linearise``:
-        with the covariances' first-order dependence on the means)."""
+        with the covariances' first-order dependence on the means; ``built``: the plan LP's
+        rows of ``plan``, read when they are the ones this LP needs)."""
         K = plan.num_transitions
         if K <= 0:
             return None
@@ -252,7 +259,10 @@ class _RoomLP:
         lin = None
         if linearise:
             lin = (covariance_jacobian(context.system.system_modes, actions, means, covs, scaling.dx), means)
-        rows = build_plan_rows(context, reqs, actions, covs, linearisation=lin)
+        if built is not None and lin is None and built.requirements == reqs and _same(built.covs, covs):
+            rows = built  # the same inputs as the build below: the same rows, entry for entry
+        else:
+            rows = build_plan_rows(context, reqs, actions, covs, linearisation=lin)
         if rows.impossible:
             return None
         need = _row_room(rows, room, abstraction) + 1e-9 * float(np.min(scaling.dx))
@@ -301,6 +311,11 @@ class _RoomLP:
             region=self.region,
             b_U=b_U,
         )
+
+
+def _same(a: np.ndarray | None, b: np.ndarray) -> bool:
+    """Whether ``a`` holds ``b`` (and no more steps)."""
+    return a is not None and a.shape == b.shape and bool(np.array_equal(a, b))
 
 
 @dataclass(frozen=True)
