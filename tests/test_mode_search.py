@@ -19,7 +19,7 @@ from scipy.stats import norm
 import idstlpy as stl
 from idstlpy.backends import HighsBackend
 from idstlpy.synthesis.abstraction import Abstraction
-from idstlpy.synthesis.mode_search import MLOScore, ModeSearch, RoomScore, allowed_modes
+from idstlpy.synthesis.mode_search import MLOScore, ModeSearch, RoomScore, _rolled, allowed_modes
 from idstlpy.synthesis.plan import DiscretePlan, trajectory_plan
 from idstlpy.synthesis.plan_lp import PlanLPContext, Scaling
 from idstlpy.synthesis.plan_solve import solve_plan_lp
@@ -165,6 +165,12 @@ def test_room_lp_reads_the_plan_lps_rows_to_the_same_answer():
     assert room is not None
     # the condition under which the room LP reads them (else it builds its own)
     assert np.array_equal(out.rows.covs, rolled.get_cov()[: K + 1])
+    # RoomScore's roll-out reads the plan LP's covariances: the roll-out's, to the bit
+    fast = _rolled(system, problem.initial_state, plan.modes[1 : K + 1], out.controls, out)
+    for a, b in ((fast.get_mean(), rolled.get_mean()), (fast.get_cov(), rolled.get_cov())):
+        assert a.shape == b.shape and np.array_equal(a, b)
+    assert np.array_equal(fast.get_action(), rolled.get_action())
+    assert np.array_equal(fast.get_control(), rolled.get_control())
     args = (context, plan, rolled, room, np.inf)
     own = room_lp(*args, linearise=False, polish=False)
     read = room_lp(*args, linearise=False, polish=False, rows=out.rows)

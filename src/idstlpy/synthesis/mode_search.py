@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from ..belief import rollout
+from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget
 from .plan import DiscretePlan
@@ -46,6 +47,8 @@ from .room import InputLevel, room_lp
 from .room_measure import execution_room, mlo_means, plan_have
 
 if TYPE_CHECKING:
+    from ..belief import GaussianBelief
+    from ..dynamical_system import SwitchedSystem
     from .plan_solve import LPOutcome
     from .problem import Problem
     from .room_measure import Room
@@ -201,7 +204,7 @@ class RoomScore:
         system, init, domain = problem.switched_system, problem.initial_state, problem.control_domain
         K = plan.num_transitions
         actions = np.asarray(plan.modes[1 : K + 1], dtype=int)
-        traj = rollout(system, init, actions, out.controls)
+        traj = _rolled(system, init, actions, out.controls, out)
         room = execution_room(system, domain, self.abs, plan, traj)
         if room is None:  # the predicted loop diverges: the least of the feasible sequences
             return Trial(plan.modes, (1, -2.0), False, K)
@@ -219,6 +222,23 @@ class RoomScore:
         belief, state = room.failure(have)
         value = min(self.allowance[0] - belief, self.allowance[1] - state)
         return Trial(plan.modes, (1, value), value >= 0.0, _tightest_step(room, have, K))
+
+
+def _rolled(
+    system: SwitchedSystem, init: GaussianBelief, actions: np.ndarray, controls: np.ndarray, out: LPOutcome
+) -> ProbabilisticTSTrajectory:
+    """The MLO roll-out of ``controls``, a feasible plan LP's (``out``; :func:`~idstlpy.belief.rollout`).
+
+    Where the schedule is exact (no state-dependent noise), the plan LP's covariances are the
+    roll-out's, to the bit (:func:`~.covariances.covariance_schedule` makes the same updates
+    with the same noise): only the means are rolled out (the covariances' Kalman updates are
+    most of a roll-out's cost)."""
+    K = actions.shape[0]
+    covs = out.covs
+    if out.exact and covs is not None and covs.shape == (K + 1, system.n, system.n):
+        u = np.asarray(controls, dtype=float).reshape(K, system.m)
+        return ProbabilisticTSTrajectory(mlo_means(system, init.mean, actions, u), covs, actions, u)
+    return rollout(system, init, actions, controls)
 
 
 def _tightest_step(room: Room, have: list[np.ndarray], K: int) -> int:
