@@ -184,26 +184,33 @@ class TargetWatch:
         """
         if self._predicted is not None and self._predicted[0] is traj:
             return self._predicted[1]
+        out = self._predict(traj, PREDICT_SAMPLES)
+        if out is None:
+            nan = float("nan")
+            out = PredictedExecution(nan, nan, nan, nan, {}, self.options.execution_target)
+        self._predicted = (traj, out)
+        return out
+
+    def _predict(self, traj: ProbabilisticTSTrajectory, samples: int) -> PredictedExecution | None:
+        """The planner's reading of the plan's execution with ``samples`` model samples and
+        :data:`PREDICT_SAMPLES` particles, seed 0 (the one call candidates and the report
+        share); None when it cannot be made (a diverging loop)."""
         problem, stats = self.problem, self.stats
-        target = self.options.execution_target
         with stats.clock("time_prediction"):
             try:
                 pred = predict_closed_loop(
                     problem,
                     traj,
                     real_initial_cov=problem.initial_state.cov,
-                    samples=PREDICT_SAMPLES,
+                    samples=samples,
                     particles=PREDICT_SAMPLES,
                     seed=0,
                 )
-                out = PredictedExecution.from_prediction(pred, target)
             except IdstlpyError as exc:
                 logger.info("the plan's execution could not be predicted: %s", exc)
-                nan = float("nan")
-                out = PredictedExecution(nan, nan, nan, nan, {}, target)
+                return None
         stats.predictions += 1
-        self._predicted = (traj, out)
-        return out
+        return PredictedExecution.from_prediction(pred, self.options.execution_target)
 
     def judge(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
         """The loop's verdict on a verified plan: its predicted execution against the target.
@@ -250,22 +257,9 @@ class TargetWatch:
         samples = min(samples, REPORT_MAX_SAMPLES)
         if samples <= PREDICT_SAMPLES:
             return quick
-        problem, stats = self.problem, self.stats
-        with stats.clock("time_prediction"):
-            try:
-                pred = predict_closed_loop(
-                    problem,
-                    traj,
-                    real_initial_cov=problem.initial_state.cov,
-                    samples=samples,
-                    particles=PREDICT_SAMPLES,
-                    seed=0,
-                )
-            except IdstlpyError as exc:  # (the candidate's prediction was made: not expected)
-                logger.info("the plan's execution could not be re-predicted: %s", exc)
-                return quick
-        stats.predictions += 1
-        return PredictedExecution.from_prediction(pred, self.options.execution_target)
+        # (the candidate's prediction was made: a failure here is not expected)
+        precise = self._predict(traj, samples)
+        return quick if precise is None else precise
 
     def known(self, traj: ProbabilisticTSTrajectory) -> Verified | None:
         """What was set aside for the same plan (modes and controls) before, or ``None``: its
