@@ -378,10 +378,11 @@ def execution_room(
     else:
         z_b = z_s = Z_MIN
     need_all = np.maximum(np.maximum(z_b * sde_all, z_s * sdx_all - terms_all), floor)
-    cuts = np.cumsum([p[0].shape[0] for p in parts])[:-1]
+    ends = np.cumsum([p[0].shape[0] for p in parts]).tolist()
+    bounds = list(zip([0, *ends[:-1]], ends, strict=True))
 
     def split(a: np.ndarray) -> list[np.ndarray]:
-        return np.split(a, cuts) if parts else []
+        return [a[lo:hi] for lo, hi in bounds]
 
     input_need, input_have = _input_room(system, traj, control_domain, loop, z_input)
     return Room(
