@@ -212,3 +212,16 @@ def test_margin_model_matrix_is_the_stacked_blocks():
         assert got.shape == want.shape
         for a, b in ((got.indptr, want.indptr), (got.indices, want.indices), (got.data, want.data)):
             assert np.array_equal(a, b)
+
+
+def test_room_of_a_plan_without_requirements_is_empty():
+    """A witness that requires nothing reading the mean has no face-steps: no room needed, none
+    kept, nothing to fail (the property test's feasible-by-construction problems reach it)."""
+    problem, (actions, controls) = pp.build("listing", "small")
+    abs_, plan, traj, _ = _room_of(problem, actions, controls)
+    empty = DiscretePlan(np.zeros_like(plan.required), plan.modes, plan.length)
+    room = execution_room(problem.switched_system, problem.control_domain, abs_, empty, traj)
+    assert room is not None
+    assert room.requirements == [] and room.need == [] and room.weight_belief == []
+    assert room.failure(room.have) == (0.0, 0.0)
+    assert room.z_belief == Z_MIN

@@ -378,8 +378,8 @@ def execution_room(
     else:
         z_b = z_s = Z_MIN
     need_all = np.maximum(np.maximum(z_b * sde_all, z_s * sdx_all - terms_all), floor)
-    ends = np.cumsum([p[0].shape[0] for p in parts]).tolist()
-    bounds = list(zip([0, *ends[:-1]], ends, strict=True))
+    ends = [int(e) for e in np.cumsum([p[0].shape[0] for p in parts])]
+    bounds = list(zip([0, *ends[:-1]], ends, strict=False))  # none without requirements
 
     def split(a: np.ndarray) -> list[np.ndarray]:
         return [a[lo:hi] for lo, hi in bounds]
