@@ -42,7 +42,7 @@ def resolve_process_noise(
     """The process-noise reading an executor runs: ``"auto"`` resolved, any other value checked.
 
     ``"auto"`` (the default everywhere) is ``"real"`` when a linear ``real_system`` is given
-    whose modes declare their own disturbance (made by :func:`~idstlpy.mk_lbs`, ``W`` possibly
+    whose modes all declare their own disturbance (made by :func:`~idstlpy.mk_lbs`, ``W`` possibly
     zero), and ``"model"`` otherwise (no real system, a noise-free :func:`~idstlpy.mk_lcs` plant,
     or a step-function plant). A real system's ``W`` is what the user says the world does; the
     planning model's used to replace it silently, so a stress test with a noisier plant measured
@@ -61,7 +61,7 @@ def resolve_process_noise(
             if isinstance(real_system, SwitchedSystem)
             else []
         )
-        return "real" if modes and any(isinstance(mode, LBS) for mode in modes) else "model"
+        return "real" if modes and all(isinstance(mode, LBS) for mode in modes) else "model"
     if process_noise in ("model", "real", "none"):
         return process_noise  # type: ignore[return-value]  # narrowed by the test above
     raise InvalidArgumentError(

@@ -36,6 +36,7 @@ __all__ = [
     "BELOW_TARGET_MIN",
     "BELOW_TARGET_PATIENCE",
     "BELOW_TARGET_SEARCHED",
+    "JUDGE_STANDARD_ERRORS",
     "PREDICT_SAMPLES",
     "REPORT_HALF_WIDTH",
     "REPORT_MAX_SAMPLES",
@@ -58,6 +59,10 @@ target needs no finer reading to say so) ..."""
 REPORT_MAX_SAMPLES = 20000
 """... with at most this many samples (the particles stay :data:`PREDICT_SAMPLES`: the loop's
 moments, so the report samples the very loop the search judged)."""
+JUDGE_STANDARD_ERRORS = 3.0
+"""A candidate whose quick estimate misses the target by less than this many standard errors (of
+a :data:`PREDICT_SAMPLES`-sample estimate at the target) is judged on the precise report: the
+precise estimate of a plan set aside beyond it meets the target with probability below 0.2%."""
 BELOW_TARGET_EXTRA = 2.0
 """Under ``guarantee="execution"``, after the first verified plan below target (found after ``c``
 candidates) the search goes on for at most ``BELOW_TARGET_EXTRA * c`` more candidates ..."""
@@ -215,8 +220,9 @@ class TargetWatch:
     def judge(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
         """The loop's verdict on a verified plan: its predicted execution against the target.
 
-        A plan whose :data:`PREDICT_SAMPLES`-sample prediction meets the target is judged on the
-        precise re-sampling :meth:`report` gives, the numbers its result would carry: the loop
+        A plan whose :data:`PREDICT_SAMPLES`-sample prediction meets the target, or misses it by
+        less than :data:`JUDGE_STANDARD_ERRORS` standard errors, is judged on the precise
+        re-sampling :meth:`report` gives, the numbers its result would carry: the loop
         then never accepts a plan on the quick estimate that the result reports below target
         (recurrent sensing's plan met on 1000 samples, was reported at 89.7% and returned
         flagged after 11 candidates, where the search goes on to one that meets). A plan below
@@ -224,7 +230,21 @@ class TargetWatch:
         returned).
         """
         quick = self.predict(traj)
-        return self.report(traj) if quick.meets_target else quick
+        return self.report(traj) if self._plausible(quick) else quick
+
+    def _plausible(self, quick: PredictedExecution) -> bool:
+        """Whether the precise estimate may meet the target: the quick one meets it, or falls short
+        by less than :data:`JUDGE_STANDARD_ERRORS` of its standard errors on each reading (the
+        plans the report could call "meets" are judged on the report, not set aside on 1000
+        samples)."""
+        target = self.options.execution_target
+        for rate, bar in ((quick.belief_estimate, target.belief), (quick.state_estimate, target.state)):
+            if not np.isfinite(rate):
+                return False
+            se = np.sqrt(max(bar * (1.0 - bar), 1e-12) / PREDICT_SAMPLES)
+            if rate < bar - JUDGE_STANDARD_ERRORS * se:
+                return False
+        return True
 
     def report(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
         """The returned plan's predicted execution, sampled more precisely than a candidate's.
