@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import idstlpy as stl
 from idstlpy.synthesis.abstraction import Abstraction
@@ -142,3 +144,35 @@ def test_a_candidate_set_aside_takes_its_step_zero_variants_with_it():
     out = proposer.propose()
     assert isinstance(out, ProposerDry) and not out.proven
     proposer.close()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(min_value=0, max_value=2**31 - 1))
+def test_a_proven_gap_is_unreachable_for_every_mode_sequence(seed):
+    """A multi-step gap is a proof: whenever the pruning LP says ``Ri`` cannot reach ``Rj`` in
+    ``d`` steps, the brute force over every mode sequence (`tests/oracles/reach.py`) agrees, on
+    random systems of 1-3 modes sharing ``A`` (some blind in the input: ``B = 0``)."""
+    from oracles.reach import reachable
+
+    from idstlpy.backends import HighsBackend
+    from idstlpy.dynamical_system import mk_lcs, mk_switched_sys
+    from idstlpy.sets import Polytope
+    from idstlpy.synthesis.abstraction import _reaches
+
+    rng = np.random.default_rng(seed)
+    n, m, Q = int(rng.integers(1, 3)), int(rng.integers(1, 3)), int(rng.integers(1, 4))
+    A = np.eye(n) + 0.3 * rng.standard_normal((n, n))
+    Bs = [rng.standard_normal((n, m)) * rng.choice([0.0, 1.0, 3.0]) for _ in range(Q)]
+    system = mk_switched_sys([mk_lcs(A, B) for B in Bs])
+    u = rng.uniform(0.1, 1.0)
+    U = (np.vstack([np.eye(m), -np.eye(m)]), -u * np.ones(2 * m))
+
+    def box(centre: np.ndarray, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.vstack([np.eye(n), -np.eye(n)]), np.concatenate([-(centre + half), centre - half])
+
+    Ri = box(rng.uniform(-5, 5, n), rng.uniform(0.1, 1, n))
+    Rj = box(rng.uniform(-5, 5, n), rng.uniform(0.1, 1, n))
+    for d in (2, 3):
+        claimed = _reaches(system, Polytope(*U), Polytope(*Ri), Polytope(*Rj), d, HighsBackend(), None, None)
+        if not claimed:
+            assert not reachable(A, Bs, U, Ri, Rj, d)
