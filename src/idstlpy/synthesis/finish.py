@@ -71,7 +71,7 @@ def finish(
         # Under "execution": no plan met the target, but a verified one was set aside.
         reason = (
             f"no plan met the execution target {ctx.options.execution_target} before the search "
-            f"stopped ({reason}); the best verified plan is returned, predicted below target"
+            f"stopped ({reason}); the best verified plan is returned"
         )
         status, plan = "found", below
         name = ctx.options.objective
@@ -84,10 +84,14 @@ def finish(
     execution = None
     if status == "found" and traj is not None:
         execution = ctx.target.report(traj)  # more samples than a candidate's
-        if below is not None and execution.meets_target:
-            # (rare: set aside on its quick estimate, the precise one meets) the reason follows
-            # the estimate reported, never the other way round
-            reason = reason.replace("predicted below target", "whose precise prediction meets it")
+        if below is not None:
+            # the reason follows the estimate reported (rarely, one set aside on its quick
+            # estimate meets the target on the precise one)
+            reason += (
+                ", whose precise prediction meets it"
+                if execution.meets_target
+                else ", predicted below target"
+            )
         _warn_below_target(ctx, execution)
         stats.time_total = ctx.budget.elapsed()
     logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
