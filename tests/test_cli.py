@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import pytest
@@ -295,7 +294,6 @@ def test_example_notebook_runs(tmp_path):
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
     nb = nbformat.read(EXAMPLES / "light_dark.ipynb", as_version=4)
-    t0 = time.perf_counter()
     client = nbclient.NotebookClient(
         nb, timeout=120, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
     )
@@ -304,7 +302,6 @@ def test_example_notebook_runs(tmp_path):
     assert not errors, errors
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.outputs)
     assert "status='found'" in text and "belief:" in text
-    assert time.perf_counter() - t0 < 60
     assert not list(tmp_path.iterdir())  # it writes nothing where it runs
 
 

@@ -6,8 +6,6 @@ few steps are enumerated and their exact covariances must lie above the floor (L
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from tests.oracles import sensing as oracle
@@ -102,13 +100,10 @@ def _two_mode_floor_problem(v_drive=0.6, v_look=0.4, w=0.1, hold=5):
 
 def test_two_mode_noise_floor_is_proven_infeasible_naming_the_proposition():
     problem = _two_mode_floor_problem()
-    t0 = time.perf_counter()
     result = problem.solve_result(rrt_timeout=60, seed=0, time_limit=30)
-    elapsed = time.perf_counter() - t0
     assert result.status == "infeasible"
     assert "goal" in result.reason and "every mode sequence" in result.reason
     assert result.stats.candidates == 0  # the proof needs no candidate at all
-    assert elapsed < 10.0  # generous on a loaded machine; ~0.1 s alone
 
     # Independent re-check: enumerate every sequence of 10 steps; no step of any sequence has a
     # variance small enough for the goal at 95% (sd <= 0.2 / 1.645 on each axis, at the centre).

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -126,10 +124,10 @@ def test_logically_unsatisfiable_is_proved_fast():
     right = stl.logical_and(P(x[0] >= 1), name="right")
     formula = stl.eventually(0, 300, stl.logical_and(stl.always(0, 5, left), stl.always(0, 5, right)))
     problem = stl.Problem(system, domain, stl.to_belief([0, 0], 0.01 * np.eye(2)), formula)
-    t0 = time.perf_counter()
     assert problem.solve(rrt_timeout=60, seed=0) is None
-    assert time.perf_counter() - t0 < 1.0
     assert problem.last_result.status == "infeasible"
+    # proved by the formula alone: no candidate, no LP, no sampling (the work, not the clock)
+    assert problem.last_result.stats.candidates == 0 and problem.last_result.stats.nodes == 0
 
 
 def test_geometrically_unreachable_is_proved_by_lp_conflicts():
@@ -139,11 +137,10 @@ def test_geometrically_unreachable_is_proved_by_lp_conflicts():
     domain = stl.logical_and(u[0] >= -1, u[0] <= 1).region
     far = stl.logical_and(P(x[0] >= 50), name="far")
     problem = stl.Problem(system, domain, stl.to_belief([0], [[0.0]]), stl.eventually(0, 20, far))
-    t0 = time.perf_counter()
     result = problem.solve_result(rrt_timeout=60, seed=0)
     assert result.status == "infeasible"
     assert result.stats.counterexamples >= 1
-    assert time.perf_counter() - t0 < 1.0
+    assert result.stats.nodes == 0  # proved by LP conflicts, no sampling
 
 
 def test_initial_belief_outside_the_required_region_is_none_with_reason():
@@ -229,11 +226,12 @@ def test_noise_function_with_wrong_shape_is_named_at_problem_creation():
 
 
 def test_time_budget_is_respected():
+    """A tiny cap ends the search with the cap named (its overshoot: benchmarks/time_limits.py)."""
     problem = light_dark()
-    t0 = time.perf_counter()
     result = problem.solve_result(**{**LISTING, "rrt_timeout": 0.02}, seed=3, time_limit=0.05)
-    assert time.perf_counter() - t0 < 0.05 + 1.0
     assert result.status in ("found", "budget_exhausted")
+    if result.status == "budget_exhausted":
+        assert "time_limit" in result.stats.caps_hit, result.stats.caps_hit
 
 
 # -- fuzz: every generated problem ends in a verified plan or None --------------------------------
