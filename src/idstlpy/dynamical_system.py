@@ -27,7 +27,7 @@ from .errors import (
     NoiseFunctionError,
     OutOfRangeError,
 )
-from .tracking import finite_horizon_lqr
+from .lqr import finite_horizon_lqr
 
 if TYPE_CHECKING:
     from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
