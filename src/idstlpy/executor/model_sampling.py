@@ -13,6 +13,7 @@ import numpy as np
 from ..chance import joint_tail_sum, std_terms
 from ..closed_loop import ClosedLoopMoments, sqrt_psd
 from ..formulas import STLAtomicProposition, STLFormula
+from ..label_semantics import evaluate_bool
 from .success_bound import Faces
 
 __all__ = ["clopper_pearson_lower", "sample_rates"]
@@ -138,8 +139,6 @@ def _formula_rate(
     mode_ok: np.ndarray,
 ) -> float:
     """Fraction of sampled trajectories (face truth (S, L, F)) on which the formula holds."""
-    from ..synthesis.plan import evaluate_bool
-
     S, L, _ = face_ok.shape
     truth = np.empty((S, len(aps), L), dtype=bool)
     for i in range(len(aps)):

@@ -82,7 +82,7 @@ atomic proposition at every step:
 A *lower bound* on the probability that the whole formula holds (executed belief, true state):
 one minus Hunter's tree bound on the union of the failures of the events a witness of the
 formula needs (per constraint, its steps chained in time, with exact bivariate normal
-probabilities); the witness is the plan's own (:func:`idstlpy.synthesis.plan.extract_witness`,
+probabilities); the witness is the plan's own (:func:`idstlpy.label_semantics.extract_witness`,
 latest and earliest until-steps) or the one a dynamic programme on the predicted failure
 probabilities finds, whichever bound is smallest. It is sound for the Gaussian model (so exactly
 sound in the exact case above). Point estimates of the rates

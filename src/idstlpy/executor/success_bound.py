@@ -22,6 +22,7 @@ from ..chance import std_terms
 from ..closed_loop import ClosedLoopMoments, prob_le
 from ..errors import DimensionError, InvalidTypeError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
+from ..label_semantics import extract_witness
 
 __all__ = ["Faces", "bivariate_normal_cdf", "mode_truth", "stack_faces", "success_bound"]
 
@@ -319,8 +320,6 @@ def success_bound(
     loop: ClosedLoopMoments,
 ) -> tuple[float, list[tuple[int, int]]]:
     """Lower bound on the formula's success for one reading, and the witness used."""
-    from ..synthesis.plan import extract_witness
-
     L = mode_ok.shape[1]
     atom_index = {id(ap): i for i, ap in enumerate(aps)}
     viol = 1.0 - prob_le(faces.mu[reading], faces.sd[reading])  # (L, F)
