@@ -30,6 +30,8 @@ import pytest
 import idstlpy
 from idstlpy.backends import Backend
 from idstlpy.errors import InvalidArgumentError
+from idstlpy.problem import SolveOutcome, Solver
+from idstlpy.synthesis import solve
 from idstlpy.synthesis.options import SolverOptions
 
 DOCUMENTED_MODULES: list[str] = [
@@ -42,6 +44,7 @@ DOCUMENTED_MODULES: list[str] = [
     "idstlpy.belief",
     "idstlpy.semantics",
     "idstlpy.sets",
+    "idstlpy.problem",
     "idstlpy.synthesis.problem",
     "idstlpy.synthesis.options",
     "idstlpy.synthesis.results",
@@ -215,11 +218,12 @@ KWARGS_CALLS: dict[str, Callable[[], object]] = {
     "idstlpy.dynamical_system.SwitchedSystem.simulate": _simulate_with_unknown_keyword,
     "idstlpy.synthesis.options.SolverOptions.make": lambda: SolverOptions.make(no_such_option=1),
     "idstlpy.synthesis.options.SolverOptions.with_": lambda: SolverOptions().with_(no_such_option=1),
-    "idstlpy.synthesis.problem.Problem.solve": lambda: _problem().solve(seed=0, no_such_option=1),
-    "idstlpy.synthesis.problem.Problem.solve_result": (
-        lambda: _problem().solve_result(seed=0, no_such_option=1)
-    ),
+    "idstlpy.problem.Problem.solve": lambda: _problem().solve(seed=0, no_such_option=1),
+    "idstlpy.problem.Problem.solve_result": (lambda: _problem().solve_result(seed=0, no_such_option=1)),
     "idstlpy.backends.Backend": lambda: Backend(no_such_option=1),  # type: ignore[misc, call-arg]
+    "idstlpy.problem.SolveOutcome": lambda: SolveOutcome(no_such_option=1),  # type: ignore[misc, call-arg]
+    "idstlpy.problem.Solver": lambda: Solver(no_such_option=1),  # type: ignore[misc, call-arg]
+    "idstlpy.synthesis.problem.solve": lambda: solve(_problem(), seed=0, no_such_option=1),
 }
 """Per callable taking ``**kwargs``: a call with an unknown keyword (it must raise TypeError, unless
 :data:`KWARGS_ERRORS` names another error for it)."""
@@ -228,13 +232,16 @@ _UNKNOWN_OPTION = (InvalidArgumentError, r"unknown solver option\(s\) no_such_op
 
 KWARGS_ERRORS: dict[str, tuple[type[Exception], str]] = {
     # SolverOptions rejects an unknown option with InvalidArgumentError (a ValueError), and
-    # Problem.solve / solve_result forward their **more to it.
+    # Problem.solve / solve_result and synthesis.solve forward their **more to it.
     "idstlpy.synthesis.options.SolverOptions.make": _UNKNOWN_OPTION,
     "idstlpy.synthesis.options.SolverOptions.with_": _UNKNOWN_OPTION,
-    "idstlpy.synthesis.problem.Problem.solve": _UNKNOWN_OPTION,
-    "idstlpy.synthesis.problem.Problem.solve_result": _UNKNOWN_OPTION,
+    "idstlpy.problem.Problem.solve": _UNKNOWN_OPTION,
+    "idstlpy.problem.Problem.solve_result": _UNKNOWN_OPTION,
+    "idstlpy.synthesis.problem.solve": _UNKNOWN_OPTION,
     # A typing.Protocol: its (*args, **kwargs) is typing's placeholder, and every call is refused.
     "idstlpy.backends.Backend": (TypeError, "Protocols cannot be instantiated"),
+    "idstlpy.problem.SolveOutcome": (TypeError, "Protocols cannot be instantiated"),
+    "idstlpy.problem.Solver": (TypeError, "Protocols cannot be instantiated"),
 }
 """The entries of :data:`KWARGS_CALLS` that reject the unknown keyword with another error than
 ``TypeError: ... unexpected keyword argument``: ``(exception type, regular expression)``."""

@@ -11,8 +11,8 @@ from .belief import to_belief
 from .dynamical_system import SwitchedSystem, mk_lcs, mk_switched_sys
 from .expressions import mk_variable, prob
 from .formulas import always, eventually, logical_and, logical_or, until
+from .problem import Problem
 from .sets import Polytope
-from .synthesis.problem import Problem
 
 __all__ = [
     "light_dark",

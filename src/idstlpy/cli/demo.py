@@ -116,6 +116,7 @@ def run_light_dark(
     from ..execution import validate
     from ..plotting import plot_light_dark, plot_monte_carlo
     from ..problem_file import apply_overrides, load_problem
+    from ..synthesis import solve
     from .example import example_text
 
     out_stream = stdout or sys.stdout
@@ -149,7 +150,7 @@ def run_light_dark(
 
     t0 = time.perf_counter()
     progress.start(f"solving light-dark (deadline {args.deadline}, hold {args.hold}, seed {args.seed})")
-    result = problem.solve_result(**solver_kwargs)
+    result = solve(problem, **solver_kwargs)
     progress.stop(f"solved: {result.status}")
     record.update(result_to_dict(result))
     stats = result.stats

@@ -23,7 +23,7 @@ from ..errors import IdstlpyError, InvalidArgumentError, InvalidTypeError
 from ..executor import ExecutorSpec
 from ..formulas import FALSE, TRUE, STLFormula
 from ..synthesis.options import SolverOptions
-from ..synthesis.problem import Problem
+from ..synthesis.problem import Problem, solve
 from ..trajectory import ProbabilisticTSTrajectory
 from .policy import Adopt, ReplanPolicy, RiskMeasure, RiskOn
 
@@ -209,7 +209,7 @@ class _Resolver:
         try:
             cov = 0.5 * (belief.cov + belief.cov.T)  # the filter's Joseph form is symmetric up to rounding
             sub = Problem(problem.switched_system, problem.control_domain, to_belief(belief.mean, cov), psi)
-            result = sub.solve_result(options=self.options.with_(seed=seed))
+            result = solve(sub, self.options.with_(seed=seed))
         except IdstlpyError as exc:
             # A re-plan that cannot even be posed keeps the old plan; the record says why.
             why = f"{type(exc).__name__}: {exc}"

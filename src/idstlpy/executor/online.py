@@ -25,7 +25,7 @@ up: it calls the solver) is this object plus the drift and risk checks and the r
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,12 +33,10 @@ from numpy.typing import ArrayLike
 from ..belief import GaussianBelief
 from ..dynamical_system import SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
+from ..problem import Problem
 from ..trajectory import ProbabilisticTSTrajectory
 from .law import StepLaw
 from .spec import ExecutorSpec
-
-if TYPE_CHECKING:  # the synthesis layer is above this one
-    from ..synthesis.problem import Problem
 
 __all__ = ["OnlineExecutor"]
 
@@ -49,7 +47,7 @@ class OnlineExecutor:
     Parameters
     ----------
     source : Problem, SwitchedSystem or ExecutorSpec
-        What runs the plan. A :class:`~idstlpy.synthesis.Problem` gives its switched system and
+        What runs the plan. A :class:`~idstlpy.problem.Problem` gives its switched system and
         (unless ``control_domain`` is given) its control domain; a ``SwitchedSystem`` is used with
         ``**options``; an :class:`~idstlpy.executor.spec.ExecutorSpec` as it is.
     plan : ProbabilisticTSTrajectory
@@ -104,8 +102,8 @@ class OnlineExecutor:
             spec = source
         elif isinstance(source, SwitchedSystem):
             spec = ExecutorSpec.make(source, **options)
-        elif isinstance(getattr(source, "switched_system", None), SwitchedSystem):
-            options.setdefault("control_domain", getattr(source, "control_domain", None))
+        elif isinstance(source, Problem):
+            options.setdefault("control_domain", source.control_domain)
             spec = ExecutorSpec.make(source.switched_system, **options)
         else:
             raise InvalidTypeError(

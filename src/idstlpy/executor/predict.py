@@ -122,8 +122,8 @@ from .predicted import ClosedLoopPrediction, ConstraintPrediction
 from .spec import ExecutorSpec
 from .success_bound import Faces, bivariate_normal_cdf, mode_truth, stack_faces, success_bound
 
-if TYPE_CHECKING:  # the synthesis layer is above this one
-    from ..synthesis.problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = [
     "ClosedLoopPrediction",

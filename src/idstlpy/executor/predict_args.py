@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal, TypedDict, TypeGuard
+from typing import Any, Literal, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -20,13 +20,11 @@ from ..closed_loop import gains_for, real_modes_for
 from ..dynamical_system import LCS, SwitchedSystem
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..formulas import STLFormula
+from ..problem import Problem
 from ..sets import Polytope
 from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
 from .spec import ExecutorSpec, ProcessNoise, resolve_process_noise
-
-if TYPE_CHECKING:  # the synthesis layer is above this one
-    from ..synthesis.problem import Problem
 
 __all__ = [
     "Closure",
@@ -79,25 +77,12 @@ OPTION_DEFAULTS: dict[str, Any] = {
 """Every :class:`PredictOptions` keyword's default."""
 
 
-def is_problem(obj: object) -> TypeGuard[Problem]:
-    """Whether ``obj`` is a problem (a model, a formula and a control domain).
-
-    Read by its attributes, not its class: this module sits below the synthesis layer that
-    defines :class:`~idstlpy.synthesis.problem.Problem`.
-    """
-    return (
-        isinstance(getattr(obj, "switched_system", None), SwitchedSystem)
-        and hasattr(obj, "stl_formula")
-        and hasattr(obj, "control_domain")
-    )
-
-
 def resolve(
     problem_or_system: Problem | SwitchedSystem,
     formula: STLFormula | None,
     control_domain: Polytope | None | str,
 ) -> tuple[SwitchedSystem, STLFormula | None, Polytope | None]:
-    if is_problem(problem_or_system):
+    if isinstance(problem_or_system, Problem):
         system = problem_or_system.switched_system
         formula = problem_or_system.stl_formula if formula is None else formula
         domain = problem_or_system.control_domain if isinstance(control_domain, str) else control_domain

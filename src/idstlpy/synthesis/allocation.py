@@ -36,8 +36,8 @@ from ..formulas import STLAtomicProposition, STLFormula, map_atoms, map_joints
 from .options import SolverOptions
 from .results import SolveResult
 
-if TYPE_CHECKING:  # problem.py imports this module's callers
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = ["NO_PROOF", "after_solve", "prove_infeasible", "reallocate", "refine_allocation", "relax_joints"]
 

@@ -81,8 +81,8 @@ from .results import SolveResult, Status
 from .sampler_teacher import SamplerTeacher
 from .teacher import LPTeacher
 
-if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = ["synthesize"]
 

@@ -34,7 +34,7 @@ from .repair import STOP, RepairSteps, Stop, repair
 from .results import SolveStats
 
 if TYPE_CHECKING:
-    from .problem import Problem
+    from ..problem import Problem
 
 __all__ = ["Certified", "Checked", "MIN_ROUNDS", "STEP_FRACTIONS", "certify", "line_search"]
 

@@ -28,8 +28,8 @@ from .options import SolverOptions
 from .plan_lp import Scaling, lp_exact
 from .results import PredictedExecution, SolveStats
 
-if TYPE_CHECKING:  # problem.py imports this module (lazily, in solve)
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = [
     "BELOW_TARGET_EXTRA",

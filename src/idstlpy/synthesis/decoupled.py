@@ -49,15 +49,15 @@ from ..belief import rollout, to_belief
 from ..dynamical_system import LBS, LCS, POLBS, POLBSWithNonLinNoise, mk_lbs, mk_lcs, mk_switched_sys
 from ..expressions import ProbabilisticLinearPredicate, mk_variable
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, logical_and, map_atoms
+from ..problem import Problem
 from ..sets import Polytope
 from .abstraction import Abstraction
 from .interfaces import Budget
 from .plan_lp import Scaling, lp_exact
 from .results import SolveResult, SolveStats
 
-if TYPE_CHECKING:  # (importing Problem at run time would close an import cycle)
+if TYPE_CHECKING:
     from .options import SolverOptions
-    from .problem import Problem
 
 __all__ = ["ENABLED", "Block", "DecoupledPlan", "solve_decoupled", "split"]
 
@@ -289,8 +289,7 @@ def _sub_problem(problem: Problem, block: Block) -> Problem:
     domain = _sub_domain(problem.control_domain, block)
     init = problem.initial_state
     prior = to_belief(np.asarray(init.mean, dtype=float)[s], np.asarray(init.cov, dtype=float)[np.ix_(s, s)])
-    # (the problem's own class: importing Problem here would close an import cycle)
-    return type(problem)(mk_switched_sys([sub]), domain, prior, formula)
+    return Problem(mk_switched_sys([sub]), domain, prior, formula)
 
 
 def _sub_domain(dom: Polytope, block: Block) -> Polytope:

@@ -28,7 +28,7 @@ from .options import SolverOptions
 from .results import SolveResult, SolveStats
 
 if TYPE_CHECKING:
-    from .problem import Problem
+    from ..problem import Problem
 
 __all__ = ["closed_loop_fallback"]
 

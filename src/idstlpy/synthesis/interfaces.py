@@ -25,8 +25,8 @@ import numpy as np
 from .plan import DiscretePlan
 
 if TYPE_CHECKING:
+    from ..problem import Problem
     from .bmc import BMCEncoder
-    from .problem import Problem
     from .results import SolveStats
 
 __all__ = [

@@ -49,8 +49,8 @@ from .room_measure import execution_room, mlo_means, plan_have
 if TYPE_CHECKING:
     from ..belief import GaussianBelief
     from ..dynamical_system import SwitchedSystem
+    from ..problem import Problem
     from .plan_solve import LPOutcome
-    from .problem import Problem
     from .room_measure import Room
 
 __all__ = [

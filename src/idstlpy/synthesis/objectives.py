@@ -40,7 +40,7 @@ from .room import RoomState, note_room, room_lp, room_state
 
 if TYPE_CHECKING:
     from ..formulas import STLFormula
-    from .problem import Problem
+    from ..problem import Problem
 
 __all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
 

@@ -40,12 +40,12 @@ from .covariances import (
 from .interfaces import Budget
 from .plan import DiscretePlan
 
-if TYPE_CHECKING:  # plan_lp is imported by the abstraction (its covariance bounds)
+if TYPE_CHECKING:
     from ..dynamical_system import SwitchedSystem
+    from ..problem import Problem
     from ..sets import Polytope
     from .abstraction import Abstraction
     from .covariance_floor import Modes
-    from .problem import Problem
 
 __all__ = [
     "PlanLPContext",

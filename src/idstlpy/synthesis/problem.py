@@ -1,268 +1,72 @@
-"""``Problem``: a switched belief system, a control domain, an initial belief and a formula."""
+"""The package's solver: what :meth:`Problem.solve <idstlpy.problem.Problem.solve>` runs.
+
+:class:`~idstlpy.problem.Problem` (the data and its validation) is a model-layer class, re-exported
+here under its former path; this module registers :func:`solve` with it when imported
+(:func:`~idstlpy.problem.register_solver`; ``import idstlpy`` imports it).
+"""
 
 from __future__ import annotations
 
-import logging
 import time
 from typing import Any
 
-import numpy as np
-
-from ..belief import GaussianBelief
-from ..dynamical_system import SwitchedSystem
-from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
-from ..expressions import RealValuedVariable, region_variable
-from ..formulas import STLFormula, allocate_joint_risk, as_formula
-from ..sets import Polytope
-from ..trajectory import ProbabilisticTSTrajectory
+from ..errors import InvalidTypeError
+from ..problem import Problem, register_solver
+from .allocation import after_solve
+from .cegis import synthesize
+from .escalation import closed_loop_fallback
 from .options import SolverOptions
 from .results import SolveResult
 
-__all__ = ["Problem"]
-
-logger = logging.getLogger(__name__)
+__all__ = ["Problem", "solve"]
 
 
-class Problem:
-    """A PrSTL synthesis problem (paper Section IV-E).
+def solve(problem: Problem, options: SolverOptions | None = None, /, **overrides: Any) -> SolveResult:
+    """Solve ``problem``: the CEGIS loop, then (joint chance constraints) the risk re-allocation,
+    then (only plans below target under the default guarantee) a closed-loop solve.
 
     Parameters
     ----------
-    switched_system : SwitchedSystem
-        The modes the plan may switch between.
-    control_domain : Polytope
-        Admissible inputs ``U`` (shape (k, m) inequalities), e.g. ``logical_and(u[0] >= -1, ...).region``.
-    initial_state : GaussianBelief
-        The prior belief ``N(mean, cov)`` from :func:`~idstlpy.to_belief`.
-    stl_formula : STLFormula
-        The specification.
+    problem : Problem
+    options : SolverOptions, optional
+        Every solver parameter at once; ``overrides`` take precedence.
+    **overrides
+        Any :class:`SolverOptions` field.
+
+    Returns
+    -------
+    SolveResult
 
     Raises
     ------
-    DimensionError
-        When the state or control dimensions of the parts disagree.
-    OutOfRangeError
-        When the formula names a mode the system does not have.
+    InvalidTypeError
+        When ``options`` is not a :class:`SolverOptions`.
     InvalidArgumentError
-        When the formula is written over the variable the control domain is written over, or
-        over a variable an earlier Problem used as its input (or the control domain over an
-        earlier state variable): variables take their role, ``"state"`` or ``"input"``, in the
-        first Problem that uses them (:attr:`~idstlpy.expressions.RealValuedVariable.role`).
+        When an override names no option or has a bad value.
     """
+    start = time.perf_counter()
+    if options is None:
+        opts = SolverOptions.make(**overrides)
+    elif isinstance(options, SolverOptions):
+        opts = options.with_(**overrides) if overrides else options
+    else:
+        raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
 
-    def __init__(
-        self,
-        switched_system: SwitchedSystem,
-        control_domain: Polytope,
-        initial_state: GaussianBelief,
-        stl_formula: STLFormula,
-    ) -> None:
-        if not isinstance(switched_system, SwitchedSystem):
-            raise InvalidTypeError(
-                f"switched_system must be made by mk_switched_sys, got {type(switched_system).__name__}"
-            )
-        if not isinstance(control_domain, Polytope):
-            raise InvalidTypeError(
-                "control_domain must be a Polytope, e.g. logical_and(u[0] >= -1, u[0] <= 1).region; "
-                f"got {type(control_domain).__name__}"
-            )
-        if not isinstance(initial_state, GaussianBelief):
-            raise InvalidTypeError(
-                f"initial_state must be made by to_belief(mean, cov), got {type(initial_state).__name__}"
-            )
-        formula = as_formula(stl_formula, "stl_formula")
-        n, m = switched_system.n, switched_system.m
-        if control_domain.dim != m:
-            raise DimensionError(
-                f"control_domain has dimension {control_domain.dim}, the system has m = {m} inputs"
-            )
-        if control_domain.is_empty():
-            raise InvalidArgumentError("control_domain is empty: no admissible input")
-        if initial_state.n != n:
-            raise DimensionError(
-                f"initial_state has dimension {initial_state.n}, the system has n = {n} states"
-            )
-        for ap in formula.atomic_propositions():
-            for p in ap.predicates:
-                if p.variable.size != n:
-                    raise DimensionError(
-                        f"proposition {ap.name or ap} is over a variable of size {p.variable.size}, "
-                        f"the system state has n = {n}"
-                    )
-            if ap.modes is not None and ap.modes and max(ap.modes) >= switched_system.num_modes:
-                raise OutOfRangeError(
-                    f"proposition {ap.name or ''} names mode {max(ap.modes)}, the system has modes "
-                    f"0..{switched_system.num_modes - 1}"
-                )
-        _check_roles(formula, control_domain)
-        # Evaluate every noise function once so a bad one is reported now, by name.
-        for q, mode in enumerate(switched_system.system_modes):
-            if mode.p:
-                R = mode.noise_cov(initial_state.mean)
-                if R.shape != (mode.p, mode.p):
-                    raise DimensionError(f"mode {q}: noise covariance has shape {R.shape}")
-        _take_roles(formula, control_domain)
-        self.switched_system = switched_system
-        self.control_domain = control_domain
-        self.initial_state = initial_state
-        # Joint chance constraints get the risk allocation that suits this prior (same meaning).
-        self.stl_formula = allocate_joint_risk(formula, initial_state.cov)
-        self._joint = any(ap.joints for ap in formula.atomic_propositions())
-        self.last_result: SolveResult | None = None
-
-    def solve(
-        self,
-        rrt_timeout: float | None = None,
-        delta_near: float | None = None,
-        delta_drain: float | None = None,
-        goal_bias: float | None = None,
-        min_num_of_steps: int | None = None,
-        max_num_of_steps: int | None = None,
-        seed: int | np.random.Generator | None = None,
-        *,
-        options: SolverOptions | None = None,
-        **more: Any,
-    ) -> ProbabilisticTSTrajectory | None:
-        """Find modes and controls whose MLO belief trajectory satisfies the formula.
-
-        Parameters
-        ----------
-        rrt_timeout : float, default 60
-            Wall-clock safety cap (seconds) on the sampler's search for one candidate; it also
-            sets the sampler's work budget (see :class:`SolverOptions`).
-        delta_near : float, default 2
-            Radius within which the sampler prefers the least uncertain node to extend.
-        delta_drain : float, default 0.5
-            Radius within which only the least uncertain node is kept.
-        goal_bias : float, default 0.25
-            Probability of aiming at the candidate's next required region.
-        min_num_of_steps, max_num_of_steps : int, default 3 and 15
-            Range of the number of steps of one extension.
-        seed : int, numpy Generator or None
-            Seed of every random choice: the same seed gives the same plan (unless a wall-clock
-            cap was hit, which ``last_result.stats.caps_hit`` reports).
-        options : SolverOptions, optional
-            Every solver parameter at once; explicit keywords override it.
-        **more
-            Any other :class:`SolverOptions` field (``time_limit``, ``max_candidates``,
-            ``sampler_iterations``, ``lazy_candidates``, ``max_plan_length``, back-ends, ...).
-
-        Returns
-        -------
-        ProbabilisticTSTrajectory or None
-            A plan verified by the monitor, or ``None``; :attr:`last_result` says why.
-        """
-        return self.solve_result(
-            rrt_timeout,
-            delta_near,
-            delta_drain,
-            goal_bias,
-            min_num_of_steps,
-            max_num_of_steps,
-            seed,
-            options=options,
-            **more,
-        ).trajectory
-
-    def solve_result(
-        self,
-        rrt_timeout: float | None = None,
-        delta_near: float | None = None,
-        delta_drain: float | None = None,
-        goal_bias: float | None = None,
-        min_num_of_steps: int | None = None,
-        max_num_of_steps: int | None = None,
-        seed: int | np.random.Generator | None = None,
-        *,
-        options: SolverOptions | None = None,
-        **more: Any,
-    ) -> SolveResult:
-        """Like :meth:`solve`, but return the full :class:`SolveResult` (status, reason, statistics).
-
-        Parameters
-        ----------
-        rrt_timeout, delta_near, delta_drain, goal_bias, min_num_of_steps, max_num_of_steps, seed
-            As in :meth:`solve` (``None``: the value in ``options``, or the default).
-        options : SolverOptions, optional
-            Every solver parameter at once; explicit arguments override it.
-        **more
-            Any other :class:`SolverOptions` field.
-
-        Returns
-        -------
-        SolveResult
-        """
-        start = time.perf_counter()
-        given = {
-            "rrt_timeout": rrt_timeout,
-            "delta_near": delta_near,
-            "delta_drain": delta_drain,
-            "goal_bias": goal_bias,
-            "min_num_of_steps": min_num_of_steps,
-            "max_num_of_steps": max_num_of_steps,
-            "seed": seed,
-        }
-        overrides = {k: v for k, v in given.items() if v is not None}
-        overrides.update(more)
-        if options is None:
-            opts = SolverOptions.make(**overrides)
-        elif isinstance(options, SolverOptions):
-            opts = options.with_(**overrides) if overrides else options
-        else:
-            raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
-        from .cegis import synthesize
-        from .escalation import closed_loop_fallback
-
-        def first() -> SolveResult:
-            result = synthesize(self, opts, start)
-            if getattr(self, "_joint", False):
-                from .allocation import after_solve  # joint chance constraints (allocation.py)
-
-                result = after_solve(self, opts, start, result, synthesize)
-            return result
-
-        # Under the default guarantee, a closed-loop solve when only plans below target were found.
-        result = closed_loop_fallback(self, opts, start, first, synthesize)
-        self.last_result = result
+    def first() -> SolveResult:
+        result = synthesize(problem, opts, start)
+        if getattr(problem, "_joint", False):  # joint chance constraints (allocation.py)
+            result = after_solve(problem, opts, start, result, synthesize)
         return result
 
-    def __repr__(self) -> str:
-        return (
-            f"Problem(n={self.switched_system.n}, m={self.switched_system.m}, "
-            f"modes={self.switched_system.num_modes}, formula={self.stl_formula})"
-        )
+    # Under the default guarantee, a closed-loop solve when only plans below target were found.
+    return closed_loop_fallback(problem, opts, start, first, synthesize)
 
 
-def _state_variables(formula: STLFormula) -> dict[int, RealValuedVariable]:
-    """The variables the formula's chance constraints are written over, by identity."""
-    out: dict[int, RealValuedVariable] = {}
-    for ap in formula.atomic_propositions():
-        for p in ap.predicates:
-            out[id(p.variable)] = p.variable
-    return out
+def _registered(problem: Problem, options: object | None, /, **overrides: Any) -> SolveResult:
+    """:func:`solve` as :meth:`Problem.solve_result` calls it (any ``options``, checked here)."""
+    if options is not None and not isinstance(options, SolverOptions):
+        raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
+    return solve(problem, options, **overrides)
 
 
-def _check_roles(formula: STLFormula, control_domain: Polytope) -> None:
-    """Refuse a formula over the input variable and a control domain over the state variable."""
-    states = _state_variables(formula)
-    u = region_variable(control_domain)
-    for x in states.values():
-        if x.role == "input":
-            x.take_role("state", "stl_formula")  # raises, naming the argument
-    if u is not None and u.role == "state":
-        u.take_role("input", "control_domain")  # raises, naming the argument
-    if u is not None and id(u) in states:
-        raise InvalidArgumentError(
-            f"stl_formula and control_domain are both written over {u.name}: the formula "
-            "constrains the state, the control domain the input (two variables, e.g. "
-            "x = mk_variable(n) and u = mk_variable(m, name='u'))"
-        )
-
-
-def _take_roles(formula: STLFormula, control_domain: Polytope) -> None:
-    """Record the roles of a valid Problem's variables (after :func:`_check_roles`)."""
-    for x in _state_variables(formula).values():
-        x.take_role("state", "stl_formula")
-    u = region_variable(control_domain)
-    if u is not None:
-        u.take_role("input", "control_domain")
+register_solver(_registered)  # Problem.solve / solve_result (see idstlpy.problem)

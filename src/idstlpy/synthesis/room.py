@@ -28,7 +28,7 @@ from .results import SolveStats
 
 if TYPE_CHECKING:
     from ..formulas import STLFormula
-    from .problem import Problem
+    from ..problem import Problem
 from .room_measure import (
     BELIEF_FAILURE,
     ROOM_FLOOR,

@@ -14,8 +14,8 @@ import numpy as np
 from .abstraction import Abstraction
 from .plan_lp import noise_depends_on_state
 
-if TYPE_CHECKING:  # problem.py imports the loop that imports this module
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = ["SampleSpace"]
 

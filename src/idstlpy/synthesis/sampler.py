@@ -42,8 +42,8 @@ from .plan import DiscretePlan, evaluate_bool
 from .sample_space import SampleSpace
 from .steering import STEER_LOOKAHEAD, STEER_SHRINK, Steering, steering_center
 
-if TYPE_CHECKING:  # problem.py imports the loop that imports this module
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 # (the steering's constants and centre live in .steering; named here too, where the sampler's
 # users have always found them)

@@ -25,8 +25,8 @@ from .room import give_room
 from .sampler import BeliefSampler
 from .shortcut import shortcut
 
-if TYPE_CHECKING:  # problem.py imports the loop that imports this module
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = ["SamplerTeacher"]
 

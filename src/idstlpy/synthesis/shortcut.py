@@ -16,8 +16,8 @@ from .abstraction import Abstraction
 from .plan import evaluate_bool
 from .steering import Steering
 
-if TYPE_CHECKING:  # problem.py imports the loop that imports this module
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = ["shortcut"]
 

@@ -36,8 +36,8 @@ from .results import SolveStats
 from .room import give_room
 
 if TYPE_CHECKING:
+    from ..problem import Problem
     from .options import Objective
-    from .problem import Problem
 
 __all__ = [
     "LPOutcome",
