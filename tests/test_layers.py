@@ -55,9 +55,7 @@ PACKAGE_LAYERS = {
 KNOWN_UPWARD: set[tuple[str, str]] = set()
 KNOWN_IN_CYCLES = set(
     """
-    synthesis.abstraction synthesis.bmc synthesis.covariance_floor synthesis.covariances
-    synthesis.interfaces synthesis.milp_faces synthesis.milp_model synthesis.plan
-    synthesis.plan_lp
+    synthesis.milp_faces synthesis.milp_model
     """.split()
 )
 

@@ -18,7 +18,7 @@ from ..backends import Backend, HighsBackend, LinearModel
 from ..chance import std_terms
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
-from .interfaces import Budget
+from .budget import Budget
 
 if TYPE_CHECKING:
     from ..dynamical_system import SwitchedSystem
@@ -233,7 +233,7 @@ class Abstraction:
                 f" (for every mode sequence: the covariance floor over all switching sequences; {floor.how})"
             )
         else:
-            from .plan_lp import cached_schedule
+            from .covariances import cached_schedule
 
             # Through the plan rows' cache: the lazy loop's candidates then reuse this schedule.
             covs, _ = cached_schedule(

@@ -33,7 +33,7 @@ from pysat.solvers import NoSuchSolverError, Solver
 
 from ..errors import InvalidArgumentError
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
-from .interfaces import Budget, BudgetExceeded
+from .budget import Budget, BudgetExceeded
 
 __all__ = ["BMCEncoder"]
 

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, TypeAlias
 import numpy as np
 
 from ..dynamical_system import LCS, SwitchedSystem
-from .interfaces import Budget
+from .budget import Budget
 
 if TYPE_CHECKING:
     from ..sets import Polytope

@@ -14,11 +14,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from ..belief import kalman_gain, kalman_update
-from .interfaces import Budget
+from .budget import Budget
 
-if TYPE_CHECKING:  # the abstraction reads the cached schedules (its covariance bounds)
+if TYPE_CHECKING:
     from ..dynamical_system import LCS, SwitchedSystem
-    from .abstraction import Abstraction
     from .covariance_floor import Modes
 
 __all__ = [
@@ -110,14 +109,19 @@ def _lower_update(mode: LCS, P: np.ndarray) -> np.ndarray:
     return np.asarray((v * np.maximum(w, 0.0)) @ v.T)
 
 
-def row_cache(abstraction: Abstraction) -> dict[str, Any]:
-    """What the plan rows keep on ``abstraction`` for one solve's lifetime (schedules, faces)."""
+def row_cache(abstraction: object) -> dict[str, Any]:
+    """What the plan rows keep on ``abstraction`` for one solve's lifetime (schedules, faces).
+
+    Any object the cache lives with serves (the solve's
+    :class:`~idstlpy.synthesis.abstraction.Abstraction`, which reads the schedules for its own
+    covariance bounds, so this module must not need its type).
+    """
     cache: dict[str, Any] = abstraction.__dict__.setdefault("_plan_rows_cache", {})
     return cache
 
 
 def cached_schedule(
-    abstraction: Abstraction,
+    abstraction: object,
     modes: Modes,
     cov0: np.ndarray,
     actions: np.ndarray,

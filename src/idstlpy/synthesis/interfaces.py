@@ -7,21 +7,22 @@
   with its proof: only this may become a clause) or :class:`Unknown` (why it gave up). It
   declares whether it decides a problem exactly, and has hooks for the loop's other steps:
   guiding the proposer, rescuing a refuted candidate, hearing of a plan below target.
-- A :class:`Budget` carries the wall-clock safety cap from the first line of ``solve`` to every
-  part (encoding, LPs, sampling); :class:`BudgetExceeded` unwinds to the loop when it is hit.
+- A :class:`~.budget.Budget` carries the wall-clock safety cap from the first line of ``solve``
+  to every part (encoding, LPs, sampling); :class:`~.budget.BudgetExceeded` unwinds to the loop
+  when it is hit (both in the leaf :mod:`.budget`, re-exported here).
 
-This module is a leaf: the parts import it, it imports only the plan and option types.
+The parts import this module; it imports the plan type and the budget.
 """
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from .budget import Budget, BudgetExceeded
 from .plan import DiscretePlan
 
 if TYPE_CHECKING:
@@ -41,48 +42,6 @@ __all__ = [
     "Unknown",
     "Verdict",
 ]
-
-
-class BudgetExceeded(Exception):
-    """Internal: the overall wall-clock cap was hit (caught by the loop, never seen by users)."""
-
-    def __init__(self, where: str) -> None:
-        super().__init__(where)
-        self.where = where
-
-
-class Budget:
-    """The overall wall-clock safety cap of one solve.
-
-    Parameters
-    ----------
-    seconds : float
-        The cap, counted from ``start``.
-    start : float, optional
-        ``time.perf_counter()`` at the first line of ``solve`` (default: now).
-    """
-
-    def __init__(self, seconds: float, start: float | None = None) -> None:
-        self.start = time.perf_counter() if start is None else start
-        self.seconds = seconds
-        self.deadline = self.start + seconds
-
-    def elapsed(self) -> float:
-        """Seconds since the start."""
-        return time.perf_counter() - self.start
-
-    def remaining(self) -> float:
-        """Seconds left (may be negative)."""
-        return self.deadline - time.perf_counter()
-
-    def expired(self) -> bool:
-        """Whether the cap has been reached."""
-        return time.perf_counter() >= self.deadline
-
-    def check(self, where: str) -> None:
-        """Raise :class:`BudgetExceeded` (naming ``where``) when the cap has been reached."""
-        if time.perf_counter() >= self.deadline:
-            raise BudgetExceeded(where)
 
 
 @dataclass
