@@ -50,20 +50,6 @@ PACKAGE_LAYERS = {
 }
 
 
-# The findings of 23d5b52, being removed (issue 33): this test fails on any import outside them;
-# the lists only shrink, and go once empty.
-KNOWN_UPWARD: set[tuple[str, str]] = set()
-KNOWN_IN_CYCLES = set(
-    """
-    synthesis.milp_faces synthesis.milp_model
-    """.split()
-)
-
-
-def strip(module: str) -> str:
-    return module.removeprefix("idstlpy.")
-
-
 def _module_name(path: Path) -> str:
     parts = list(path.relative_to(ROOT.parent).with_suffix("").parts)
     if parts[-1] == "__init__":
@@ -169,24 +155,13 @@ def upward_imports(g: dict[str, set[str]]) -> list[str]:
 
 
 def test_no_import_cycles():
-    found = [c for c in cycles(graph()) if not {strip(m) for m in c} <= KNOWN_IN_CYCLES]
+    found = cycles(graph())
     assert not found, f"{len(found)} import cycles: " + "; ".join(", ".join(c) for c in found)
 
 
 def test_no_import_against_the_layers():
-    g = graph()
-    g = {a: {b for b in g[a] if (strip(a), strip(b)) not in KNOWN_UPWARD} for a in g}
-    found = upward_imports(g)
+    found = upward_imports(graph())
     assert not found, f"{len(found)} imports against the layers:\n" + "\n".join(found)
-
-
-def test_the_known_findings_are_still_there():
-    """A removed finding leaves the list too (the lists only shrink)."""
-    g = graph()
-    gone = {(a, b) for a, b in KNOWN_UPWARD if f"idstlpy.{b}" not in g[f"idstlpy.{a}"]}
-    assert not gone, f"remove from KNOWN_UPWARD: {sorted(gone)}"
-    in_cycles = {strip(m) for c in cycles(g) for m in c}
-    assert not KNOWN_IN_CYCLES - in_cycles, f"remove: {sorted(KNOWN_IN_CYCLES - in_cycles)}"
 
 
 def test_every_layer_has_modules_and_the_package_sits_on_top():

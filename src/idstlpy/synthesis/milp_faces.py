@@ -20,8 +20,7 @@ from ..chance import std_terms
 from .milp_bounds import hard_steps, invariant_box, margin_cap, state_boxes, support, support_points
 
 if TYPE_CHECKING:
-    # Annotations only: milp_model builds the model and calls chance_rows.
-    from .milp_model import Columns, MILPSpec, RowBlocks
+    from .milp_spec import Columns, MILPSpec, RowBlocks
 
 __all__ = ["FacePart", "chance_rows"]
 

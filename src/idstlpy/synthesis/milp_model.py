@@ -21,22 +21,18 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import chain
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, hstack, vstack
 
 from ..backends import LinearModel
 from .bmc import BMCEncoder
-from .interfaces import Budget
 from .milp_bounds import contains_zero
 from .milp_faces import chance_rows
-from .plan_lp import PlanLPContext, PlanRows, build_plan_rows
-
-if TYPE_CHECKING:
-    from .options import Objective
+from .milp_spec import Columns, MILPSpec, RowBlocks
+from .plan_lp import PlanRows, build_plan_rows
 
 __all__ = ["Columns", "MILPModel", "MILPSpec", "RowBlocks", "build_milp", "clique_cover", "exclusion_cliques"]
 
@@ -44,60 +40,6 @@ __all__ = ["Columns", "MILPModel", "MILPSpec", "RowBlocks", "build_milp", "cliqu
 logger = logging.getLogger("idstlpy.synthesis.milp")
 
 _EFFORT_FEAS_TOL = 1e-9  # the rows of the effort MILP hold within this (see build_milp)
-
-
-@dataclass(frozen=True)
-class MILPSpec:
-    """What one eager MILP is built from.
-
-    Attributes
-    ----------
-    enc : BMCEncoder
-        The proposer's current encoding (its proven clauses; abandoned ones are switched off).
-    context : PlanLPContext
-        The system, control domain, prior, abstraction and scaling (as for every plan LP).
-    budget : Budget
-    objective : {None, "effort", "margin", "time"}
-    effort_weights : ndarray, shape (m,), optional
-        Per-input weights of ``"effort"`` (default ones).
-    """
-
-    enc: BMCEncoder
-    context: PlanLPContext
-    budget: Budget
-    objective: Objective | None = None
-    effort_weights: np.ndarray | None = None
-
-
-@dataclass(frozen=True)
-class Columns:
-    """The model's column blocks: letters and gates, means, inputs, margin, absolute inputs."""
-
-    nb: int
-    nx: int
-    nu: int
-    nt: int
-    na: int
-
-    @property
-    def tcol(self) -> int:
-        """The margin's column (when ``nt``)."""
-        return self.nb + self.nx + self.nu
-
-    @property
-    def acol(self) -> int:
-        """The first absolute-input column (when ``na``)."""
-        return self.tcol + self.nt
-
-    @property
-    def nvar(self) -> int:
-        """Columns in all."""
-        return self.acol + self.na
-
-    @property
-    def inputs(self) -> slice:
-        """The scaled inputs' columns."""
-        return slice(self.nb + self.nx, self.nb + self.nx + self.nu)
 
 
 @dataclass(frozen=True)
@@ -122,24 +64,6 @@ class MILPModel:
     face_rows: list[tuple[int, int]]
     t_cap: float
     t_sound: bool
-
-
-@dataclass
-class RowBlocks:
-    """The model's row blocks as they are built, with their lower and upper sides."""
-
-    blocks: list[csr_matrix] = field(default_factory=list)
-    lo: list[np.ndarray] = field(default_factory=list)
-    hi: list[np.ndarray] = field(default_factory=list)
-
-    @property
-    def count(self) -> int:
-        return sum(b.shape[0] for b in self.blocks)
-
-    def add(self, block: csr_matrix, lo: np.ndarray, hi: np.ndarray) -> None:
-        self.blocks.append(block)
-        self.lo.append(lo)
-        self.hi.append(hi)
 
 
 _CLIQUE_GAIN = 3  # a step's exclusions become cliques when that takes at most a third of the rows
