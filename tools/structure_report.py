@@ -3,9 +3,10 @@
 Run ``python tools/structure_report.py`` (``make lint`` does). It prints, for the package:
 
 * modules over ``--module-lines`` lines (default 500);
-* in the layers held to the tighter rules (``synthesis``, ``executor``, ``execution``): functions
-  over ``--function-lines`` lines (default 80) or with more than ``--params`` parameters (default
-  10, ``self``/``cls`` not counted).
+* in the layers held to the tighter rules (``synthesis``, ``executor``, ``execution``, and the
+  executor's root modules ``closed_loop``, ``loop_moments``, ``loop_samples``, ``tracking``, as
+  ``tests/test_layers.py`` assigns them): functions over ``--function-lines`` lines (default 80)
+  or with more than ``--params`` parameters (default 10, ``self``/``cls`` not counted).
 
 It reports; it does not fail (exit 0), unless ``--strict`` is given, so the numbers can be tracked
 while the redesign goes on.
@@ -20,6 +21,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent / "src" / "idstlpy"
 LAYERS = ("synthesis", "executor", "execution")
+EXECUTOR_ROOT_MODULES = ("closed_loop.py", "loop_moments.py", "loop_samples.py", "tracking.py")
 
 
 def _functions(tree: ast.AST) -> list[ast.FunctionDef | ast.AsyncFunctionDef]:
@@ -42,7 +44,8 @@ def report(module_lines: int, function_lines: int, params: int) -> list[str]:
         n = text.count("\n")
         if n > module_lines:
             out.append(f"{rel}: module of {n} lines (> {module_lines})")
-        if not any(part in LAYERS for part in rel.parts):
+        core = any(part in LAYERS for part in rel.parts)
+        if not (core or (len(rel.parts) == 2 and rel.name in EXECUTOR_ROOT_MODULES)):
             continue
         for fn in _functions(ast.parse(text)):
             length = (fn.end_lineno or fn.lineno) - fn.lineno + 1
