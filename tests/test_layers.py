@@ -25,7 +25,10 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+import pytest
+
 import idstlpy
+import idstlpy.scenarios
 
 ROOT = Path(idstlpy.__file__).parent
 
@@ -203,3 +206,64 @@ if __name__ == "__main__":  # the current findings, for tracking the work
     up = upward_imports(g)
     print("\n".join(up))
     print(f"{len(cycles(g))} cycles, {len(up)} imports against the layers")
+
+
+def test_moved_names_keep_their_former_paths():
+    """Issue 33 moved code to its layer; the former import paths name the same objects."""
+    import idstlpy.label_semantics as label_semantics
+    import idstlpy.lqr as lqr
+    import idstlpy.problem as model_problem
+    import idstlpy.synthesis.interfaces as interfaces
+    import idstlpy.synthesis.milp_model as milp_model
+    import idstlpy.synthesis.plan as plan
+    import idstlpy.synthesis.problem as synthesis_problem
+    import idstlpy.tracking as tracking
+
+    assert idstlpy.Problem is synthesis_problem.Problem is model_problem.Problem
+    assert tracking.finite_horizon_lqr is lqr.finite_horizon_lqr is idstlpy.finite_horizon_lqr
+    assert tracking.riccati_costs is lqr.riccati_costs
+    assert plan.evaluate_bool is label_semantics.evaluate_bool
+    assert plan.extract_witness is label_semantics.extract_witness
+    assert {"Budget", "BudgetExceeded"} <= set(interfaces.__all__)
+    assert {"Columns", "MILPSpec", "RowBlocks"} <= set(milp_model.__all__)
+
+
+def test_problem_solve_runs_the_solver_synthesis_registered(monkeypatch):
+    """``Problem.solve_result`` hands its options and the arguments given to the registered solver,
+    and keeps what it returns as ``last_result``."""
+    import idstlpy.problem as model_problem
+    from idstlpy.synthesis.problem import _registered
+
+    assert model_problem._SOLVER["solve"] is _registered
+    problem = idstlpy.scenarios.reach_avoid(5)
+    calls = []
+
+    def solver(p, options, /, **overrides):
+        calls.append((p, options, overrides))
+        return "outcome"
+
+    monkeypatch.setitem(model_problem._SOLVER, "solve", solver)
+    options = idstlpy.SolverOptions()
+    assert problem.solve_result(3.0, seed=4, options=options, max_candidates=2) == "outcome"
+    assert calls == [(problem, options, {"rrt_timeout": 3.0, "seed": 4, "max_candidates": 2})]
+    assert problem.last_result == "outcome"
+
+
+def test_the_executor_takes_a_problem_by_its_class_not_its_attributes():
+    from types import SimpleNamespace
+
+    from idstlpy.errors import InvalidTypeError
+    from idstlpy.executor import OnlineExecutor
+
+    problem = idstlpy.scenarios.reach_avoid(5)
+    plan = idstlpy.rollout(problem.switched_system, problem.initial_state, [0, 0], [[0.0, 0.0]] * 2)
+    assert OnlineExecutor(problem, plan).spec.control_domain is problem.control_domain
+    look_alike = SimpleNamespace(
+        switched_system=problem.switched_system,
+        stl_formula=problem.stl_formula,
+        control_domain=problem.control_domain,
+    )
+    with pytest.raises(InvalidTypeError, match="source must be a Problem"):
+        OnlineExecutor(look_alike, plan)  # type: ignore[arg-type]
+    with pytest.raises(InvalidTypeError, match="problem_or_system must be a Problem"):
+        idstlpy.predict_closed_loop(look_alike, plan, samples=10)  # type: ignore[arg-type]
