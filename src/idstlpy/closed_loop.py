@@ -235,7 +235,8 @@ def correction_spread(loop: ClosedLoopMoments, H: np.ndarray) -> np.ndarray:
     N, n = loop.K.shape[0], loop.K.shape[2]
     HK = np.einsum("fi,kij->kfj", H, loop.K)  # (N, F, n)
     S_eta = loop.cov[:N, n : 2 * n, n : 2 * n]
-    return np.sqrt(np.maximum(np.einsum("kfi,kij,kfj->kf", HK, S_eta, HK), 0.0))
+    sd: np.ndarray = np.sqrt(np.maximum(np.einsum("kfi,kij,kfj->kf", HK, S_eta, HK), 0.0))
+    return sd
 
 
 TRACKABLE_Z = 1.0

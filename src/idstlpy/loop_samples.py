@@ -34,7 +34,8 @@ __all__ = [
 def sqrt_psd(S: np.ndarray) -> np.ndarray:
     """A square root ``T`` with ``T T' = S`` for a symmetric PSD ``S`` (eigenvalues clipped at 0)."""
     w, V = np.linalg.eigh(0.5 * (S + S.T))
-    return V * np.sqrt(np.maximum(w, 0.0))
+    root: np.ndarray = V * np.sqrt(np.maximum(w, 0.0))
+    return root
 
 
 @functools.lru_cache(maxsize=16)
@@ -98,7 +99,8 @@ class NoiseInterpolant:
         """``E[n(x) n(x)']`` under ``N(c, T T')`` by the nodes' Gauss-Hermite rule: shape (p, p)."""
         r = self.inv.shape[0]
         w = cubature(r)[1] if r else np.ones(1)
-        return np.einsum("g,gpq,grq->pr", w, self.values, self.values)
+        mean: np.ndarray = np.einsum("g,gpq,grq->pr", w, self.values, self.values)
+        return mean
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         """``n(x)`` for samples ``X`` (S, n): shape (S, p, q)."""
@@ -115,7 +117,8 @@ class NoiseInterpolant:
         for i in range(1, r):
             wts = (wts[:, None, :] * lag[i][None, :, :]).reshape(-1, S)
         G, p, q = self.values.shape
-        return (self.values.reshape(G, p * q).T @ wts).T.reshape(S, p, q)
+        out: np.ndarray = (self.values.reshape(G, p * q).T @ wts).T.reshape(S, p, q)
+        return out
 
 
 _CHECKED = 64
@@ -265,7 +268,7 @@ class LoopStep:
             if Z.shape[1] > 2 * n:
                 out[:, 2 * n :] = Z[:, 2 * n :]
             return out
-        Pk = self.P_prev + Z[:, 2 * n :].reshape(S, n, n)  # type: ignore[operator]
+        Pk = self.P_prev + Z[:, 2 * n :].reshape(S, n, n)
         P_pred = self.A @ Pk @ self.A.T + self.Qp
         nf = noise(m_next + eta_pred)  # the filter's R at its own predicted mean
         R = nf @ np.swapaxes(nf, 1, 2)

@@ -235,7 +235,7 @@ def tracking_input(
     -------
     ndarray, shape (S, m)
     """
-    u = v - deviation @ K.T
+    u: np.ndarray = v - deviation @ K.T
     if low is not None and high is not None:
         u = np.clip(u, low, high)
     return u
