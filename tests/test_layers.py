@@ -199,15 +199,6 @@ def test_the_check_counts_type_only_and_local_imports(tmp_path):
     assert upward_imports({"idstlpy.executor.mod": got}), "an executor importing synthesis"
 
 
-if __name__ == "__main__":  # the current findings, for tracking the work
-    g = graph()
-    for c in cycles(g):
-        print(f"cycle of {len(c)} modules:", ", ".join(c))
-    up = upward_imports(g)
-    print("\n".join(up))
-    print(f"{len(cycles(g))} cycles, {len(up)} imports against the layers")
-
-
 def test_moved_names_keep_their_former_paths():
     """Issue 33 moved code to its layer; the former import paths name the same objects."""
     import idstlpy.label_semantics as label_semantics
@@ -267,3 +258,20 @@ def test_the_executor_takes_a_problem_by_its_class_not_its_attributes():
         OnlineExecutor(look_alike, plan)  # type: ignore[arg-type]
     with pytest.raises(InvalidTypeError, match="problem_or_system must be a Problem"):
         idstlpy.predict_closed_loop(look_alike, plan, samples=10)  # type: ignore[arg-type]
+
+
+if __name__ == "__main__":  # the findings, and the imports between layers as a table
+    g = graph()
+    for c in cycles(g):
+        print(f"cycle of {len(c)} modules:", ", ".join(c))
+    up = upward_imports(g)
+    print("\n".join(up))
+    print(f"{len(cycles(g))} cycles, {len(up)} imports against the layers")
+    counts = [[0] * len(LAYER_NAMES) for _ in LAYER_NAMES]
+    for a, targets in g.items():
+        for b in targets:
+            counts[layer(a)][layer(b)] += 1
+    print("\nmodule imports, importer's layer (row) -> imported layer (column):")
+    print(f"{'':>12}" + "".join(f"{name[:10]:>12}" for name in LAYER_NAMES))
+    for i, row in enumerate(counts):
+        print(f"{LAYER_NAMES[i][:10]:>12}" + "".join(f"{k:>12}" for k in row))
