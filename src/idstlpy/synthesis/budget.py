@@ -1,22 +1,17 @@
-"""The wall-clock safety cap of one solve (:class:`Budget`) and its unwinding (:class:`BudgetExceeded`).
+"""The wall-clock safety cap of one solve (:class:`Budget`).
 
 A leaf of the synthesis layer: every part (encoding, LPs, sampling, covariance floors) takes a
-:class:`Budget`, so this module imports nothing of the package; :mod:`.interfaces` re-exports both.
+:class:`Budget`, so this module imports only :class:`~idstlpy._deadline.BudgetExceeded` (a leaf of
+the model, which the loops of every layer may raise); :mod:`.interfaces` re-exports both.
 """
 
 from __future__ import annotations
 
 import time
 
+from .._deadline import BudgetExceeded
+
 __all__ = ["Budget", "BudgetExceeded"]
-
-
-class BudgetExceeded(Exception):
-    """Internal: the overall wall-clock cap was hit (caught by the loop, never seen by users)."""
-
-    def __init__(self, where: str) -> None:
-        super().__init__(where)
-        self.where = where
 
 
 class Budget:
