@@ -11,7 +11,7 @@ Under ``closure="particles"`` the moments are those of samples pushed through th
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -23,7 +23,7 @@ from .dynamical_system import LCS, SwitchedSystem
 from .errors import InvalidArgumentError
 from .loop_samples import LoopStep, NoiseInterpolant, ParticleCloud, SensorDraw, cubature, sqrt_psd
 from .sets import Polytope
-from .tracking import box_bounds, gain_at
+from .tracking import box_bounds, control_projector, gain_at
 from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = ["ClosedLoopMoments", "prob_le", "propagate", "sqrt_psd", "step_parts"]
@@ -163,7 +163,10 @@ class ClosedLoopMoments:
     whether the ``n^2`` filter-sensitivity coordinates are carried; ``steps``: the per-step maps
     on samples (:class:`LoopStep`); ``closure``: how the moments were closed (``"gaussian"``:
     the clip linearised statistically; ``"particles"``: the moments of samples propagated through
-    the clip, ``F, g, Q`` their statistical linear regression).
+    the clip, ``F, g, Q`` their statistical linear regression); ``unmodelled_projection``: the
+    inputs are projected on a control domain that is not a box and the moments (Gaussian
+    closure) are those of the loop without the projection (``clip`` bounds, per step, the
+    probability that it acts; ``steps`` apply it).
     """
 
     mean: np.ndarray  # (L, D)
@@ -178,6 +181,7 @@ class ClosedLoopMoments:
     sensitivity: bool
     steps: list[LoopStep] | None = None
     closure: str = "gaussian"
+    unmodelled_projection: bool = False
 
 
 def _noise_cov_jacobian(mode: LCS, x: np.ndarray) -> np.ndarray:
@@ -246,8 +250,11 @@ def propagate(
         Gauss-Markov model has the samples' per-step moments and one-step covariances.
         With a state-dependent sensor the samples also draw its noise at their own true state
         and run their own filter (:class:`LoopStep`): the skew such a sensor gives the loop is
-        kept. ``"auto"``: particles under a state-dependent sensor or when a box clips the input
-        with probability above 1% at some step, the (exact) Gaussian closure otherwise.
+        kept. Under a control domain that is not a box, the Gaussian closure's moments are the
+        unprojected loop's (:attr:`ClosedLoopMoments.unmodelled_projection`; the particles and
+        the steps project each sample as the executor does). ``"auto"``: particles under a
+        state-dependent sensor or when the control domain (a box or any polytope) takes the
+        input with probability above 1% at some step, the Gaussian closure otherwise.
     particles : int
     seed : int
 
@@ -271,7 +278,7 @@ def propagate(
             closure = "gaussian"
         elif state_dependent:
             closure = "particles"
-        elif box is None:
+        elif domain is None:
             closure = "gaussian"
         else:
             first = propagate(
@@ -282,10 +289,12 @@ def propagate(
                 return first
             closure = "particles"
     sens = filter_sensitivity and state_dependent
+    # a polytope that is not a box: the executor's projection, applied to every sample
+    project = control_projector(domain, m) if domain is not None and box is None else None
     run = _Run(
         system, plan, real_modes, gains, process_noise, sensor_noise, domain, box, sens,
         2 * n + (n * n if sens else 0), closure == "particles" and N > 0, particles,
-        cubature(n) if sensor_noise == "expected" else None, np.random.default_rng(seed),
+        cubature(n) if sensor_noise == "expected" else None, np.random.default_rng(seed), project,
     )  # fmt: skip
     if (
         N > 0
@@ -321,6 +330,7 @@ class _Run:
     particles: int
     cub: tuple[np.ndarray, np.ndarray] | None  # the cubature of sensor_noise="expected"
     rng: np.random.Generator
+    project: Callable[[np.ndarray], np.ndarray] | None  # the projection on a non-box domain
     # What does not change within a call, read once (the planner propagates hundreds of loops a
     # solve, each a few dozen steps of small matrices: the per-step overhead is the cost).
     _parts: dict[tuple[int, int], _Parts] = field(init=False, default_factory=dict)
@@ -360,6 +370,7 @@ class _Run:
         )
         out.mean[0, : 2 * n], out.cov[0, : 2 * n, : 2 * n], out.P[0] = z0, S0, P0
         out.closure = "particles" if self.use_particles else "gaussian"
+        out.unmodelled_projection = self.project is not None and not self.use_particles
         out.steps = []
         return out
 
@@ -486,7 +497,7 @@ class _Run:
             LoopStep(
                 K=pt.K, v=v[k], low=low, high=high, Ar=pt.real.A, Br=pt.real.B, A=pt.mode.A,
                 B=pt.mode.B, d=d[k], r=r[k], LC=LCs[k], Lk=Ls[k], W_root=pt.W_root, R_root=roots[k],
-                sens=None,
+                sens=None, project=self.project,
             )
             for k, pt in enumerate(parts)
         ]  # fmt: skip
@@ -531,7 +542,7 @@ class _Run:
             # The filter's predicted mean is m_next + eta_pred, eta_pred = A_eta eta + B c_u - r + B e.
             eta_pred_mean = A_eta @ eta + mode.B @ c_u - r
             if cloud is not None:
-                eta_pred_mean = cloud.predicted_eta(mode, Kt, v, self.box, n) - r
+                eta_pred_mean = cloud.predicted_eta(mode, Kt, v, self.box, n, self.project) - r
             x_lin = m_next + eta_pred_mean
         Lk, P_next, LC = _filter(mode, P, x_lin, n, self._eye)
         lin = _Linear(mode, real, K_eff, c_u, E, r, d, LC, Lk, A_eta, m_next, x_lin, state_dep)
@@ -551,6 +562,7 @@ class _Run:
             S_pre[n : 2 * n, n : 2 * n] += LRL
         S = 0.5 * (S_pre + S_pre.T)
         step = lin.loop_step(Kt, v, self.box, F, J, parts, R_true, self.sens)
+        step.project = self.project
         if noise is not None:
             step.noise = noise
             step.m_next, step.C, step.Qp = m_next, mode.C, mode.process_cov

@@ -11,6 +11,7 @@ what :func:`idstlpy.closed_loop.propagate` propagates under ``closure="particles
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -209,6 +210,9 @@ class LoopStep:
     Qp: np.ndarray | None = None
     P_prev: np.ndarray | None = None
     P_next: np.ndarray | None = None
+    # The projection on a control domain that is not a box (the executor's own,
+    # :func:`~idstlpy.tracking.control_projector`); a box is ``low``/``high``.
+    project: Callable[[np.ndarray], np.ndarray] | None = None
 
     def advance(self, Z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Samples (S, D) of ``z_k`` -> samples of ``z_{k+1}`` (fresh noise from ``rng``).
@@ -242,6 +246,8 @@ class LoopStep:
         n = self.A.shape[0]
         delta, eta = Z[:, :n], Z[:, n : 2 * n]
         y = tracking_input(self.v, self.K, eta, self.low, self.high)
+        if self.project is not None:
+            y = self.project(y)
         c = y - self.v
         delta_n = delta @ self.Ar.T + c @ self.Br.T + self.d
         if self.W_root.size:
@@ -340,12 +346,21 @@ class ParticleCloud:
         return ParticleCloud(Zp, zc, Xc, Xc.T @ Xc / particles, particles)
 
     def predicted_eta(
-        self, mode: LCS, Kt: np.ndarray, v: np.ndarray, box: tuple[np.ndarray, np.ndarray] | None, n: int
+        self,
+        mode: LCS,
+        Kt: np.ndarray,
+        v: np.ndarray,
+        box: tuple[np.ndarray, np.ndarray] | None,
+        n: int,
+        project: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> np.ndarray:
-        """The samples' mean filter prediction deviation, before ``- r``."""
+        """The samples' mean filter prediction deviation, before ``- r`` (inputs clipped to
+        ``box`` or projected by ``project``)."""
         y_p = v - self.Zp[:, n : 2 * n] @ Kt.T
         if box is not None:
             y_p = np.clip(y_p, box[0], box[1])
+        elif project is not None:
+            y_p = project(y_p)
         out: np.ndarray = (self.Zp[:, n : 2 * n] @ mode.A.T + (y_p - v) @ mode.B.T).mean(axis=0)
         return out
 

@@ -32,6 +32,7 @@ __all__ = [
     "DEFAULT_LQR",
     "box_bounds",
     "control_projector",
+    "PolytopeProjection",
     "finite_horizon_lqr",
     "mode_gains",
     "riccati_costs",
@@ -94,10 +95,18 @@ def mode_gains(
 
 
 def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray], np.ndarray]:
-    """A function mapping an input to its Euclidean projection on ``domain`` (identity for None).
+    """A function mapping inputs to their Euclidean projection on ``domain`` (identity for None).
 
-    Boxes (every face touches one coordinate) are clipped exactly; other polytopes use a small
-    quadratic program (SLSQP) only when the input lies outside.
+    The one projection of the executor (:meth:`idstlpy.executor.law.StepLaw.control`) and of the
+    prediction's samples (:class:`idstlpy.loop_samples.LoopStep`), so that the prediction pushes
+    its samples through exactly the map the executor applies.
+
+    Boxes (every face touches one coordinate) are clipped per coordinate (``np.clip``). Other
+    polytopes: an input inside is returned as it is; one outside gets the solution of
+    ``min ||z - u||^2 s.t. H z + c <= 0``, as the least-distance programme
+    ``min ||x|| s.t. -H x >= H u + c`` (``z = u + x``) solved by Lawson and Hanson's
+    non-negative least squares (:func:`scipy.optimize.nnls`: an active-set method that ends
+    at the exact solution in finitely many steps; *Solving Least Squares Problems*, ch. 23).
 
     Parameters
     ----------
@@ -105,6 +114,17 @@ def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray],
         Admissible inputs ``{u : H u + c <= 0}`` of dimension ``m``.
     m : int
         Input dimension.
+
+    Returns
+    -------
+    callable
+        ``project(u)``: ``u`` of shape (m,) or (S, m) (one input per row) to the projections,
+        same shape.
+
+    Raises
+    ------
+    InvalidArgumentError
+        When ``domain`` is empty.
     """
     if domain is None:
         return lambda u: u
@@ -112,30 +132,114 @@ def control_projector(domain: Polytope | None, m: int) -> Callable[[np.ndarray],
         raise InvalidTypeError(f"control_domain must be a Polytope or None, got {type(domain).__name__}")
     if domain.dim != m:
         raise DimensionError(f"control_domain has dimension {domain.dim}, the system has m = {m} inputs")
-    H, c = domain.H, domain.c
     box = box_bounds(domain, m)
     if box is not None:
         low, high = box
         if np.any(low > high):
             raise InvalidArgumentError("control_domain is empty: no admissible input")
         return lambda u: np.clip(u, low, high)
+    if domain.is_empty():
+        raise InvalidArgumentError("control_domain is empty: no admissible input")
+    return PolytopeProjection(domain.H, domain.c)
 
-    from scipy.optimize import minimize
 
-    def project(u: np.ndarray) -> np.ndarray:
-        if np.all(H @ u + c <= 1e-12):
-            return u
-        start = domain.chebyshev_center()[0]
-        res = minimize(
-            lambda z: 0.5 * float((z - u) @ (z - u)),
-            start,
-            jac=lambda z: z - u,
-            constraints=[{"type": "ineq", "fun": lambda z: -(H @ z + c), "jac": lambda z: -H}],
-            method="SLSQP",
-        )
-        return np.asarray(res.x, dtype=float)
+class PolytopeProjection:
+    """The Euclidean projection on ``{u : H u + c <= 0}`` (see :func:`control_projector`).
 
-    return project
+    Many inputs at once (the executor's runs, the prediction's samples): the projection of an
+    input outside is ``z = u - H_A' lam`` for the set ``A`` of faces active at ``z``, with
+    ``lam = (H_A H_A')^-1 (H_A u + c_A)``, and a candidate ``z`` is the projection exactly when
+    it satisfies the optimality conditions of the convex programme (``lam >= 0``,
+    ``H z + c <= 0``). The candidate sets of one face, then of two, ... up to ``m`` linearly
+    independent faces (at most :attr:`MAX_CANDIDATES`) are checked for all rows at once; a row
+    none of them settles (a degenerate vertex, many faces) is solved by
+    :func:`scipy.optimize.nnls` on its least-distance programme (:meth:`one`).
+
+    Parameters
+    ----------
+    H : ndarray, shape (F, m)
+    c : ndarray, shape (F,)
+    """
+
+    INSIDE_TOL = 1e-12
+    """An input whose every face's value (rows of ``H`` scaled to unit norm) is at most this is
+    inside and returned unchanged (the executor's rule since the projection was introduced)."""
+
+    KKT_TOL = 1e-10
+    """Slack of the optimality check of a candidate active set (unit-norm faces: a distance)."""
+
+    MAX_CANDIDATES = 256
+
+    def __init__(self, H: np.ndarray, c: np.ndarray) -> None:
+        from itertools import combinations
+
+        norms = np.linalg.norm(H, axis=1)
+        keep = norms > 0  # a row 0 u + c <= 0 constrains nothing (or empties the set: checked before)
+        self.H = H[keep] / norms[keep, None]
+        self.c = c[keep] / norms[keep]
+        self.m = H.shape[1]
+        # (faces, (H_A H_A')^-1 and H_A) of every candidate active set, fewest faces first
+        self.candidates: list[tuple[list[int], np.ndarray, np.ndarray]] = []
+        F = self.H.shape[0]
+        for size in range(1, min(self.m, F) + 1):
+            for A in combinations(range(F), size):
+                HA = self.H[list(A)]
+                G = HA @ HA.T
+                if np.linalg.cond(G) > 1e8:  # dependent faces: left to the solver
+                    continue
+                self.candidates.append((list(A), np.linalg.inv(G), HA))
+                if len(self.candidates) >= self.MAX_CANDIDATES:
+                    break
+            if len(self.candidates) >= self.MAX_CANDIDATES:
+                break
+
+    def __eq__(self, other: object) -> bool:
+        """The same projection: the same (normalised) faces."""
+        if not isinstance(other, PolytopeProjection):
+            return NotImplemented
+        return np.array_equal(self.H, other.H) and np.array_equal(self.c, other.c)
+
+    __hash__ = None  # type: ignore[assignment]  # mutable arrays: not hashable
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """Project ``u``, shape (m,) or (S, m) (one input per row); the same shape."""
+        U = np.asarray(u, dtype=float)
+        rows = U.reshape(-1, self.m)
+        values = rows @ self.H.T + self.c  # (S, F)
+        outside = np.flatnonzero(np.any(values > self.INSIDE_TOL, axis=1))
+        if not outside.size:
+            return U
+        out = rows.copy()
+        todo = outside
+        for A, Ginv, HA in self.candidates:
+            lam = values[todo][:, A] @ Ginv.T  # (T, |A|)
+            z = rows[todo] - lam @ HA
+            ok = np.all(lam >= -self.KKT_TOL, axis=1) & np.all(z @ self.H.T + self.c <= self.KKT_TOL, axis=1)
+            out[todo[ok]] = z[ok]
+            todo = todo[~ok]
+            if not todo.size:
+                break
+        for i in todo.tolist():
+            out[i] = self.one(rows[i], values[i])
+        return out.reshape(U.shape)
+
+    def one(self, u: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """The projection of one input ``u`` (m,) outside, ``values = H u + c`` (F,): the
+        least-distance programme ``min ||x|| s.t. -H x >= values`` by non-negative least squares
+        (Lawson and Hanson, ch. 23), ``u + x``."""
+        from scipy.optimize import nnls
+
+        m = self.m
+        E = np.empty((m + 1, self.H.shape[0]))
+        E[:m] = -self.H.T
+        E[m] = values
+        f = np.zeros(m + 1)
+        f[m] = 1.0
+        w, _ = nnls(E, f)
+        r = E @ w - f
+        if not r[m] < 0.0:  # pragma: no cover - an empty domain is refused when built
+            raise InvalidArgumentError("control_domain is empty: the input has no projection on it")
+        return u - r[:m] / r[m]
 
 
 def box_bounds(domain: Polytope | None, m: int) -> tuple[np.ndarray, np.ndarray] | None:

@@ -143,7 +143,7 @@ class StepLaw:
         if box is not None or self.spec.control_domain is None:  # a clip (or nothing) on every row
             low, high = box if box is not None else (None, None)
             return tracking_input(st.input, st.K, means - st.mean, low, high)
-        return np.stack([self.spec.project(u) for u in tracking_input(st.input, st.K, means - st.mean)])
+        return self.spec.project(tracking_input(st.input, st.K, means - st.mean))  # rows at once
 
     def plant(self, k: int, states: np.ndarray, inputs: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The true states (S, n) after step ``k`` from ``states`` (S, n) under ``inputs`` (S, m)."""

@@ -1,6 +1,8 @@
 """Point estimates of an execution's rates by sampling the predicted closed loop.
 
-The Gaussian model (or, under the particle closure, the clipped loop itself) is sampled; on
+The Gaussian model (or, under the particle closure or a control domain that is not a box, the
+loop itself with the executor's clip or projection, :class:`~idstlpy.loop_samples.LoopStep`) is
+sampled; on
 every sampled trajectory the chance constraints are judged as ``validate`` judges the executed
 belief and the true state, giving the rates it measures (a constraint broken at some promised
 step, the formula's success) and a Clopper-Pearson lower bound on the success.
@@ -63,8 +65,11 @@ def _sample_events(
     const = {r: faces.mu[r] - np.einsum("kfd,kd->kf", faces.a[r], loop.mean) for r in ok}
     z = loop.mean[0] + rng.standard_normal((size, D)) @ roots[0].T
     clipped = loop.closure == "particles" and loop.steps is not None
+    # the loop itself: the particles' (the Gauss-Markov model is its regression), or the inputs'
+    # projection on a non-box domain, which the Gaussian closure's moments leave out
+    through = loop.steps is not None and (clipped or loop.unmodelled_projection)
     for k in range(L):
-        if k and clipped:  # the clipped loop itself (the Gauss-Markov model is its regression)
+        if k and through:
             z = loop.steps[k - 1].advance(z, rng)  # type: ignore[index]
         elif k:
             z = z @ loop.F[k - 1].T + loop.g[k - 1] + rng.standard_normal((size, D)) @ roots[k].T

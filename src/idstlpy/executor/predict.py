@@ -24,12 +24,20 @@ What is exact and what is approximated
 --------------------------------------
 - **Constant sensor noise, inputs never clipped**: the filter's gains and covariances do not
   depend on the observations, so the prediction is the exact distribution of the execution.
-- **Clipped inputs.** ``simulate`` projects ``v_k - K eta_k`` on the control domain. For a box
-  the clip is replaced by its statistical linearisation: exact mean of the clipped input, exact
-  cross-covariance with the loop (Stein's lemma: the gain becomes ``diag(P[inside]) K``), its
-  remaining variance as independent noise. Other polytopes are not modelled (a log warning says
-  how likely the projection is). :attr:`ClosedLoopPrediction.clip_probability` reports, per
-  step, an upper bound on the probability that the input is clipped.
+- **Clipped inputs.** ``simulate`` projects ``v_k - K eta_k`` on the control domain: a box
+  per coordinate (a clip), any other polytope by its Euclidean projection
+  (:func:`idstlpy.tracking.control_projector`, one function for the executor and the
+  prediction). Under the Gaussian closure a box's clip is replaced by its statistical
+  linearisation: exact mean of the clipped input, exact cross-covariance with the loop
+  (Stein's lemma: the gain becomes ``diag(P[inside]) K``), its remaining variance as
+  independent noise. A projection on another polytope has no such closed form: the Gaussian
+  closure's moments are the unprojected loop's, its point estimates are sampled through the
+  projection itself, and its lower bounds are the unprojected loop's minus the probability
+  that the input leaves the domain at some step (both loops agree on every run where it does
+  not: sound). The default ``"auto"`` closure takes particles, which apply the projection to
+  every sample, as soon as the input leaves a domain (box or not) with probability above 1%.
+  :attr:`ClosedLoopPrediction.clip_probability` reports, per step, an upper bound on the
+  probability that the input is clipped or projected.
 - **State-dependent sensor noise** ``R(x) = n(x) n(x)'`` is linearised around the plan, in three
   places. (1) The observation noise acting on the loop is ``n(x_{k+1}) v`` at the *true* state:
   ``sensor_noise="expected"`` (default) uses ``E[R(x_{k+1})]`` over the predicted true state
@@ -51,7 +59,7 @@ What is exact and what is approximated
   an input bound makes the clipped loop a rectifier (lags are not corrected and accumulate: the
   true state's spread was 3x the linearisation's on the sensor-switching plan), and a
   state-dependent sensor skews the true state toward the dark. Samples of ``z`` are then pushed
-  through the loop with the clip itself (``simulate``'s projection on the box), the process
+  through the loop with the clip or projection itself (``simulate``'s), the process
   noise of ``simulate``, each sample drawing the sensor's noise from the user's noise function
   at its own true state and, with ``filter_sensitivity``, running its own filter (``R`` at its
   own predicted mean, as ``simulate``'s filter evaluates it, its own covariance, whose deviation
@@ -99,7 +107,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from .._checks import as_int
-from ..closed_loop import ClosedLoopMoments, box_bounds, prob_le, propagate
+from ..closed_loop import ClosedLoopMoments, prob_le, propagate
 from ..dynamical_system import LCS, SwitchedSystem
 from ..formulas import STLAtomicProposition, STLFormula
 from ..semantics import atom_margins
@@ -154,13 +162,11 @@ def _moments(
         system, plan, N, s.real_modes, s.gains, s.process_noise, z0, S0, P0, s.sensor_noise, s.domain,
         s.filter_sensitivity, s.closure, s.particles,
     )  # fmt: skip
-    m = system.m
-    if s.domain is not None and box_bounds(s.domain, m) is None and N and loop.clip.max() > 0.01:
-        logger.warning(
-            "predict_closed_loop: the corrected input leaves the (non-box) control domain with "
-            "probability up to %.3g (step %d); its projection is not modelled",
-            float(loop.clip.max()),
-            int(np.argmax(loop.clip)),
+    if loop.unmodelled_projection and N:
+        logger.debug(
+            "predict_closed_loop: Gaussian moments without the projection on the control domain "
+            "(taken with probability at most %.3g over the plan); the rates are sampled through it",
+            min(1.0, float(loop.clip.sum())),
         )
     base: dict[str, Any] = {
         "num_of_steps": N,
@@ -247,7 +253,7 @@ def _with_formula(
         viol, prop_rates, estimate, sampled = sample_rates(
             loop, faces, samples, seed, formula, aps, mode_ok, plan_truth
         )
-        if loop.closure == "particles":  # the non-Gaussian loop's own per-step probabilities
+        if loop.closure == "particles" or loop.unmodelled_projection:  # the loop's own, sampled
             per_step = {r: sampled[r] for r in ("state", "belief")}
         prop_violation = {
             nm: {r: float(prop_rates[r][i]) for r in ("belief", "state")} for i, nm in enumerate(names)
@@ -263,6 +269,15 @@ def _with_formula(
         estimate["state"],
         estimate["belief"],
     )
+    if loop.unmodelled_projection:
+        # The bounds are the unprojected Gaussian loop's. Both loops driven by the same noise
+        # agree on every run where no input leaves the domain, so the executed loop succeeds with
+        # probability at least the bound minus the probability that an input leaves the domain
+        # at some step, at most the sum over steps of ``clip`` (each step's union bound over the
+        # faces, exact Gaussian probabilities of the unprojected loop).
+        leave = min(1.0, float(loop.clip.sum()))
+        state_bound = max(0.0, state_bound - leave)
+        belief_bound = max(0.0, belief_bound - leave)
     sampled_bound = {r: clopper_pearson_lower(estimate[r], samples) for r in ("belief", "state")}
     if loop.closure == "particles" and samples:
         belief_bound = min(belief_bound, sampled_bound["belief"])
@@ -353,12 +368,14 @@ def predict_closed_loop(
         - ``closure`` ({"auto", "gaussian", "particles"}): how the loop's non-linearities are
           modelled (:func:`idstlpy.closed_loop.propagate`): ``"gaussian"``: the clip of the
           corrected input on a box by its statistical linearisation and a state-dependent sensor
-          linearised (``sensor_noise``), the loop kept Gaussian; ``"particles"``: ``particles``
-          samples (seed 0, deterministic) pushed through the clip itself, each drawing the
-          sensor's noise at its own true state and running its own filter; the moments are
-          theirs and the point estimates are sampled from the same loop; ``"auto"`` (default):
-          particles under a state-dependent sensor or when the input is clipped with
-          probability above 1% at some step.
+          linearised (``sensor_noise``), the loop kept Gaussian (on a non-box domain the moments
+          leave the projection out; the estimates are sampled through it and the bounds
+          discounted by the probability that it acts, module notes); ``"particles"``:
+          ``particles`` samples (seed 0, deterministic) pushed through the clip or projection
+          itself, each drawing the sensor's noise at its own true state and running its own
+          filter; the moments are theirs and the point estimates are sampled from the same
+          loop; ``"auto"`` (default): particles under a state-dependent sensor or when the
+          input leaves the control domain with probability above 1% at some step.
         - ``particles`` (int, default 4000): samples of the particle closure.
 
     Returns
