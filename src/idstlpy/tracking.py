@@ -205,16 +205,21 @@ class PolytopeProjection:
         """Project ``u``, shape (m,) or (S, m) (one input per row); the same shape."""
         U = np.asarray(u, dtype=float)
         rows = U.reshape(-1, self.m)
-        values = rows @ self.H.T + self.c  # (S, F)
+        # Products as elementwise sums over the few inputs and faces, not BLAS products: a row's
+        # projection is then the same bits whatever the batch it comes in (one run, all runs,
+        # the prediction's samples), as a matrix kernel chosen by the batch's size would not give.
+        values = _rowdot(rows, self.H) + self.c  # (S, F)
         outside = np.flatnonzero(np.any(values > self.INSIDE_TOL, axis=1))
         if not outside.size:
             return U
         out = rows.copy()
         todo = outside
         for A, Ginv, HA in self.candidates:
-            lam = values[todo][:, A] @ Ginv.T  # (T, |A|)
-            z = rows[todo] - lam @ HA
-            ok = np.all(lam >= -self.KKT_TOL, axis=1) & np.all(z @ self.H.T + self.c <= self.KKT_TOL, axis=1)
+            lam = _rowdot(values[todo][:, A], Ginv)  # (T, |A|)
+            z = rows[todo] - _rowdot(lam, HA.T)
+            ok = np.all(lam >= -self.KKT_TOL, axis=1) & np.all(
+                _rowdot(z, self.H) + self.c <= self.KKT_TOL, axis=1
+            )
             out[todo[ok]] = z[ok]
             todo = todo[~ok]
             if not todo.size:
@@ -240,6 +245,14 @@ class PolytopeProjection:
         if not r[m] < 0.0:  # pragma: no cover - an empty domain is refused when built
             raise InvalidArgumentError("control_domain is empty: the input has no projection on it")
         return u - r[:m] / r[m]
+
+
+def _rowdot(X: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``X @ M.T`` for ``X`` (S, k) and ``M`` (F, k), each entry a sum of ``k`` products in order."""
+    out = X[:, :1] * M[None, :, 0]
+    for j in range(1, X.shape[1]):
+        out = out + X[:, j : j + 1] * M[None, :, j]
+    return out
 
 
 def box_bounds(domain: Polytope | None, m: int) -> tuple[np.ndarray, np.ndarray] | None:
