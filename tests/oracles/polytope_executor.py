@@ -279,13 +279,15 @@ def _to_boundary(H: np.ndarray, c: np.ndarray, d: np.ndarray) -> float:
     return float(np.min(-c[hd > 0] / hd[hd > 0]))
 
 
-def random_case(seed: int, family: str | None = None) -> PolytopeCase:
+def random_case(
+    seed: int, family: str | None = None, reach: tuple[float, float] = (0.55, 1.0)
+) -> PolytopeCase:
     """A random 2-D problem whose plan pushes its inputs toward the faces of a random polygon.
 
     Families of domain: ``"diamond"`` (``|u0| + |u1| <= a``), ``"cut_box"`` (a box with a corner
     cut by ``u0 +- u1 <= kappa a``), ``"polygon"`` (3-8 random faces around the origin). One or
-    two modes (the second may be blind); inputs at 55-100% of the way from the origin to the
-    boundary along one or two directions; the formula: a corridor around the plan's means the
+    two modes (the second may be blind); inputs at 55-100% (default) of the way from the origin to the
+    boundary (``reach``) along one or two directions; the formula: a corridor around the plan's means the
     whole time and a goal around its final mean over the last steps, at random margins (success
     rates spread over the whole range).
     """
@@ -318,7 +320,7 @@ def random_case(seed: int, family: str | None = None) -> PolytopeCase:
     controls = np.empty((N, 2))
     for k in range(N):
         d = dirs[0] if k < switch else dirs[1]
-        controls[k] = float(rng.uniform(0.55, 1.0)) * _to_boundary(Hu, cu, d) * d
+        controls[k] = float(rng.uniform(*reach)) * _to_boundary(Hu, cu, d) * d
     mean0 = rng.uniform(-1.0, 1.0, n)
     cov0 = float(rng.uniform(0.002, 0.03)) * np.eye(n)
     case = PolytopeCase(family, seed, modes, mean0, cov0, Hu, cu, actions, controls, [])
