@@ -12,7 +12,8 @@ Ground truth: ``tests/oracles/polytope_executor.py``, an executor written apart 
   closure and under the Gaussian one (whose moments leave the projection out: its estimates
   are sampled through it, its bounds discounted by the probability that it acts);
 - ``meets_target`` follows: a plan the unprojected loop predicts at 97% and the oracle measures
-  at 82% is reported below target; and the planner's judge reads the same prediction.
+  at 82% is reported below target; the planner's judge reads the same prediction, and
+  ``guarantee="closed_loop"`` checks plans on the projected (particle) loop.
 
 The big campaign (100 random problems, 4000 runs each) is ``benchmarks/polytope_domains.py``.
 """
@@ -36,10 +37,12 @@ from oracles.polytope_executor import (
 )
 
 import idstlpy as stl
+from idstlpy.closed_loop import predicted_state, projection_left_out, trackable
 from idstlpy.execution.prediction import predict_closed_loop
 from idstlpy.execution_target import ExecutionTarget
 from idstlpy.executor import ExecutorSpec
 from idstlpy.sets import Polytope
+from idstlpy.synthesis.closed_loop_plan import closed_loop_check
 from idstlpy.synthesis.predicted_execution import PredictedExecution
 from idstlpy.tracking import PolytopeProjection, control_projector
 
@@ -160,3 +163,25 @@ def test_the_planner_judges_with_the_projected_loop() -> None:
         est = getattr(ex, f"{reading}_estimate")
         assert abs(est - measured[reading]) <= Z * _sd(est, RUNS, ex.samples), (reading, est, measured)
         assert getattr(ex, f"{reading}_bound") <= measured[reading] + Z * _sd(measured[reading], RUNS)
+
+
+def test_the_closed_loop_guarantee_reads_the_projected_loop() -> None:
+    """``guarantee="closed_loop"`` checks a plan on the particle closure when the Gaussian one
+    leaves out a projection that acts (here on a plan that is trackable: the box rule alone would
+    have kept the Gaussian closure)."""
+    case = random_case(1, "diamond", (0.5, 0.8))
+    problem, plan = case.to_problem()
+    system, domain = problem.switched_system, problem.control_domain
+    assert trackable(system, plan, domain)
+    assert projection_left_out(system, plan, domain)
+    assert not projection_left_out(system, plan, None)
+    box = Polytope(np.vstack([np.eye(2), -np.eye(2)]), -0.3 * np.ones(4))  # clips, but is linearised
+    assert not projection_left_out(system, plan, box)
+    x = stl.mk_variable(2)
+    loose = stl.always(0, plan.num_of_steps, stl.prob(x[0] <= 1e3) >= 0.9)
+    predicted, margin, ok, tracks = closed_loop_check(system, plan, domain, loose)
+    assert ok and tracks and margin > 0
+    particles = predicted_state(system, plan, domain, closure="particles")
+    gaussian = predicted_state(system, plan, domain, closure="gaussian")
+    np.testing.assert_array_equal(predicted.get_cov(), particles.get_cov())
+    assert not np.allclose(predicted.get_cov(), gaussian.get_cov(), rtol=1e-3, atol=0.0)

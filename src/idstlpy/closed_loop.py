@@ -38,6 +38,7 @@ __all__ = [
     "box_bounds",
     "gains_for",
     "predicted_state",
+    "projection_left_out",
     "trackable",
     "tracking_backoff",
     "tracking_spread",
@@ -307,6 +308,37 @@ def trackable(
     backoff = tracking_backoff(system, plan, control_domain, z)
     lhs = plan.get_control()[:N] @ H.T + c[None, :] + backoff
     return bool(np.all(lhs <= 1e-9 * max(1.0, float(np.max(np.abs(c))))))
+
+
+def projection_left_out(
+    system: SwitchedSystem,
+    plan: ProbabilisticTSTrajectory,
+    control_domain: Polytope | None,
+    threshold: float = 0.01,
+) -> bool:
+    """Whether :func:`predicted_state`'s Gaussian closure leaves out a projection that matters.
+
+    On a control domain that is not a box the Gaussian closure's moments are those of the loop
+    without the projection (:attr:`~idstlpy.loop_moments.ClosedLoopMoments.unmodelled_projection`);
+    this is True when the corrected input leaves such a domain with probability above
+    ``threshold`` at some step (``"auto"``'s rule), so that the particle closure, which projects
+    every sample, must be read instead.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    plan : ProbabilisticTSTrajectory
+    control_domain : Polytope or None
+    threshold : float
+
+    Returns
+    -------
+    bool
+    """
+    if control_domain is None or not plan.num_of_steps:
+        return False
+    loop = _planning_loop(system, plan, control_domain, None, None, "gaussian")
+    return bool(loop.unmodelled_projection and float(loop.clip.max()) > threshold)
 
 
 def predicted_state(

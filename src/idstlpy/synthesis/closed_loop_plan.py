@@ -12,7 +12,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..closed_loop import TRACKABLE_Z, predicted_state, trackable, tracking_backoff, tracking_spread
+from ..closed_loop import (
+    TRACKABLE_Z,
+    predicted_state,
+    projection_left_out,
+    trackable,
+    tracking_backoff,
+    tracking_spread,
+)
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
@@ -91,7 +98,9 @@ def closed_loop_check(
         linearises the clipping of the correction, and is accurate where the inputs leave the
         correction room. A plan that is not is judged on the particle closure instead (samples
         pushed through the clip: a plan riding an input bound makes the clipped loop a rectifier
-        whose spread the linearisation under-states). The planner tries one repair of a passing
+        whose spread the linearisation under-states); so is a plan whose input leaves a
+        non-box domain with probability above 1% at some step
+        (:func:`idstlpy.closed_loop.projection_left_out`). The planner tries one repair of a passing
         plan that is not trackable and keeps it if the repair does not give a trackable one.
 
     Notes
@@ -110,7 +119,8 @@ def closed_loop_check(
         # The screen's verdict; trackability (a loop of its own) is not asked of a failing plan.
         return predicted, margin, False, False
     tracks = trackable(system, traj, control_domain)
-    if not tracks and control_domain is not None:
+    # a domain that is not a box: the Gaussian closure leaves its projection out (no closed form)
+    if control_domain is not None and (not tracks or projection_left_out(system, traj, control_domain)):
         predicted = predicted_state(system, traj, control_domain, closure="particles")
         margin = robustness(predicted, formula)
     return predicted, margin, margin >= 0, tracks
