@@ -102,7 +102,10 @@ class ClosedLoopPrediction:
         the true states satisfy the formula (NaN without a formula). Under ``closure ==
         "particles"`` the Gaussian model only matches the clipped loop's first two moments, and
         its bound is not sound for it (a rectifier's tails are heavier); with samples the bound
-        is then the smaller of the Gaussian one and the sampled bound below.
+        is then the smaller of the Gaussian one and the sampled bound below. Under the Gaussian
+        closure on a control domain that is not a box (whose projection the Gaussian moments
+        leave out) the bound is the unprojected loop's minus ``min(1, sum(clip_probability))``,
+        the probability that the projection acts at all: sound for the projected loop.
     belief_success_estimate, state_success_estimate : float
         Point estimates of the same probabilities by sampling the model (NaN without samples).
     belief_success_sampled_bound, state_success_sampled_bound : float
@@ -116,7 +119,8 @@ class ClosedLoopPrediction:
     closure : str
         ``"gaussian"`` or ``"particles"`` (:func:`idstlpy.closed_loop.propagate`): how the
         moments were closed; under ``"particles"`` the sampled rates and estimates come from the
-        clipped loop (and the state-dependent sensor per sample), not the Gaussian model.
+        clipped loop (and the state-dependent sensor per sample), not the Gaussian model; on a
+        control domain that is not a box they come from the projected loop under either closure.
     """
 
     num_of_steps: int
