@@ -1,7 +1,8 @@
 """The executor's closed loop around a plan as a map on samples (the particle closure).
 
 :class:`LoopStep` pushes samples of the loop's joint state ``z = (delta, eta[, dP])`` through one
-step with the clip of the corrected input itself and, under a state-dependent sensor, each
+step with the clip of the corrected input itself (on a box; on any other polytope the executor's
+Euclidean projection, :func:`idstlpy.tracking.control_projector`) and, under a state-dependent sensor, each
 sample's own noise drawn from the sensor at its own true state (:class:`SensorDraw`) and its
 own Kalman filter, ``R`` at its own predicted mean (:func:`batched_gain`):
 what :func:`idstlpy.closed_loop.propagate` propagates under ``closure="particles"`` and what
