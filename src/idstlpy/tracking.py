@@ -244,12 +244,13 @@ class PolytopeProjection:
         r = E @ w - f
         if not r[m] < 0.0:  # pragma: no cover - an empty domain is refused when built
             raise InvalidArgumentError("control_domain is empty: the input has no projection on it")
-        return u - r[:m] / r[m]
+        z: np.ndarray = u - r[:m] / r[m]
+        return z
 
 
 def _rowdot(X: np.ndarray, M: np.ndarray) -> np.ndarray:
     """``X @ M.T`` for ``X`` (S, k) and ``M`` (F, k), each entry a sum of ``k`` products in order."""
-    out = X[:, :1] * M[None, :, 0]
+    out: np.ndarray = X[:, :1] * M[None, :, 0]
     for j in range(1, X.shape[1]):
         out = out + X[:, j : j + 1] * M[None, :, j]
     return out
