@@ -89,6 +89,16 @@ def test_executor_and_prediction_share_the_projection() -> None:
     assert spec.box is None
 
 
+def test_non_finite_inputs_are_left_as_they_are() -> None:
+    """A diverging run's input (inf, NaN) is not handed to the solver (no raw scipy error)."""
+    H = np.array([[1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0]])
+    project = control_projector(Polytope(H, -np.ones(4)), 2)
+    U = np.array([[np.inf, 0.0], [np.nan, 1.0], [3.0, 0.0]])
+    out = project(U)
+    np.testing.assert_array_equal(out[:2], U[:2])
+    np.testing.assert_allclose(out[2], [1.0, 0.0], atol=1e-12)
+
+
 def test_an_empty_domain_is_refused() -> None:
     empty = Polytope(np.array([[1.0, 1.0], [-1.0, -1.0]]), np.array([1.0, 1.0]))  # u0 + u1 <= -1 and >= 1
     with pytest.raises(stl.errors.InvalidArgumentError, match="control_domain is empty"):

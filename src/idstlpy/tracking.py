@@ -209,7 +209,10 @@ class PolytopeProjection:
         # projection is then the same bits whatever the batch it comes in (one run, all runs,
         # the prediction's samples), as a matrix kernel chosen by the batch's size would not give.
         values = _rowdot(rows, self.H) + self.c  # (S, F)
-        outside = np.flatnonzero(np.any(values > self.INSIDE_TOL, axis=1))
+        # (a non-finite input, from a diverging run, is left as it is: the run is reported as such)
+        outside = np.flatnonzero(
+            np.any(values > self.INSIDE_TOL, axis=1) & np.all(np.isfinite(values), axis=1)
+        )
         if not outside.size:
             return U
         out = rows.copy()
