@@ -32,23 +32,27 @@ def test_errors_subclass_builtins():
         (
             lambda: stl.mk_lcs(I2, np.ones((3, 1))),
             stl.DimensionError,
-            r"B must have shape \(2, \*\)",
+            r"B must have shape \(n, m\) = \(2, \*\) \(n = 2 states, from A\), got \(3, 1\)",
         ),
-        (lambda: stl.mk_lcs(I2, [1.0, 2.0]), stl.DimensionError, "B must be a 2-D matrix"),
+        (
+            lambda: stl.mk_lcs(I2, [1.0, 2.0]),
+            stl.DimensionError,
+            r"B must be a 2-D matrix of shape \(n, m\).*shape \(2, 1\)",
+        ),
         (
             lambda: mk_lbs(I2, I2, np.ones((3, 2))),
             stl.DimensionError,
-            r"W must have shape \(2, \*\)",
+            r"W must have shape \(n, w\) = \(2, \*\) \(n = 2 states, from A\), got \(3, 2\)",
         ),
         (
             lambda: mk_lbs(I2, I2, I2, np.ones((1, 3))),
             stl.DimensionError,
-            r"C must have shape \(\*, 2\)",
+            r"C must have shape \(p, n\) = \(\*, 2\) \(n = 2 states, from A\), got \(1, 3\)",
         ),
         (
             lambda: mk_lbs(I2, I2, I2, np.ones((1, 2)), np.ones((2, 2))),
             stl.DimensionError,
-            r"V must have shape \(1, \*\)",
+            r"V must have shape \(p, r\) = \(1, \*\) \(p = 1 outputs, from C\), got \(2, 2\)",
         ),
         (
             lambda: mk_lbs(I2, I2, I2, np.zeros((0, 2))),

@@ -9,10 +9,38 @@ import numpy as np
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
 
 
-def as_matrix(value: Any, name: str, shape: tuple[int | None, int | None] | None = None) -> np.ndarray:
+def as_matrix(
+    value: Any,
+    name: str,
+    shape: tuple[int | None, int | None] | None = None,
+    *,
+    axes: tuple[str, str] | None = None,
+    origin: str | None = None,
+) -> np.ndarray:
     """Return ``value`` as a finite 2-D float array, checking its shape.
 
-    ``None`` entries in ``shape`` accept any size along that axis.
+    Parameters
+    ----------
+    value : array_like
+        The matrix.
+    name : str
+        The argument's name, used in error messages.
+    shape : (int or None, int or None), optional
+        The expected shape; ``None`` entries accept any size along that axis.
+    axes : (str, str), optional
+        The axes' symbols (``("n", "m")`` for ``B``): the error then reads
+        ``B must have shape (n, m) = (2, *)``.
+    origin : str, optional
+        Where the fixed sizes come from (``"n = 2 states, from A"``), appended to the error.
+
+    Raises
+    ------
+    InvalidTypeError
+        ``value`` is not numeric.
+    DimensionError
+        ``value`` is not 2-D or disagrees with ``shape``.
+    InvalidArgumentError
+        ``value`` holds NaN or inf.
     """
     try:
         arr = np.array(value, dtype=float)
@@ -20,18 +48,37 @@ def as_matrix(value: Any, name: str, shape: tuple[int | None, int | None] | None
         raise InvalidTypeError(f"{name} must be a numeric matrix, got {type(value).__name__}") from exc
     if arr.ndim == 0:
         arr = arr.reshape(1, 1)
+    want = _want_shape(shape, axes, origin)
     if arr.ndim != 2:
-        raise DimensionError(f"{name} must be a 2-D matrix, got an array with shape {arr.shape}")
+        hint = ""
+        if arr.ndim == 1 and shape is not None and shape[0] is not None and arr.shape[0] == shape[0]:
+            hint = (
+                f"; a single column is written with shape ({shape[0]}, 1), e.g. np.reshape({name}, (-1, 1))"
+            )
+        elif arr.ndim == 1 and shape is not None and shape[1] is not None and arr.shape[0] == shape[1]:
+            hint = f"; a single row is written with shape (1, {shape[1]}), e.g. np.reshape({name}, (1, -1))"
+        raise DimensionError(f"{name} must be a 2-D matrix{want}, got an array with shape {arr.shape}{hint}")
     if shape is not None:
-        for axis, (want, got) in enumerate(zip(shape, arr.shape, strict=True)):
-            if want is not None and want != got:
+        for axis, (size, got) in enumerate(zip(shape, arr.shape, strict=True)):
+            if size is not None and size != got:
+                label = f"{axes[axis]} = {size}" if axes else f"expected {size}"
+                spec = want.removeprefix(" of shape ") if axes else _fmt_shape(shape)
                 raise DimensionError(
-                    f"{name} must have shape {_fmt_shape(shape)}, got {arr.shape} "
-                    f"(axis {axis} is {got}, expected {want})"
+                    f"{name} must have shape {spec}, got {arr.shape} (axis {axis} is {got}, {label})"
                 )
     if not np.all(np.isfinite(arr)):
         raise InvalidArgumentError(f"{name} contains NaN or inf")
     return arr
+
+
+def _want_shape(
+    shape: tuple[int | None, int | None] | None, axes: tuple[str, str] | None, origin: str | None
+) -> str:
+    """`` of shape (n, m) = (2, *) (n = 2 states, from A)`` for an error message ("" without axes)."""
+    if shape is None or axes is None:
+        return ""
+    text = f" of shape ({axes[0]}, {axes[1]}) = {_fmt_shape(shape)}"
+    return text + (f" ({origin})" if origin else "")
 
 
 def as_vector(value: Any, name: str, size: int | None = None) -> np.ndarray:

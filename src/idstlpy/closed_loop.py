@@ -83,7 +83,9 @@ def real_modes_for(real_system: Any, system: SwitchedSystem, actions: np.ndarray
     if (real_system.n, real_system.m) != (system.n, system.m):
         raise DimensionError(
             f"real_system has (n, m) = ({real_system.n}, {real_system.m}); "
-            f"the model has ({system.n}, {system.m})"
+            f"the model has ({system.n}, {system.m}): the real modes' A must be "
+            f"({system.n}, {system.n}) and B ({system.n}, {system.m}), got A "
+            f"{real_system.mode(0).A.shape} and B {real_system.mode(0).B.shape}"
         )
     modes = list(real_system.system_modes)
     if len(modes) > 1 and actions.size and int(actions.max()) >= len(modes):

@@ -102,7 +102,7 @@ class LCS(DynamicalSystem):
                 f"A must be at least 1x1 (a state of dimension n >= 1), got shape {self.A.shape}"
             )
         self.n = self.A.shape[0]
-        self.B = as_matrix(B, "B", (self.n, None))
+        self.B = as_matrix(B, "B", (self.n, None), axes=("n", "m"), origin=f"n = {self.n} states, from A")
         if self.B.shape[1] == 0:
             raise DimensionError(f"B must have at least one column (m >= 1 inputs), got shape {self.B.shape}")
         self.m = self.B.shape[1]
@@ -270,7 +270,7 @@ class LBS(LCS):
 
     def __init__(self, A: Any, B: Any, W: Any) -> None:
         super().__init__(A, B)
-        self.W = as_matrix(W, "W", (self.n, None))
+        self.W = as_matrix(W, "W", (self.n, None), axes=("n", "w"), origin=f"n = {self.n} states, from A")
         self.process_cov = self.W @ self.W.T
 
 
@@ -291,7 +291,7 @@ class POLBS(LBS):
 
     def __init__(self, A: Any, B: Any, W: Any, C: Any) -> None:
         super().__init__(A, B, W)
-        self.C = as_matrix(C, "C", (None, self.n))
+        self.C = as_matrix(C, "C", (None, self.n), axes=("p", "n"), origin=f"n = {self.n} states, from A")
         if self.C.shape[0] == 0:
             raise DimensionError("C must have at least one row for a partially observable system")
 
@@ -315,7 +315,7 @@ class POLBSWithLinNoise(POLBS):
 
     def __init__(self, A: Any, B: Any, W: Any, C: Any, V: Any) -> None:
         super().__init__(A, B, W, C)
-        self.V = as_matrix(V, "V", (self.p, None))
+        self.V = as_matrix(V, "V", (self.p, None), axes=("p", "r"), origin=f"p = {self.p} outputs, from C")
         self._R = self.V @ self.V.T
 
     def noise(self, x: Any) -> np.ndarray:
@@ -944,6 +944,32 @@ def mk_switched_sys(system_modes: Any) -> SwitchedSystem:
         For modes whose dimensions disagree.
     """
     return SwitchedSystem(system_modes)
+
+
+def control_domain_mismatch(dim: int, system: SwitchedSystem) -> DimensionError:
+    """The error for a control domain of dimension ``dim`` on a system with ``system.m != dim`` inputs.
+
+    The input count comes from ``B``'s columns, so the message names ``B``'s shape and the shape
+    it would need for this control domain: a ``B`` written with the wrong number of columns
+    would otherwise be blamed on the (correct) control domain.
+
+    Parameters
+    ----------
+    dim : int
+        The control domain's dimension.
+    system : SwitchedSystem
+        The system whose modes' ``B`` (n, m) fix the input count.
+
+    Returns
+    -------
+    DimensionError
+    """
+    n, m = system.n, system.m
+    return DimensionError(
+        f"control_domain has dimension {dim}, the system has m = {m} inputs (B of every mode has "
+        f"shape (n, m) = ({n}, {m})): either B is wrong and must have shape ({n}, {dim}) for this "
+        f"control domain, or the control domain must bound {m} inputs (u of size {m})"
+    )
 
 
 def _as_state(x: Any, n: int, name: str = "x") -> np.ndarray:

@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from .belief import GaussianBelief
-from .dynamical_system import SwitchedSystem
+from .dynamical_system import SwitchedSystem, control_domain_mismatch
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
 from .expressions import RealValuedVariable, region_variable
 from .formulas import STLFormula, allocate_joint_risk, as_formula
@@ -131,9 +131,7 @@ class Problem:
         formula = as_formula(stl_formula, "stl_formula")
         n, m = switched_system.n, switched_system.m
         if control_domain.dim != m:
-            raise DimensionError(
-                f"control_domain has dimension {control_domain.dim}, the system has m = {m} inputs"
-            )
+            raise control_domain_mismatch(control_domain.dim, switched_system)
         if control_domain.is_empty():
             raise InvalidArgumentError("control_domain is empty: no admissible input")
         if initial_state.n != n:

@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
@@ -25,12 +26,19 @@ from typing import Any, Literal
 import numpy as np
 
 from ..closed_loop import real_modes_for
-from ..dynamical_system import LBS, LCS, SwitchedSystem
+from ..dynamical_system import LBS, LCS, SwitchedSystem, control_domain_mismatch
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..sets import Polytope
 from ..tracking import GainsOverride, box_bounds, control_projector, system_gains
 
-__all__ = ["ExecutorSpec", "PlantStep", "ProcessNoise", "resolve_process_noise"]
+__all__ = [
+    "PLANT_SIGNATURE",
+    "ExecutorSpec",
+    "PlantStep",
+    "ProcessNoise",
+    "check_plant_signature",
+    "resolve_process_noise",
+]
 
 ProcessNoise = Literal["auto", "model", "real", "none"]
 """Which disturbance moves the true state (:func:`resolve_process_noise` reads ``"auto"``)."""
@@ -158,6 +166,8 @@ class ExecutorSpec:
         if not isinstance(system, SwitchedSystem):
             raise InvalidTypeError(f"system must be a SwitchedSystem, got {type(system).__name__}")
         process_noise = resolve_process_noise(process_noise, real_system)
+        if isinstance(control_domain, Polytope) and control_domain.dim != system.m:
+            raise control_domain_mismatch(control_domain.dim, system)
         project = control_projector(control_domain, system.m)
         box = box_bounds(control_domain, system.m)
         real_modes = _real_modes(system, real_system, plant, process_noise)
@@ -223,12 +233,50 @@ def _real_modes(
             f"plant must be a step function (state, input, mode, rng) -> next_state, "
             f"got {type(plant).__name__}"
         )
+    check_plant_signature(plant)
     if process_noise == "real":
         raise InvalidArgumentError(
             "process_noise='real' needs a linear real_system; a step-function plant draws its own "
             "disturbance (use 'none', or 'model' to add the planning mode's W w)"
         )
     return None
+
+
+PLANT_SIGNATURE = "plant(state (n,), input (m,), mode: int, rng: numpy.random.Generator) -> next_state (n,)"
+"""The call every step-function plant must accept (named in the error when it does not)."""
+
+
+def check_plant_signature(plant: Callable[..., Any]) -> None:
+    """Raise :class:`InvalidTypeError` unless ``plant`` accepts the four positional arguments.
+
+    The executor calls ``plant(state, input, mode, rng)`` positionally once per run and step; a
+    function written as ``plant(x, u)`` or ``plant(x, u, q, rng, dt)`` would otherwise fail
+    with a raw ``TypeError`` from deep inside the simulation loop, after the plan was solved.
+
+    Parameters
+    ----------
+    plant : callable
+        The step function to check.
+
+    Raises
+    ------
+    InvalidTypeError
+        When ``plant`` cannot be called with four positional arguments (or needs a keyword-only
+        one); the message names the expected call and the function's own signature.
+    """
+    try:
+        sig = inspect.signature(plant)
+    except (TypeError, ValueError):
+        return  # some builtins and C extensions publish no signature: nothing to check up front
+    try:
+        sig.bind(None, None, None, None)
+    except TypeError as exc:
+        name = getattr(plant, "__qualname__", type(plant).__name__)
+        raise InvalidTypeError(
+            f"plant must be callable as {PLANT_SIGNATURE}; {name}{sig} cannot be called with "
+            f"these four positional arguments ({exc}); a plant that needs no mode or noise still "
+            "takes them: def plant(x, u, q, rng): ..."
+        ) from None
 
 
 def _frozen_gains(gains: Mapping[int, Sequence[np.ndarray]]) -> dict[int, tuple[np.ndarray, ...]]:

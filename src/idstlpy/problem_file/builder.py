@@ -173,6 +173,7 @@ class _Builder:
         return self.ctx.error(path, message)
 
     def build(self) -> BuiltProblem:
+        sc.check_trailing_keys(self.ctx)
         data = sc.table(self.ctx, (), self.spec.data, sc.TOP_KEYS, sc.REQUIRED_TOP)
         for key in ("name", "description"):
             if key in data:

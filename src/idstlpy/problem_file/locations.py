@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import re
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 from ..errors import ProblemFileError
 
 __all__ = [
     "FieldPath",
     "Context",
+    "TomlLine",
+    "scan_lines",
     "field_name",
     "find_line",
     "parse_override_path",
@@ -122,6 +125,100 @@ def find_line(text: str, path: FieldPath) -> int | None:
     return start + 1 if head else None
 
 
+@dataclass(frozen=True)
+class TomlLine:
+    """One line of a TOML text that starts outside any value (see :func:`scan_lines`).
+
+    Attributes
+    ----------
+    number : int
+        1-based line number.
+    kind : {"blank", "comment", "header", "key"}
+        A blank line, a comment, a ``[table]`` / ``[[array]]`` header or a ``key = value`` line.
+    keys : tuple of str
+        The header's dotted name, or the key's (``("validation", "seed")`` for
+        ``validation.seed = 3``); empty for blank lines and comments.
+    array : bool
+        True for an ``[[array of tables]]`` header.
+    """
+
+    number: int
+    kind: str
+    keys: tuple[str, ...] = ()
+    array: bool = False
+
+
+def scan_lines(text: str) -> list[TomlLine]:
+    """The lines of ``text`` that start outside a value, classified (TOML's own scoping rules).
+
+    A line that continues a multi-line array or string (``[0, 1]]`` of a matrix written over
+    several lines) is skipped, so it is never taken for a table header.
+
+    Parameters
+    ----------
+    text : str
+        A TOML text (assumed valid: :mod:`tomllib` has read it).
+
+    Returns
+    -------
+    list of TomlLine
+    """
+    out: list[TomlLine] = []
+    depth = 0  # open brackets and braces of a value that spans lines
+    quote: str | None = None  # an open multi-line string's delimiter
+    for number, line in enumerate(text.splitlines(), start=1):
+        if depth == 0 and quote is None:
+            stripped = line.strip()
+            if not stripped:
+                out.append(TomlLine(number, "blank"))
+                continue
+            if stripped.startswith("#"):
+                out.append(TomlLine(number, "comment"))
+                continue
+            header = _HEADER_RE.match(line)
+            if header is not None:
+                keys = _split_dotted(header.group(2))
+                out.append(TomlLine(number, "header", keys, header.group(1) == "[["))
+                continue  # a header holds no value: nothing to track
+            km = _KEY_RE.match(line)
+            if km is not None:
+                out.append(TomlLine(number, "key", _split_dotted(km.group(1))))
+        depth, quote = _track(line, depth, quote)
+    return out
+
+
+def _track(line: str, depth: int, quote: str | None) -> tuple[int, str | None]:
+    """The bracket depth and open multi-line string after ``line`` (strings and comments skipped)."""
+    i = 0
+    while i < len(line):
+        if quote is not None:
+            if line.startswith(quote, i):
+                i += len(quote)
+                quote = None
+                continue
+            i += 2 if line[i] == "\\" and quote[0] == '"' else 1
+            continue
+        ch = line[i]
+        if ch == "#":
+            break
+        if line.startswith('"""', i) or line.startswith("'''", i):
+            quote = line[i : i + 3]
+            i += 3
+            continue
+        if ch in "\"'":
+            end = i + 1
+            while end < len(line) and line[end] != ch:
+                end += 2 if ch == '"' and line[end] == "\\" else 1
+            i = end + 1
+            continue
+        if ch in "[{":
+            depth += 1
+        elif ch in "]}":
+            depth = max(0, depth - 1)
+        i += 1
+    return depth, quote
+
+
 def plain_error(file: str | None, message: str, field: str | None = None) -> ProblemFileError:
     """A :class:`ProblemFileError` ``"file: message"`` with ``file``, ``line`` (None) and ``field`` set.
 
@@ -210,7 +307,7 @@ class Context:
         self.source = source
         self.overridden = [tuple(parse_override_path(k)) for k in overridden]
 
-    def error(self, path: FieldPath, message: str) -> ProblemFileError:
+    def error(self, path: FieldPath, message: str, line: int | None = None) -> ProblemFileError:
         """The error ``file:line: field: message`` about the field ``path``.
 
         Parameters
@@ -219,6 +316,8 @@ class Context:
             The field.
         message : str
             What is wrong with it.
+        line : int, optional
+            The field's line when the caller knows it (default: found in the text).
 
         Returns
         -------
@@ -227,7 +326,10 @@ class Context:
         """
         fieldname = field_name(path)
         overridden = any(tuple(path[: len(o)]) == o for o in self.overridden)
-        line = None if overridden else find_line(self.source, path)
+        if overridden:
+            line = None
+        elif line is None:
+            line = find_line(self.source, path)
         if overridden:
             where = f"{self.name}: {fieldname} (override)"
         elif line is not None:

@@ -7,6 +7,7 @@ field path of the value, and raises an error naming the file, line and field.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -14,7 +15,8 @@ from typing import Any
 import numpy as np
 
 from ..execution import validation as _validation
-from .locations import Context, FieldPath
+from ..synthesis.options import SolverOptions
+from .locations import Context, FieldPath, scan_lines
 
 __all__ = [
     "TOP_KEYS",
@@ -33,6 +35,9 @@ __all__ = [
     "START_CHECK_KEYS",
     "NONE",
     "DEFAULT_VALIDATION_RUNS",
+    "section_keys",
+    "section_of",
+    "check_trailing_keys",
     "kind_of",
     "is_number",
     "table",
@@ -84,6 +89,123 @@ START_CHECK_KEYS = (
 NONE = "none"
 """How a file writes Python's None where an option takes one (``check_every``, ``drift``)."""
 DEFAULT_VALIDATION_RUNS = 100
+
+
+def section_keys() -> dict[str, tuple[str, ...]]:
+    """Every table of a problem file, by the header that opens it, with the keys it accepts.
+
+    ``""`` is the top level (the keys before the first header); ``[propositions.NAME]`` stands
+    for every proposition's table.
+
+    Returns
+    -------
+    dict
+        ``header -> keys``, e.g. ``"[validation]" -> ("runs", "seed", ...)``.
+    """
+    return {
+        "": TOP_KEYS,
+        "[[modes]]": MODE_KEYS,
+        "[control_domain]": CONTROL_DOMAIN_KEYS,
+        "[initial_belief]": INITIAL_BELIEF_KEYS,
+        "[propositions.NAME]": PROPOSITION_KEYS,
+        "[solver]": tuple(f.name for f in dataclasses.fields(SolverOptions)),
+        "[execution]": EXECUTION_KEYS,
+        "[[execution.real_system]]": MODE_KEYS,
+        "[execution.lqr]": LQR_KEYS,
+        "[validation]": VALIDATION_KEYS,
+        "[validation.replan_options]": REPLAN_OPTION_KEYS,
+        "[validation.start_check]": START_CHECK_KEYS,
+    }
+
+
+def section_of(path: FieldPath) -> str | None:
+    """The header of the table at ``path`` as :func:`section_keys` names it (None: not a table
+    that a header opens, e.g. an inline ``V = { scale = ... }``).
+
+    Parameters
+    ----------
+    path : tuple of str or int
+        A table's field path (``("modes", 0)``, ``("validation",)``...).
+
+    Returns
+    -------
+    str or None
+    """
+    names = [p for p in path if isinstance(p, str)]
+    if not names:
+        return ""
+    if names[0] == "propositions" and len(names) == 2:
+        return "[propositions.NAME]"
+    for header in section_keys():
+        if header.strip("[]").split(".") == names:
+            return header
+    return None
+
+
+def _elsewhere(key: str, here: str | None) -> list[str]:
+    """The other tables that accept ``key`` (top level first, then in the file's order)."""
+    return [h for h, keys in section_keys().items() if h != here and key in keys]
+
+
+def _show_section(header: str) -> str:
+    return "the top level (before the first [table] header)" if header == "" else header
+
+
+def check_trailing_keys(ctx: Context) -> None:
+    """Reject a key appended at the end of the file that TOML put in the last table by surprise.
+
+    TOML puts every ``key = value`` written after a ``[table]`` header into that table, up to the
+    next header. A line such as ``seed = 3`` appended at the end of a file whose last table is
+    ``[validation]`` is therefore ``validation.seed``, which is also a valid key, so nothing
+    would complain while the user meant ``[solver] seed``. A key is rejected here when all of
+    these hold: it is in the file's last table, a blank line separates it from that table's
+    keys above it (it was appended, not written with them), and another table accepts it too.
+    A key that only another table accepts is rejected by :func:`table` (with the same advice).
+
+    Parameters
+    ----------
+    ctx : Context
+        The file (its text is scanned line by line; a key overridden with ``--set`` is not
+        checked).
+
+    Raises
+    ------
+    ProblemFileError
+        ``file:line: field: `seed` is under [validation] here ...; did you mean [solver]?``.
+    """
+    lines = scan_lines(ctx.source)
+    headers = [i for i, ln in enumerate(lines) if ln.kind == "header"]
+    if not headers:
+        return
+    start = headers[-1]
+    head = lines[start]
+    here = section_of(head.keys)
+    seen_key, gap = False, False
+    for ln in lines[start + 1 :]:
+        if ln.kind == "blank":
+            gap = gap or seen_key
+            continue
+        if ln.kind != "key":
+            continue
+        if gap and here is not None and ln.keys[0] in section_keys()[here]:
+            # the tables under the same top-level name ([validation.start_check] below
+            # [validation]) are not what an appended line was meant for
+            family = here.strip("[]").split(".")[0]
+            others = [h for h in _elsewhere(ln.keys[0], here) if h.strip("[]").split(".")[0] != family]
+            path: FieldPath = tuple(head.keys) + ln.keys
+            if others and not any(tuple(path[: len(o)]) == o for o in ctx.overridden):
+                key = ln.keys[0]
+                shown = " or ".join(_show_section(h) for h in others)
+                raise ctx.error(
+                    path,
+                    f"`{key}` is under {here} here: TOML puts every key written after a [table] "
+                    f"header into that table (up to the next header), and line {ln.number} comes after "
+                    f"{here} (line {head.number}), a blank line below its other keys; did you "
+                    f"mean {shown}? Move the line under that header; to keep it in {here}, write "
+                    f"it with {here}'s other keys (no blank line between)",
+                    line=ln.number,
+                )
+        seen_key = True
 
 
 def kind_of(value: Any) -> str:
@@ -150,6 +272,13 @@ def table(
             hint = ""
             if path and key in TOP_KEYS:
                 hint = " (top-level keys such as this one must come before the first [table])"
+            elif (here := section_of(path)) is not None and (others := _elsewhere(key, here)):
+                shown = " or ".join(_show_section(h) for h in others)
+                hint = (
+                    f"; `{key}` is a key of {shown}: TOML puts every key written after a [table] "
+                    f"header into that table (up to the next header), so move the line under "
+                    f"{'that header' if len(others) == 1 else 'the one you meant'}"
+                )
             raise ctx.error(path + (key,), f"unknown key {key!r}; allowed: {', '.join(allowed)}{hint}")
     for key in required:
         if key not in value:
