@@ -189,6 +189,8 @@ def _records(report: Any) -> list[dict[str, Any]]:
     out = []
     for r in report.replans:
         d = {k: v for k, v in vars(r).items() if k != "solve_time"}
+        # recorded before Replan had ``delay``: these policies take effect at once
+        assert d.pop("delay") == 0
         d["caps_hit"] = list(d["caps_hit"])
         for k in ("predicted", "new_predicted"):
             d[k] = "nan" if math.isnan(d[k]) else float(d[k]).hex()

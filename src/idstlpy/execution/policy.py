@@ -77,6 +77,15 @@ class ReplanPolicy:
     replan_time_limit : float
         Wall-clock cap (seconds) of one re-solve (> 0): the solver's ``time_limit`` is the
         smaller of this and ``solver``'s own.
+    adopt_delay : int
+        Steps between a decision and its effect (>= 0). The check and the re-solve start from
+        the executed belief at the decision step ``k``; a plan they adopt is followed from
+        execution step ``k + adopt_delay`` (from its own step ``adopt_delay``), the plan followed
+        until then. 0 (default): at once. This fixes in steps, not seconds, when a re-plan takes
+        effect, so a simulated execution (``execute``, ``validate``) gives the same result
+        whatever the machine; a :class:`~idstlpy.ReplanningExecutor` with
+        ``background=True`` re-solves beside the loop and takes the result at that step, or at
+        the first step after it at which the re-solve has finished.
     solver : SolverOptions, optional
         Options of the re-solves (use the ones the plan was solved with; the seed is replaced by
         a derived one, :func:`replan_seed`); default ``SolverOptions()``.
@@ -100,6 +109,7 @@ class ReplanPolicy:
     adopt: Adopt = "better"
     replan_time_limit: float = 30.0
     solver: SolverOptions | None = None
+    adopt_delay: int = 0
 
     def __post_init__(self) -> None:
         put = object.__setattr__
@@ -128,6 +138,7 @@ class ReplanPolicy:
             raise InvalidArgumentError(f"adopt must be 'better' or 'always', got {self.adopt!r}")
         limit = as_float(self.replan_time_limit, "replan_time_limit", 0.0, low_open=True)
         put(self, "replan_time_limit", limit)
+        put(self, "adopt_delay", as_int(self.adopt_delay, "adopt_delay", minimum=0))
         if self.solver is not None and not isinstance(self.solver, SolverOptions):
             raise InvalidTypeError(f"solver must be a SolverOptions, got {type(self.solver).__name__}")
 

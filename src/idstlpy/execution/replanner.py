@@ -20,8 +20,27 @@ re-plans exactly as the simulated executions do (same checks, same re-solve seed
 
 A step without a check costs what an :class:`~idstlpy.OnlineExecutor` step costs plus the
 bookkeeping of the executed prefix (tens of microseconds); a check costs one closed-loop
-prediction of the remaining plan, a re-solve one solve (capped by ``replan_time_limit``): run the
-object where such a pause is acceptable, or re-plan on another thread and keep stepping.
+prediction of the remaining plan, a re-solve one solve (capped by ``replan_time_limit``).
+
+Two ways to run the checks and re-solves, one result:
+
+- ``background=False`` (default; what :func:`idstlpy.execute` and :func:`idstlpy.validate` use):
+  a decision due at step ``k`` is computed inside that ``step`` call (which waits for it) and
+  takes effect at step ``k + policy.adopt_delay``. The schedule is counted in steps, so the
+  same seed gives the same execution on every machine.
+- ``background=True`` (a robot's loop): the decision is computed beside the loop by a worker
+  process (:mod:`idstlpy.execution.background`); ``step`` never waits for it. The robot keeps
+  following the current plan and switches at the first step ``>= k + adopt_delay`` at which the
+  decision is in (the new plan verified: predicted from the belief at ``k`` as for
+  ``adopt="better"``). A re-plan's :attr:`Replan.delay` says how many steps it took to take
+  effect. Whenever every decision arrives within ``adopt_delay`` steps, the execution is the
+  ``background=False`` one, step for step; choose ``adopt_delay`` as the steps a re-solve
+  takes on the robot (``replan_time_limit`` over the control period) for that to hold.
+  :meth:`cancel` drops a decision in flight; :meth:`close` (or a ``with`` block) ends the worker.
+
+While a decision is in flight no other is made; a plan adopted ``d`` steps after the belief it was
+solved from is followed from its own step ``d`` (the old plan ran meanwhile), with the filter's
+current belief.
 
 The policy (:class:`~idstlpy.execution.policy.ReplanPolicy`) is the typed form of ``execute``'s
 re-planning keywords and of ``validate``'s ``replan_options`` (see
@@ -34,6 +53,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
@@ -50,6 +70,7 @@ from ..progression import progress
 from ..synthesis.problem import Problem
 from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory
+from .background import BackgroundKind, BackgroundWorker, JobError
 from .policy import ReplanPolicy
 from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
 
@@ -102,6 +123,87 @@ def executor_spec(
     )
 
 
+Reference = tuple[np.ndarray, np.ndarray]
+"""The drift test's reference: predicted belief means (T, n) and their covariances (T, n, n)."""
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """What a decision due at execution step ``k`` reads (all of it pickles: it may go to a
+    worker process)."""
+
+    k: int
+    why: str
+    executed: ProbabilisticTSTrajectory
+    belief: GaussianBelief
+    plan: ProbabilisticTSTrajectory
+    j: int  # the plan step of execution step k
+    seed: int
+
+
+@dataclass(frozen=True)
+class _Decision:
+    """A decision made from a :class:`_Snapshot`: what the loop applies when it takes effect.
+
+    ``record`` is None when nothing was attempted (the check passed, or the formula already
+    holds); ``predicted`` the check's or the adopted plan's prediction (NaN: none);
+    ``reference`` the drift test's new reference (predicted from step ``k``)."""
+
+    k: int
+    record: Replan | None
+    new: ProbabilisticTSTrajectory | None
+    predicted: float = math.nan
+    reference: Reference | None = None
+    violated: bool = False
+
+
+def _reference(pred: ClosedLoopPrediction | None) -> Reference | None:
+    return None if pred is None else (pred.belief_mean, pred.belief_mean_cov)
+
+
+def decide(resolver: _Resolver, policy: ReplanPolicy, formula: STLFormula, snap: _Snapshot) -> _Decision:
+    """The checks and re-solve of a decision due at step ``snap.k`` (no state of the loop).
+
+    Parameters
+    ----------
+    resolver : _Resolver
+        The re-solves and the risk model.
+    policy : ReplanPolicy
+    formula : STLFormula
+        The problem's formula (progressed here over ``snap.executed``).
+    snap : _Snapshot
+
+    Returns
+    -------
+    _Decision
+    """
+    k = snap.k
+    psi = progress(formula, snap.executed)
+    if psi is FALSE:  # the prefix broke the formula: no plan can repair it
+        return _Decision(
+            k, Replan(k, "violated", 0.0, "skipped", False, formula=str(psi)), None, violated=True
+        )
+    if psi is TRUE:
+        return _Decision(k, None, None)
+    belief = snap.belief
+    p_old, reference = math.nan, None
+    if policy.trigger == "on_risk":
+        p_old, pred = resolver.model.predict(snap.plan, snap.j, psi, belief)
+        reference = _reference(pred) if policy.drift is not None else None
+        if p_old >= policy.risk:
+            return _Decision(k, None, None, p_old, reference)
+    record, new = resolver.resolve(belief, psi, snap.seed, k, snap.why, p_old)
+    record, _, pred = resolver.judge(record, new, (snap.plan, snap.j), psi, belief, p_old)
+    if not (record.adopted and new is not None):
+        return _Decision(k, record, None, p_old, reference)
+    if policy.drift is not None:
+        # the adopted plan's prediction is the drift test's reference
+        if pred is None:
+            _, pred = resolver.model.predict(new, 0, psi, belief)
+        reference = _reference(pred)
+    return _Decision(k, record, new, p_old, reference)
+
+
 class ReplanningExecutor:
     """Executes a plan one observation at a time and re-plans from the executed belief.
 
@@ -120,6 +222,13 @@ class ReplanningExecutor:
     spec : ExecutorSpec, optional
         What runs the plan (its system must be the problem's); default
         ``executor_spec(problem, **options)``.
+    background : bool or {"process", "thread"}
+        False (default): a decision is computed inside the ``step`` that makes it (module
+        notes). True or ``"process"``: in a worker process forked here (a thread where fork is
+        not available), ``step`` never waits for it; ``"thread"``: in a thread (a step may
+        then wait for the interpreter lock). Close the worker with :meth:`close` or a ``with``
+        block. The process is forked here: make the object before other threads of the
+        program start computing (:mod:`idstlpy.execution.background`).
     **options
         ``clip_controls``, ``process_noise``, ``lqr_gains``, ``default_lqr``, ``real_system``,
         ``plant`` (see :func:`~idstlpy.execute`); only without ``spec``.
@@ -152,6 +261,7 @@ class ReplanningExecutor:
         *,
         seed: int | np.random.SeedSequence | None = 0,
         spec: ExecutorSpec | None = None,
+        background: bool | BackgroundKind = False,
         **options: Any,
     ) -> None:
         check_problem_plan(problem, plan, "execute")
@@ -170,6 +280,15 @@ class ReplanningExecutor:
         self._resolver = _Resolver(problem, _RiskModel.make(spec, p), p.solve_options(), p.adopt)
         n = spec.system.n
         self._threshold = float(chi2.ppf(p.drift, n)) if p.drift is not None else math.inf
+        if background not in (False, True, "process", "thread"):
+            raise InvalidArgumentError(
+                f"background must be False, True, 'process' or 'thread', got {background!r}"
+            )
+        self._worker: BackgroundWorker[_Snapshot, _Decision] | None = None
+        if background and policy is not None:
+            kind: BackgroundKind = "thread" if background == "thread" else "process"
+            resolver, formula = self._resolver, problem.stl_formula
+            self._worker = BackgroundWorker(lambda snap: decide(resolver, policy, formula, snap), kind)
         self.reset()
 
     # -- state ---------------------------------------------------------------------------------
@@ -188,6 +307,10 @@ class ReplanningExecutor:
         self.predicted = math.nan
         self.last_replan: Replan | None = None
         self._plans: list[tuple[int, ProbabilisticTSTrajectory]] = [(0, plan)]
+        # a decision made (or in flight) and not yet in effect: (decision step, its answer)
+        self._waiting: tuple[int, _Decision | None] | None = None
+        if self._worker is not None:
+            self._worker.cancel()
         belief = GaussianBelief(plan.get_mean(0).copy(), plan.get_cov(0).copy())
         policy, formula = self.policy, self.problem.stl_formula
         if (
@@ -213,10 +336,60 @@ class ReplanningExecutor:
             self._remember(pred, 0)
         self._follow(plan, 0, belief)
 
-    def _follow(self, plan: ProbabilisticTSTrajectory, k: int, belief: GaussianBelief) -> None:
+    def _follow(
+        self, plan: ProbabilisticTSTrajectory, k: int, belief: GaussianBelief, start: int = 0
+    ) -> None:
+        """Follow ``plan`` (its step 0 is execution step ``k``) from its step ``start``."""
         self.executor = OnlineExecutor(self.spec, plan)
-        self.executor.reset(belief)
+        self.executor.reset(belief, start)
         self._plan, self._start = plan, k
+
+    # -- the worker ----------------------------------------------------------------------------
+
+    @property
+    def background(self) -> BackgroundKind | None:
+        """Where decisions are computed beside the loop (``"process"``, ``"thread"``), or None."""
+        return None if self._worker is None else self._worker.kind
+
+    @property
+    def replanning(self) -> bool:
+        """True while a decision is in flight or made and not yet in effect."""
+        return self._waiting is not None
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Block until the decision in flight is in (a simulated loop, tests); True when it is.
+
+        Parameters
+        ----------
+        timeout : float, optional
+            Seconds at most (None: no limit).
+        """
+        return self._worker is None or self._worker.wait(timeout)
+
+    def cancel(self) -> None:
+        """Drop the decision in flight or waiting (the current plan is kept; the worker process
+        running it is ended and a fresh one started)."""
+        if self._waiting is None:
+            return
+        k, _ = self._waiting
+        self._waiting = None
+        if self._worker is not None:
+            self._worker.cancel()
+        logger.info("replanning executor: the decision of step %d was cancelled at step %d", k, self.k)
+
+    def close(self) -> None:
+        """End the background worker (idempotent; the object then decides in its steps)."""
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+        if self._waiting is not None and self._waiting[1] is None:
+            self._waiting = None  # its answer will never come
+
+    def __enter__(self) -> ReplanningExecutor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @property
     def k(self) -> int:
@@ -300,6 +473,10 @@ class ReplanningExecutor:
             When the observation has the wrong shape.
         """
         self.executor.observe(observation)
+        self._record_belief()
+
+    def _record_belief(self) -> None:
+        """Append the belief after the last observation to the executed prefix."""
         mean, cov = self.executor.mean, self.executor.cov
         if not np.isfinite(mean).all():
             raise InvalidArgumentError(f"the execution diverged at step {self.k} (non-finite belief)")
@@ -327,17 +504,8 @@ class ReplanningExecutor:
             When the plan is done (the last observation then goes to :meth:`observe`), or an
             observation is given before the first input.
         """
-        if self.done:
-            raise InvalidArgumentError(
-                f"the plan is done after {self.k} inputs"
-                + ("; give the last observation to observe()" if self.pending else "")
-            )
-        if self.pending:
-            self.observe(observation)
-        elif observation is not None:
-            raise InvalidArgumentError(
-                "step: an observation was given but no input is pending (the first call takes None)"
-            )
+        if self.executor.receive(observation):  # the online executor's checks and filter update
+            self._record_belief()
         self.last_replan = None
         self._decide()
         mode, u = self.executor.command()
@@ -351,13 +519,6 @@ class ReplanningExecutor:
         """The drift test's reference: the prediction ``pred`` made at execution step ``at``."""
         if pred is not None and self.policy is not None and self.policy.drift is not None:
             self._reference = (at, pred.belief_mean, pred.belief_mean_cov)
-
-    def _predicted(self, psi: STLFormula, belief: GaussianBelief, at: int) -> float:
-        """Predicted success of the rest of the plan followed (the drift test's reference)."""
-        value, pred = self._resolver.model.predict(self._plan, self.executor.k, psi, belief)
-        self._remember(pred, at)
-        self.predicted = value
-        return value
 
     def _drifted(self, k: int) -> bool:
         """Whether the belief's mean left its predicted ``drift`` ellipse at step ``k``."""
@@ -383,63 +544,86 @@ class ReplanningExecutor:
         return "drift" if policy.drift is not None and self._drifted(k) else None
 
     def _decide(self) -> None:
-        """The checks of step ``k`` and the re-solve they call for."""
+        """Step ``k``: take a decision in effect now, or make the one due (at most one at a time)."""
         k = self.k
+        if self._waiting is not None:
+            self._take(k, *self._waiting)
+            if self._waiting is not None:
+                return  # in flight, or waiting for its step
         why = self._due(k)
         if why is None or self.policy is None:
             return
-        psi = progress(self.problem.stl_formula, self.executed())
-        if psi is FALSE:
-            self._violated = True  # the prefix broke the formula: no plan can repair it
-            self._record(Replan(k, "violated", 0.0, "skipped", False, formula=str(psi)))
+        snap = _Snapshot(
+            k, why, self.executed(), self.belief, self._plan, self.executor.k,
+            replan_seed(self.seed_sequence, self._attempts),
+        )  # fmt: skip
+        if self._worker is not None:
+            self._worker.submit(snap)
+            self._waiting = (k, None)
             return
-        if psi is TRUE:
-            return
-        belief = self.belief
-        p_old = math.nan
-        if self.policy.trigger == "on_risk":
-            p_old = self._predicted(psi, belief, k)
-            if p_old >= self.policy.risk:
-                return
-        self._attempt(k, psi, why, p_old, belief)
+        decision = decide(self._resolver, self.policy, self.problem.stl_formula, snap)
+        self._waiting = (k, decision)
+        self._take(k, k, decision)
 
-    def _attempt(self, k: int, psi: STLFormula, why: str, p_old: float, belief: GaussianBelief) -> None:
-        """Re-solve ``psi`` from the current belief at step ``k``; follow the new plan when adopted."""
-        resolver = self._resolver
-        seed = replan_seed(self.seed_sequence, self._attempts)
-        record, new = resolver.resolve(belief, psi, seed, k, why, p_old)
-        self._attempts += 1
-        record, _, pred = resolver.judge(record, new, (self._plan, self.executor.k), psi, belief, p_old)
-        adopted = record.adopted and new is not None
-        if adopted and new is not None and self.policy is not None and self.policy.drift is not None:
-            # the adopted plan's prediction is the drift test's reference
-            if pred is not None:
-                self._remember(pred, k)
-            else:
-                self._reference_of(new, psi, belief, k)
+    def _take(self, now: int, k: int, decision: _Decision | None) -> None:
+        """Apply the decision made at step ``k`` (None: in flight) if its step ``now`` has come
+        and its answer is in."""
+        if decision is None and self._worker is not None:
+            answer = self._worker.poll()
+            if answer is not None:
+                _, result = answer
+                decision = result if isinstance(result, _Decision) else self._failed(k, result)
+                self._waiting = (k, decision)
+        delay = self.policy.adopt_delay if self.policy is not None else 0
+        if decision is None or now < k + delay:
+            return
+        self._waiting = None
+        self._apply(decision, now)
+
+    def _failed(self, k: int, error: JobError) -> _Decision:
+        """A background decision that raised: recorded, the plan kept."""
+        logger.warning("replanning executor: the decision of step %d failed: %s", k, error.text)
+        return _Decision(k, Replan(k, "error", math.nan, "error", False, reason_text=error.text), None)
+
+    def _apply(self, dec: _Decision, now: int) -> None:
+        """Bring the decision made at step ``dec.k`` into effect at step ``now``."""
+        k = dec.k
+        if dec.violated:
+            self._violated = True
+        if dec.reference is not None:
+            self._reference = (k, *dec.reference)
+        if not math.isnan(dec.predicted):
+            self.predicted = dec.predicted
+        record, new = dec.record, dec.new
+        if record is None:  # a check that passed, or nothing left to do
+            return
+        if record.status != "skipped":
+            self._attempts += 1
+        start = now - k
+        if new is not None and start >= new.num_of_steps:
+            record = replace(
+                record, adopted=False, reason_text=f"{record.reason_text}; in after its plan's end"
+            )
+            new = None
+        record = replace(record, delay=start)
         self._record(record)
-        logger.info(
-            "execute: step %d, %s re-plan %s (%s, predicted %.3g -> %.3g, %.2f s)",
-            k,
-            record.reason,
-            "adopted" if record.adopted else "kept the old plan",
-            record.status,
-            record.predicted,
-            record.new_predicted,
-            record.solve_time,
-        )
-        if adopted and new is not None:
+        if record.status != "skipped":
+            logger.info(
+                "execute: step %d, %s re-plan %s (%s, predicted %.3g -> %.3g, %.2f s, in effect at step %d)",
+                k,
+                record.reason,
+                "adopted" if record.adopted else "kept the old plan",
+                record.status,
+                record.predicted,
+                record.new_predicted,
+                record.solve_time,
+                now,
+            )
+        if record.adopted and new is not None:
             self._plans.append((k, new))
-            self._follow(new, k, belief)
+            self._follow(new, k, self.belief, start)
             if not math.isnan(record.new_predicted):
                 self.predicted = record.new_predicted
-
-    def _reference_of(
-        self, plan: ProbabilisticTSTrajectory, psi: STLFormula, belief: GaussianBelief, k: int
-    ) -> None:
-        """The prediction of an adopted ``plan`` as the drift test's reference."""
-        _, pred = self._resolver.model.predict(plan, 0, psi, belief)
-        self._remember(pred, k)
 
     def _record(self, record: Replan) -> None:
         self._replans.append(record)

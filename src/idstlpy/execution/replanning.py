@@ -101,6 +101,7 @@ class ExecuteOptions(ExecutorKeywords, total=False):
     risk_samples: int
     max_replans: int
     adopt: Adopt
+    adopt_delay: int
     replan_time_limit: float
     options: SolverOptions | None
     solver_options: Mapping[str, Any] | None

@@ -71,6 +71,10 @@ class Replan:
         The solver's ``reason`` (or the error).
     caps_hit : tuple of str
         Wall-clock caps the re-solve hit (reproducibility is not promised then).
+    delay : int
+        Steps between the attempt (``step``) and the step at which it took effect (its plan
+        followed, or the old one kept): the policy's ``adopt_delay``, or more when a background
+        re-solve finished later (:class:`~idstlpy.ReplanningExecutor`).
     """
 
     step: int
@@ -85,6 +89,7 @@ class Replan:
     formula: str = ""
     reason_text: str = ""
     caps_hit: tuple[str, ...] = ()
+    delay: int = 0
 
     def _key(self) -> tuple[Any, ...]:
         # NaN (no prediction) equals NaN here: two runs of the same seed give equal records.

@@ -117,28 +117,37 @@ class OnlineExecutor:
 
     # -- state ---------------------------------------------------------------------------------
 
-    def reset(self, initial_belief: GaussianBelief | None = None) -> None:
-        """Start (again) at the plan's step 0.
+    def reset(self, initial_belief: GaussianBelief | None = None, start: int = 0) -> None:
+        """Start (again) at the plan's step ``start`` (0 by default).
 
         Parameters
         ----------
         initial_belief : GaussianBelief, optional
-            The filter's prior (dimension ``n``); default the plan's first belief.
+            The filter's prior (dimension ``n``); default the plan's belief at step ``start``.
+        start : int
+            The plan step of the first input (``0 <= start <= N``): a re-planning executor that
+            adopts a plan some steps after the belief it was solved from follows it from there.
 
         Raises
         ------
         DimensionError
             When ``initial_belief`` is not a GaussianBelief of dimension ``n``.
+        InvalidArgumentError
+            When ``start`` is outside ``0 .. N``.
         """
+        if isinstance(start, bool) or not isinstance(start, int | np.integer):
+            raise InvalidTypeError(f"start must be an integer, got {type(start).__name__}")
+        if not 0 <= start <= self.law.num_of_steps:
+            raise InvalidArgumentError(f"start must lie in 0..{self.law.num_of_steps}, got {start}")
         if initial_belief is None:
-            mean, cov = self._plan.get_mean(0).copy(), self._plan.get_cov(0).copy()
+            mean, cov = self._plan.get_mean(int(start)).copy(), self._plan.get_cov(int(start)).copy()
         else:
             if not isinstance(initial_belief, GaussianBelief) or initial_belief.n != self._n:
                 raise DimensionError(f"initial_belief must be a GaussianBelief of dimension {self._n}")
             mean, cov = initial_belief.mean.copy(), initial_belief.cov.copy()
         self._mean = mean[None, :]
         self._cov = cov
-        self._k = 0
+        self._k = int(start)
         self._input: np.ndarray | None = None  # the input issued whose observation is pending
 
     @property
@@ -254,6 +263,30 @@ class OnlineExecutor:
             When the plan is done (the last observation then goes to :meth:`observe`), or an
             observation is given before the first input.
         """
+        self.receive(observation)
+        return self.command()
+
+    def receive(self, observation: ArrayLike | None = None) -> bool:
+        """The first half of :meth:`step`: check the call and take the observation, if one is due.
+
+        A loop that decides something between the observation and the next input (the
+        re-planning executor) calls this, then :meth:`command`.
+
+        Parameters
+        ----------
+        observation : array_like, shape (p,), or None
+            As for :meth:`step`.
+
+        Returns
+        -------
+        bool
+            True when an observation was due and the belief was updated with it.
+
+        Raises
+        ------
+        InvalidArgumentError
+            As for :meth:`step`.
+        """
         if self.done:
             raise InvalidArgumentError(
                 f"the plan is done: its {self.law.num_of_steps} inputs were issued"
@@ -261,12 +294,13 @@ class OnlineExecutor:
             )
         if self._input is not None:
             self.observe(observation)
-        elif observation is not None:
+            return True
+        if observation is not None:
             raise InvalidArgumentError(
                 "step: an observation was given but no input is pending (the first call takes None; "
                 "the prior already holds what is known at the start)"
             )
-        return self.command()
+        return False
 
     def _observation(self, k: int, observation: ArrayLike | None) -> np.ndarray | None:
         mode = self.law.steps[k].model

@@ -648,5 +648,6 @@ _COUNTS = {
     "seed": 0,
     "risk_samples": 1,
     "max_replans": 0,
+    "adopt_delay": 0,
 }
 _MAY_BE_NONE = {"check_every": "an integer", "drift": "a number in (0, 1)"}
