@@ -173,6 +173,9 @@ class MonteCarloArtists:
         The legend.
     time_series : TimeSeriesArtists or None
         For a one-state problem: the time series the executions are overlaid on.
+    clipped : list of Line2D
+        One x per true-state run that leaves the axes (farther than :data:`RUN_WINDOW` spans
+        of the plan's own extent), where it leaves them.
     """
 
     figure: Any
@@ -183,6 +186,7 @@ class MonteCarloArtists:
     title: Any = None
     legend: Any = None
     time_series: TimeSeriesArtists | None = None
+    clipped: list[Any] = field(default_factory=list)
 
 
 @dataclass
@@ -1019,6 +1023,7 @@ def plot_workspace(
     light_legend: str | None = None,
     predicted: Any = None,
     caption: bool = True,
+    include: np.ndarray | None = None,
 ) -> WorkspaceArtists:
     """Draw a problem's workspace with a plan and an execution, in two chosen state coordinates.
 
@@ -1069,6 +1074,9 @@ def plot_workspace(
         ellipses of the true state (dashed red), every ``ellipse_every`` steps.
     caption : bool
         Write under the axes what the ellipses, the shading and the regions are.
+    include : ndarray, shape (k, 2), optional
+        Points of the plane (coordinates ``dims``) the axes must include as well (the runs of
+        :func:`plot_monte_carlo`).
 
     Returns
     -------
@@ -1122,6 +1130,8 @@ def plot_workspace(
         trajs.append(real.get_state()[:, d])
     if predicted is not None:
         trajs.append(predicted.state_mean[:, d])
+    if include is not None:
+        trajs.append(np.asarray(include, dtype=float).reshape(-1, 2))
     lo, hi = _extent(np.asarray(problem.initial_state.mean, dtype=float)[d], boxes, trajs)
 
     if light is not None:
@@ -1532,30 +1542,47 @@ def plot_monte_carlo(
         predicted = getattr(report, "predicted", None)
     if predicted is False:
         predicted = None
+    n = problem.switched_system.n
+    d = list(_check_dims(dims, n))
+    for i, pair in enumerate(executions):
+        if not isinstance(pair, tuple | list) or len(pair) != 2:
+            raise InvalidArgumentError(f"executions[{i}] must be a pair (executed belief, real trajectory)")
+        _check_traj(pair[0], f"executions[{i}][0]", n)
+        _check_traj(pair[1], f"executions[{i}][1]", n)
+    runs = [p[0].get_mean()[:, d] for p in executions] + [p[1].get_state()[:, d] for p in executions]
     ws = plot_light_dark(
-        problem, plan, ax=ax, light=light, dims=dims, legend=False, colorbar=colorbar, predicted=predicted
+        problem,
+        plan,
+        ax=ax,
+        light=light,
+        dims=dims,
+        legend=False,
+        colorbar=colorbar,
+        predicted=predicted,
+        include=_run_window(problem, plan, d, runs),
     )
     ax = ws.ax
     if ws.plan is not None:  # keep the plan visible above the executions that track it
         ws.plan.set_zorder(7)
         ws.plan.set_linestyle("--")
-    d = list(ws.dims)
     out = MonteCarloArtists(figure=ws.figure, ax=ax, workspace=ws)
-    n = problem.switched_system.n
-    for i, pair in enumerate(executions):
-        if not isinstance(pair, tuple | list) or len(pair) != 2:
-            raise InvalidArgumentError(f"executions[{i}] must be a pair (executed belief, real trajectory)")
-        xs, xr = pair
-        _check_traj(xs, f"executions[{i}][0]", n)
-        _check_traj(xr, f"executions[{i}][1]", n)
+    for xs, xr in executions:
         m = xs.get_mean()
         (line,) = ax.plot(m[:, d[0]], m[:, d[1]], color="tab:orange", lw=0.6, alpha=0.35, zorder=5)
         out.executed.append(line)
         s = xr.get_state()
         (rline,) = ax.plot(s[:, d[0]], s[:, d[1]], color="tab:red", lw=0.5, alpha=0.35, zorder=6)
         out.real.append(rline)
-    out.title = ax.set_title(_monte_carlo_title(report, success_rate, len(executions)), fontsize="small")
+    clipped = _mark_clipped(ax, [p[1].get_state()[:, d] for p in executions], out)
+    title = _monte_carlo_title(report, success_rate, len(executions))
+    if clipped:
+        title += f"\n{clipped} true-state runs leave the axes (x: where they leave)"
+    out.title = ax.set_title(title, fontsize="small")
     proxies = list(ws.legend_proxies)
+    if clipped:
+        proxies.append(
+            Line2D([], [], color="tab:red", marker="x", ls="none", label=f"leaves the axes ({clipped} runs)")
+        )
     if out.executed:
         proxies.append(
             Line2D([], [], color="tab:orange", lw=0.8, label=f"executed beliefs ({len(out.executed)})")
@@ -1570,6 +1597,50 @@ def plot_monte_carlo(
             ws.caption.set_text(textwrap.fill(text, 95))
     out.legend = _place_legend(ax, proxies, legend)
     return out
+
+
+RUN_WINDOW = 4.0
+"""How far (in spans of the plan's own extent) the Monte Carlo axes reach to include every run;
+a run beyond it is clipped and marked where it leaves."""
+
+
+def _run_window(problem: Any, plan: Any, d: list[int], runs: list[np.ndarray]) -> np.ndarray | None:
+    """The corners (2, 2) of the runs' extent, cut at :data:`RUN_WINDOW` spans around the
+    plan's own (start, regions, plan); None without runs."""
+    points = [r for r in runs if r.size and np.isfinite(r).all()]
+    if not points:
+        return None
+    halfplanes = _proposition_halfplanes(problem, d)
+    boxes = [b for b in (_bounded_box(H, c) for _, _, H, c in halfplanes) if b is not None]
+    boxes += _obstacle_boxes(problem, d)
+    own = [plan.get_mean()[:, d]] if plan is not None else []
+    lo, hi = _extent(np.asarray(problem.initial_state.mean, dtype=float)[d], boxes, own)
+    span = hi - lo
+    allp = np.vstack(points)
+    low = np.maximum(allp.min(axis=0), lo - RUN_WINDOW * span)
+    high = np.minimum(allp.max(axis=0), hi + RUN_WINDOW * span)
+    return np.vstack([low, high])
+
+
+def _mark_clipped(ax: Any, runs: list[np.ndarray], out: Any) -> int:
+    """Mark with an x, on the border of the axes, where each run that leaves them leaves; the count."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    count = 0
+    for r in runs:
+        outside = (
+            (r[:, 0] < x0) | (r[:, 0] > x1) | (r[:, 1] < y0) | (r[:, 1] > y1) | ~np.isfinite(r).all(axis=1)
+        )
+        if not outside.any():
+            continue
+        count += 1
+        k = int(np.argmax(outside))
+        p = np.nan_to_num(r[k], nan=x0, posinf=max(x1, y1), neginf=min(x0, y0))
+        (mark,) = ax.plot(
+            np.clip(p[0], x0, x1), np.clip(p[1], y0, y1), "x", color="tab:red", ms=6, mew=1.5,
+            zorder=8, clip_on=False,
+        )  # fmt: skip
+        out.clipped.append(mark)
+    return count
 
 
 def _monte_carlo_title(report: Any, success_rate: float | None, count: int) -> str:

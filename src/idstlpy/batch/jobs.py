@@ -490,8 +490,7 @@ def _validate(
     With ``[validation] replan``, every run re-plans (``validate(policy=...)``); its re-solves
     use ``options`` (the file's ``[solver]``) with the table's ``solver_options``.
     """
-    from ..execution import ReplanPolicy, validate
-    from ..execution.policy import ReplanTrigger
+    from ..execution import validate
 
     # (The modes carry the file's tracking gains: run_job gave them before solving.)
     # A job's seed decides everything; otherwise the file's [validation] seed, else a child of
@@ -500,10 +499,7 @@ def _validate(
         vseed = derived_seed(seed, 1)
     else:
         vseed = execution.seed
-    policy = None
-    if execution.replan is not None:
-        trigger = cast(ReplanTrigger, execution.replan)  # the file's checks took "on_risk" or "every"
-        policy = ReplanPolicy.from_keywords(trigger, options=options, **execution.replan_options)
+    policy = _replan_policy(execution, options)
     # "serial": the runs of one job stay in its worker (jobs are the unit of parallelism)
     report = validate(
         problem,
@@ -522,6 +518,73 @@ def _validate(
     if execution.replan is not None:
         data["replan_summary"] = replan_summary(execution.replan, report.replans)
     return data
+
+
+def _replan_policy(execution: ExecutionSettings, options: SolverOptions) -> Any:
+    """The re-planning policy of ``[validation] replan`` (None without one)."""
+    from ..execution import ReplanPolicy
+    from ..execution.policy import ReplanTrigger
+
+    if execution.replan is None:
+        return None
+    trigger = cast(ReplanTrigger, execution.replan)  # the file's checks took "on_risk" or "every"
+    return ReplanPolicy.from_keywords(trigger, options=options, **execution.replan_options)
+
+
+def replay_runs(spec: ProblemSpec, record: Mapping[str, Any], count: int) -> tuple[Any, Any, Any]:
+    """The first ``count`` runs of a validate record, made again for a figure.
+
+    Run ``i`` of a validation depends on its seed's child ``i`` alone, so the first ``count``
+    runs of a validation made with the record's seed, plan (the start check's when it replaced
+    the solved one), tracking gains and policy are the runs the record summarises.
+
+    Parameters
+    ----------
+    spec : ProblemSpec
+        The problem (with the job's overrides).
+    record : dict
+        A ``validate`` record with a plan and a ``validation`` section.
+    count : int
+        Runs to make again (at most the record's).
+
+    Returns
+    -------
+    problem : Problem
+    plan : ProbabilisticTSTrajectory
+        The plan the runs executed.
+    report : ValidationReport
+        Of the ``count`` runs, their trajectories kept (``report.executions``).
+
+    Raises
+    ------
+    InvalidArgumentError
+        When the record has no plan or no validation.
+    """
+    from ..execution import validate
+
+    validation = record.get("validation")
+    plan = plan_from_record(record, spec.name)
+    if plan is None or not isinstance(validation, Mapping) or "seed" not in validation:
+        raise InvalidArgumentError(f"{spec.name}: the record has no validated plan to draw the runs of")
+    start = record.get("start_check") or {}
+    if isinstance(start, Mapping) and start.get("plan"):
+        plan = plan_from_record({"plan": start["plan"]}, spec.name)
+    problem, solver_kwargs, execution = spec.build()
+    _apply_lqr(problem, execution)
+    options = SolverOptions.make(**{**solver_kwargs, "seed": record.get("seed")})
+    runs = max(1, min(int(count), execution.runs))
+    report = validate(
+        problem,
+        plan,
+        execution.real_system,
+        execution.real_initial_state,
+        runs=runs,
+        seed=validation["seed"],
+        executor="serial",
+        policy=_replan_policy(execution, options),
+        keep_trajectories=runs,
+    )
+    return problem, plan, report
 
 
 def comparable(record: Mapping[str, Any]) -> dict[str, Any]:

@@ -11,7 +11,7 @@ from typing import Any
 
 from ..errors import InvalidArgumentError
 
-__all__ = ["FIGURE_FORMATS", "FIGURE_KINDS", "check_figure_path", "save_plan_figure"]
+__all__ = ["FIGURE_FORMATS", "FIGURE_KINDS", "check_figure_path", "save_plan_figure", "save_runs_figure"]
 
 FIGURE_FORMATS = ("png", "pdf", "svg")
 FIGURE_KINDS = ("auto", "workspace", "time-series")
@@ -102,4 +102,43 @@ def save_plan_figure(
         fig.savefig(out, dpi=120, bbox_inches="tight", format=out.suffix.lower().lstrip("."))
     finally:
         plt.close(fig)
+    return out
+
+
+def save_runs_figure(
+    problem: Any, plan: Any, executions: Any, path: str | os.PathLike[str], title: str = ""
+) -> Path:
+    """Draw executions of ``plan`` over ``problem`` (:func:`idstlpy.plotting.plot_monte_carlo`).
+
+    Parameters
+    ----------
+    problem : Problem
+    plan : ProbabilisticTSTrajectory
+    executions : sequence of (ProbabilisticTSTrajectory, RealTrajectory)
+        The runs (``ValidationReport.executions``).
+    path : path
+        ``.png``, ``.pdf`` or ``.svg``.
+    title : str
+        The title (default: the plot's own, the runs' count).
+
+    Returns
+    -------
+    Path
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .. import plotting
+
+    out = check_figure_path(path)
+    art = plotting.plot_monte_carlo(problem, plan, executions)
+    if title:
+        clipped = f"\n{len(art.clipped)} true-state runs leave the axes (x: where)" if art.clipped else ""
+        art.ax.set_title(title + clipped, fontsize="small")
+    try:
+        art.figure.savefig(out, dpi=120, bbox_inches="tight", format=out.suffix.lower().lstrip("."))
+    finally:
+        plt.close(art.figure)
     return out

@@ -24,12 +24,12 @@ from pathlib import Path
 from typing import Any
 
 from ..batch import EXECUTORS, DaskExecutor, Job, load_sweep, result_path, run_jobs, summarize
-from ..batch.jobs import DEFAULT_SEED
+from ..batch.jobs import DEFAULT_SEED, replay_runs
 from ..batch.records import plan_from_record, plan_steps, read_record
 from ..errors import InvalidArgumentError, ProblemFileError
 from ..problem_file import ProblemSpec, apply_overrides, load_problem
 from .exit_codes import exit_status
-from .figures import check_figure_path, save_plan_figure
+from .figures import check_figure_path, save_plan_figure, save_runs_figure
 from .progress import ProgressBar, Ticker
 
 __all__ = ["register", "parse_set_option", "format_table", "DEFAULT_OUT"]
@@ -418,7 +418,10 @@ def _single(args: argparse.Namespace, kind: str) -> int:
     _print_execution(record)
     _print_verdict(record)
     if figure is not None:
-        _figure(spec, record, figure)
+        if kind == "validate" and isinstance(record.get("validation"), Mapping):
+            _runs_figure(spec, record, figure)
+        else:
+            _figure(spec, record, figure)
     return exit_status(records)
 
 
@@ -451,6 +454,41 @@ def _print_verdict(record: Mapping[str, Any]) -> None:
     elif isinstance(start, list):
         print("true start: fixed at [" + ", ".join(f"{v:.4g}" for v in start) + "]")
     print(f"verdict: {validation['verdict']}")
+    _print_prediction(validation.get("prediction"))
+
+
+def _print_prediction(cmp: Any) -> None:
+    """``--predict``: the predicted rates beside the measured ones (``!``: outside the measured
+    Wilson 95% interval), success first, then per proposition."""
+    if not isinstance(cmp, Mapping) or not isinstance(cmp.get("success"), Mapping):
+        return
+
+    def pct(v: Any) -> str:
+        return "n/a" if not isinstance(v, int | float) else f"{100 * float(v):.1f}%"
+
+    def cell(entry: Any) -> str:
+        if not isinstance(entry, Mapping):
+            return "n/a"
+        lo, hi = (entry.get("ci") or [None, None])[:2]
+        flag = " !" if entry.get("outside") else ""
+        return f"{pct(entry.get('predicted'))}{flag} vs {pct(entry.get('measured'))} [{pct(lo)}, {pct(hi)}]"
+
+    success = cmp["success"]
+    print("prediction vs measured (predicted ! outside the measured 95% interval):")
+    print(f"  success: belief {cell(success.get('belief'))}; true state {cell(success.get('state'))}")
+    props = cmp.get("propositions") or {}
+    if props:
+        width = max(len(str(name)) for name in props)
+        for name, entry in props.items():
+            print(
+                f"  {str(name).ljust(width)} violated: belief {cell(entry.get('belief'))}; "
+                f"true state {cell(entry.get('state'))}"
+            )
+    worst = cmp.get("max_abs_diff")
+    print(
+        f"  {cmp.get('outside')} of {cmp.get('compared')} predicted rates outside the measured interval; "
+        f"worst per-predicate |predicted - measured| {'n/a' if worst is None else f'{float(worst):.3f}'}"
+    )
 
 
 def _figure(spec: ProblemSpec, record: Mapping[str, Any], figure: Path) -> None:
@@ -463,6 +501,28 @@ def _figure(spec: ProblemSpec, record: Mapping[str, Any], figure: Path) -> None:
         title += f", {steps} steps" + (f", margin {margin:.3g}" if isinstance(margin, float) else "")
     save_plan_figure(problem, plan, figure, title)
     print(f"figure: {figure}")
+
+
+RUNS_DRAWN = 50
+"""``validate --plot`` draws the first this-many runs (made again with the same seeds)."""
+
+
+def _runs_figure(spec: ProblemSpec, record: Mapping[str, Any], figure: Path) -> None:
+    """``validate --plot``: the plan with the runs the validation made (the first
+    :data:`RUNS_DRAWN`), titled with the whole validation's rates."""
+    problem, plan, report = replay_runs(spec, record, RUNS_DRAWN)
+    v = record["validation"]
+
+    def pct(key: str) -> str:
+        value = v.get(key)
+        return "n/a" if not isinstance(value, int | float) else f"{100 * float(value):.1f}%"
+
+    title = (
+        f"{spec.title}: {v.get('runs')} runs, belief {pct('belief_success_rate')}, state "
+        f"{pct('state_success_rate')} (drawn: the first {report.runs})"
+    )
+    save_runs_figure(problem, plan, report.executions, figure, title)
+    print(f"figure: {figure} ({report.runs} of the runs drawn)")
 
 
 def _cmd_solve(args: argparse.Namespace) -> int:
