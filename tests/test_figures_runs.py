@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 import idstlpy as stl  # noqa: E402
-from idstlpy import load_problem  # noqa: E402
+from idstlpy import load_problem, plotting  # noqa: E402
 from idstlpy.batch import Job  # noqa: E402
 from idstlpy.batch.jobs import replay_runs, run_job  # noqa: E402
 from idstlpy.cli.example import example_text  # noqa: E402
@@ -100,3 +100,59 @@ def test_predict_comparison_is_printed(capsys):
     assert "2 of 4 predicted rates outside the measured interval" in out
     _print_prediction(None)  # no prediction: nothing
     assert capsys.readouterr().out == ""
+
+
+# -- time series: names that do not overlap, temporal windows marked ------------------------------
+
+
+def _nested_problem():
+    """One state, two boxes with the same centre (their names would sit on each other)."""
+    x = stl.mk_variable(1, name="x")
+    u = stl.mk_variable(1, name="u")
+    mode = stl.mk_lbs(A=np.eye(1), B=np.eye(1), W=0.01 * np.eye(1), C=np.eye(1), V=0.1 * np.eye(1))
+    outer = stl.logical_and(stl.prob(x[0] >= -2.0) >= 0.9, stl.prob(x[0] <= 2.0) >= 0.9, name="outer")
+    inner = stl.logical_and(stl.prob(x[0] >= -0.3) >= 0.9, stl.prob(x[0] <= 0.3) >= 0.9, name="inner")
+    formula = stl.until(outer, 0, 12, stl.always(0, 5, inner))
+    problem = stl.Problem(
+        stl.mk_switched_sys([mode]),
+        stl.logical_and(u[0] >= -1, u[0] <= 1).region,
+        stl.to_belief(np.zeros(1), 0.01 * np.eye(1)),
+        formula,
+    )
+    plan = stl.rollout(
+        problem.switched_system, problem.initial_state, np.zeros(12, dtype=int), np.zeros((12, 1))
+    )
+    return problem, plan
+
+
+def test_temporal_windows_are_the_steps_each_operator_looks_at():
+    problem, _ = _nested_problem()
+    assert plotting.temporal_windows(problem.stl_formula) == [
+        ("outer U[0,12] (inner ...)", 0, 12),
+        ("G[0,5] inner", 0, 17),
+    ]
+    x = stl.mk_variable(1, name="x")
+    goal = stl.logical_and(stl.prob(x[0] >= 1.0) >= 0.9, name="goal")
+    nested = stl.eventually(2, 6, stl.always(1, 3, goal))
+    assert plotting.temporal_windows(nested) == [("F[2,6] (goal ...)", 2, 6), ("G[1,3] goal", 3, 9)]
+
+
+def test_time_series_names_do_not_overlap_and_windows_are_drawn():
+    problem, plan = _nested_problem()
+    art = plotting.plot_time_series(problem, plan)
+    try:
+        art.figure.canvas.draw()
+        renderer = art.figure.canvas.get_renderer()
+        boxes = {k: t.get_window_extent(renderer) for k, t in art.region_labels.items()}
+        assert set(boxes) == {"outer", "inner"}
+        assert not boxes["outer"].overlaps(boxes["inner"])
+        # neither name covers the plan's mean (it stays at 0, the centre of both boxes)
+        ax = art.axes[0]
+        pts = ax.transData.transform(np.column_stack([np.arange(13), plan.get_mean()[:, 0]]))
+        for box in boxes.values():
+            assert not any(box.contains(px, py) for px, py in pts)
+        texts = [t.get_text() for t in ax.texts]
+        assert "G[0,5] inner: steps 0..17" in texts and "outer U[0,12] (inner ...): steps 0..12" in texts
+        assert art.windows == plotting.temporal_windows(problem.stl_formula)
+    finally:
+        plt.close(art.figure)

@@ -46,6 +46,8 @@ __all__ = [
     "clip_halfplanes",
     "save_figure",
     "FIGURE_FORMATS",
+    "RUN_WINDOW",
+    "temporal_windows",
 ]
 
 logger = logging.getLogger(__name__)
@@ -235,6 +237,12 @@ class TimeSeriesArtists:
         Per state coordinate, the markers of the plan's first and last mean.
     caption : Text or None
         What the bands and the thin lines are, under the last axes.
+    region_labels : dict[str, Text]
+        The names written on the filled bands (placed away from the plan's mean and from each
+        other).
+    windows : list of (str, int, int)
+        The formula's temporal operators with the steps each applies to (its window, shifted by
+        the windows of the operators around it), drawn as brackets above the first axes.
     """
 
     figure: Any
@@ -259,6 +267,8 @@ class TimeSeriesArtists:
     start: dict[int, Any] = field(default_factory=dict)
     end: dict[int, Any] = field(default_factory=dict)
     caption: Any = None
+    region_labels: dict[str, Any] = field(default_factory=dict)
+    windows: list[tuple[str, int, int]] = field(default_factory=list)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1669,12 +1679,16 @@ def _axis_bounds(problem: Any, i: int) -> list[tuple[int, str, float]]:
     return out
 
 
-def _fill_intervals(ax: Any, problem: Any, i: int, out: Any) -> None:
-    """Fill, across the axes of state ``i``, the interval of each box-shaped proposition on ``x[i]``."""
-    from matplotlib.transforms import blended_transform_factory
-
+def _fill_intervals(ax: Any, problem: Any, i: int, out: Any, track: np.ndarray | None = None) -> None:
+    """Fill, across the axes of state ``i``, the interval of each box-shaped proposition on
+    ``x[i]``, and name it where the name covers neither the plan's mean ``track`` (one value per
+    step) nor another name."""
     ax.autoscale_view()
     y0, y1 = ax.get_ylim()
+    x0, x1 = ax.get_xlim()
+    placed: list[tuple[float, float]] = []  # (x fraction, y fraction) of the names written
+    # a name's height (x-small text and its box, ~12 points) as a fraction of the axes' height
+    tall = min(0.5, 12.0 / max(1.0, ax.bbox.height * 72.0 / ax.figure.dpi))
     for j, name, H, c, _ in _atoms(problem):
         if not np.all(np.count_nonzero(H, axis=1) == 1) or not np.any(H[:, i]):
             continue  # an oblique face, or nothing on x[i]: its bounds alone are drawn
@@ -1688,11 +1702,12 @@ def _fill_intervals(ax: Any, problem: Any, i: int, out: Any) -> None:
         span = ax.axhspan(lo, hi, facecolor=_fill(color, 0.1), edgecolor="none", zorder=0.5)
         key = name if name not in out.regions else f"{name} (x[{i}])"
         out.regions[key] = span
-        ax.text(
-            0.005,
-            0.5 * (lo + hi),
+        fx, y = _name_spot(lo, hi, (x0, x1), (y0, y1), track, placed, tall)
+        placed.append((fx, (y - y0) / (y1 - y0)))
+        out.region_labels[key] = ax.text(
+            x0 + fx * (x1 - x0),
+            y,
             name,
-            transform=blended_transform_factory(ax.transAxes, ax.transData),
             ha="left",
             va="center",
             fontsize="x-small",
@@ -1702,6 +1717,131 @@ def _fill_intervals(ax: Any, problem: Any, i: int, out: Any) -> None:
             bbox={"boxstyle": "round,pad=0.15", "facecolor": "white", "edgecolor": "none", "alpha": 0.6},
         )
     ax.set_ylim(y0, y1)
+
+
+_NAME_SPOTS = (0.01, 0.25, 0.5, 0.75)
+"""Where along the time axis (fractions) a band's name may go."""
+
+
+def _name_spot(
+    lo: float,
+    hi: float,
+    xlim: tuple[float, float],
+    ylim: tuple[float, float],
+    track: np.ndarray | None,
+    placed: list[tuple[float, float]],
+    tall: float = 0.1,
+) -> tuple[float, float]:
+    """The spot (x fraction, y) of a band's name: inside ``[lo, hi]`` (its middle, or a
+    quarter from either end) or, when no spot there is clear, just beside it; clear of the
+    plan's mean ``track`` and of the names ``placed`` already (``(x fraction, y fraction)``);
+    ``tall`` is a name's height as a fraction of the axes'."""
+    (x0, x1), (y0, y1) = xlim, ylim
+    height = y1 - y0
+    best, best_score = (_NAME_SPOTS[0], 0.5 * (lo + hi)), -np.inf
+    inside = (0.5 * (lo + hi), lo + 0.25 * (hi - lo), hi - 0.25 * (hi - lo))
+    # just outside the band (a thin band the plan runs through has no free spot inside)
+    off, edge = 0.7 * tall * height, 0.5 * tall * height
+    beside = tuple(y for y in (hi + off, lo - off) if y0 + edge < y < y1 - edge)
+    for y in inside + beside:
+        penalty = 0.0 if y in inside else 0.5
+        yf = (y - y0) / height
+        for fx in _NAME_SPOTS:
+            # a name is ~0.2 of the axes wide and ``tall`` high: its clearance to the others
+            others = min(
+                (max(abs(fx - px) / 0.22, abs(yf - py) / (1.1 * tall)) for px, py in placed), default=9.0
+            )
+            plan = 9.0
+            if track is not None and track.size:
+                steps = np.arange(track.shape[0])
+                seen = (steps >= x0 + fx * (x1 - x0)) & (steps <= x0 + (fx + 0.2) * (x1 - x0))
+                if seen.any():
+                    plan = float(np.min(np.abs(track[seen] - y))) / height / (0.6 * tall)
+            score = min(others, 1.0) * 2 + min(plan, 1.0) - 0.01 * fx - penalty  # clear, inside, left
+            if score > best_score:
+                best, best_score = (fx, y), score
+    return best
+
+
+def _operator_text(node: Any) -> str:
+    """``F[a,b]``, ``G[a,b]``, ``U[a,b]`` or ``R[a,b]`` of a temporal node."""
+    from .formulas import FALSE, TRUE
+
+    op = node.symbol
+    if op == "U" and node.left is TRUE:
+        op = "F"
+    elif op == "R" and node.left is FALSE:
+        op = "G"
+    return f"{op}[{node.a},{node.b}]"
+
+
+def _operand_text(node: Any) -> str:
+    """An operand's propositions (``target``, ``a, b``), ``(...)`` around a temporal one."""
+    from .formulas import STLTemporalFormula
+
+    names = sorted({ap.name or "?" for ap in _propositions_of(node) if not (ap.is_true or ap.is_false)})
+    text = ", ".join(names) or str(node)
+    return f"({text} ...)" if isinstance(node, STLTemporalFormula) else text
+
+
+def _propositions_of(node: Any) -> list[Any]:
+    """The atomic propositions of a formula node (``node.atomic_propositions()``)."""
+    return list(node.atomic_propositions())
+
+
+def temporal_windows(formula: Any) -> list[tuple[str, int, int]]:
+    """The formula's temporal operators, outermost first, with the steps each one applies to.
+
+    An operator ``[a, b]`` evaluated at the steps ``lo .. hi`` (0 for the formula itself, else
+    the steps its enclosing operator looks at) looks at ``lo + a .. hi + b``; its label names
+    the operator and the propositions under it (``G[0,10] target``).
+
+    Parameters
+    ----------
+    formula : STLFormula
+
+    Returns
+    -------
+    list of (str, int, int)
+        ``(label, first step, last step)``.
+    """
+    from .formulas import STLTemporalFormula
+
+    out: list[tuple[str, int, int]] = []
+
+    def walk(node: Any, lo: int, hi: int) -> None:
+        if isinstance(node, STLTemporalFormula):
+            op = _operator_text(node)
+            label = f"{op} {_operand_text(node.right)}"
+            if op[0] in "UR":
+                label = f"{_operand_text(node.left)} {label}"
+            start, end = lo + node.a, hi + node.b
+            out.append((label, start, end))
+            walk(node.left, lo, end)
+            walk(node.right, start, end)
+            return
+        for child in getattr(node, "children", ()):
+            walk(child, lo, hi)
+
+    walk(formula, 0, 0)
+    return out
+
+
+def _draw_windows(ax: Any, formula: Any, out: Any) -> None:
+    """Brackets above ``ax``, one per temporal operator over the steps it applies to."""
+    from matplotlib.transforms import blended_transform_factory
+
+    windows = temporal_windows(formula)
+    out.windows = windows
+    tr = blended_transform_factory(ax.transData, ax.transAxes)
+    for row, (label, start, end) in enumerate(windows):
+        y = 1.05 + 0.14 * row
+        ax.plot([start, start, end, end], [y - 0.025, y, y, y - 0.025], color="0.3", lw=1.0,
+                transform=tr, clip_on=False)  # fmt: skip
+        ax.text(start, y + 0.01, f"{label}: steps {start}..{end}", transform=tr, ha="left",
+                va="bottom", fontsize="x-small", color="0.2", clip_on=False)  # fmt: skip
+        for k in (start, end):
+            ax.axvline(k, color="0.5", lw=0.6, ls=(0, (2, 3)), zorder=0.4)
 
 
 def _run_line(
@@ -1936,7 +2076,7 @@ def plot_time_series(
                 )
                 named.add(name)
                 out.bounds.append(line)
-            _fill_intervals(ax, problem, i, out)
+            _fill_intervals(ax, problem, i, out, plan.get_mean()[:, i])
         ax.set_ylabel(f"x[{i}]")
     row = len(idx)
     if draw_u:
@@ -1996,6 +2136,8 @@ def plot_time_series(
         ax.set_ylim(-0.5, num_modes - 0.5)
         ax.set_ylabel("mode")
     ax_list[-1].set_xlabel("step k")
+    if problem is not None and idx:
+        _draw_windows(ax_list[0], problem.stl_formula, out)
     # One legend for the states' axes (each label once), on the first.
     handles: dict[str, Any] = {}
     for ax in ax_list[: len(idx)]:
