@@ -156,3 +156,42 @@ def test_time_series_names_do_not_overlap_and_windows_are_drawn():
         assert art.windows == plotting.temporal_windows(problem.stl_formula)
     finally:
         plt.close(art.figure)
+
+
+# -- a disjunction is reported as the disjunction -----------------------------------------------
+
+
+def test_a_run_that_changes_operand_breaks_the_operand_not_the_disjunction():
+    from idstlpy.execution.monitor import (
+        batch_monitor,
+        disjunction_violations,
+        disjunctions,
+        promises,
+        propositions,
+        violations,
+    )
+
+    x = stl.mk_variable(1, name="x")
+    left = stl.logical_and(stl.prob(x[0] <= 0.0) >= 0.9, name="left")
+    right = stl.logical_and(stl.prob(x[0] >= 1.0) >= 0.9, name="right")
+    formula = stl.always(0, 3, stl.logical_or(left, right))
+    assert disjunctions(formula) == [("left | right", [0, 1])]
+    assert [ap.name for ap in propositions(formula)] == ["left", "right"]
+
+    def traj(xs):
+        xs = np.asarray(xs, dtype=float)[:, None]
+        return stl.ProbabilisticTSTrajectory(
+            xs, np.zeros((xs.shape[0], 1, 1)), np.zeros(3, int), np.zeros((3, 1))
+        )
+
+    plan = traj([-1.0, -1.0, 2.0, 2.0])
+    promised = promises(formula, plan, 4)
+    switched = traj([-1.0, 2.0, 2.0, 2.0])  # leaves `left` early for `right`: the formula holds
+    broken = traj([-1.0, 0.5, 2.0, 2.0])  # between the two at step 1: the formula fails
+    assert violations(formula, switched, promised)[0] == [True, False]
+    assert disjunction_violations(formula, switched, promised) == [False]
+    assert disjunction_violations(formula, broken, promised) == [True]
+    means = np.stack([switched.get_mean(), broken.get_mean()], axis=1)  # (L, S, n)
+    batch = batch_monitor(formula, promised, means, None, np.zeros(3, int))
+    assert batch["ors"].tolist() == [[False], [True]]
+    assert batch["props"].tolist() == [[True, False], [True, False]]

@@ -286,6 +286,7 @@ def execute_batch(
     b_props, b_preds = belief["props"].tolist(), belief["preds"].tolist()
     s_props, s_preds = state["props"].tolist(), state["preds"].tolist()
     b_margin, s_margin = belief["margin"].tolist(), state["margin"].tolist()
+    b_ors, s_ors = belief["ors"].tolist(), state["ors"].tolist()
     results: list[dict[str, Any]] = []
     for i in range(S):
         res: dict[str, Any] = {
@@ -295,6 +296,8 @@ def execute_batch(
             "belief_preds": b_preds[i],
             "state_props": s_props[i],
             "state_preds": s_preds[i],
+            "belief_ors": b_ors[i],
+            "state_ors": s_ors[i],
         }
         if i < keep:
             run_covs = r.covs if r.shared else r.covs[:, i]

@@ -14,12 +14,14 @@ from typing import Any
 import numpy as np
 
 from ..chance import joint_slack, slack, std_terms
-from ..formulas import STLAtomicProposition, STLFormula
+from ..formulas import STLAtomicProposition, STLFormula, STLOr
 from ..semantics import atom_margins, formula_margins, robustness
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
 __all__ = [
     "batch_monitor",
+    "disjunction_violations",
+    "disjunctions",
     "face_slacks",
     "promises",
     "propositions",
@@ -52,6 +54,79 @@ def state_trajectory(real: RealTrajectory) -> ProbabilisticTSTrajectory:
 def propositions(formula: STLFormula) -> list[STLAtomicProposition]:
     """The atomic propositions of ``formula`` that can be broken (not the constants)."""
     return [ap for ap in formula.atomic_propositions() if not ap.is_false and not ap.is_true]
+
+
+def disjunctions(formula: STLFormula) -> list[tuple[str, list[int]]]:
+    """The disjunctions of atomic propositions in ``formula`` (``left | right | below | above``):
+    each one's name and the indices of its operands in :func:`propositions`.
+
+    An operand of a disjunction may be broken at a step the plan promised it while the
+    disjunction holds (another operand took over): the monitor reports the disjunction as one.
+
+    Parameters
+    ----------
+    formula : STLFormula
+
+    Returns
+    -------
+    list of (str, list of int)
+    """
+    props = propositions(formula)
+    index = {id(ap): i for i, ap in enumerate(props)}
+    out: list[tuple[str, list[int]]] = []
+    seen: set[int] = set()
+
+    def walk(node: Any) -> None:
+        if isinstance(node, STLOr) and id(node) not in seen:
+            seen.add(id(node))
+            kids = node.children
+            if all(isinstance(c, STLAtomicProposition) and id(c) in index for c in kids):
+                members = [index[id(c)] for c in kids]
+                name = " | ".join(props[i].name or f"ap{i}" for i in members)
+                out.append((name, members))
+                return
+        for child in getattr(node, "children", ()):
+            walk(child)
+
+    walk(formula)
+    return out
+
+
+def _or_flags(formula: STLFormula, margins: list[np.ndarray], promised: list[np.ndarray]) -> np.ndarray:
+    """Per disjunction, broken at a step the plan promised it: ``margins[i]`` (L, ...) of
+    proposition ``i``, ``promised[i]`` its plan's mask; flags of shape (#disjunctions, ...)."""
+    flags = []
+    for _, members in disjunctions(formula):
+        L = min(min(margins[i].shape[0] for i in members), min(promised[i].shape[0] for i in members))
+        held = np.max(np.stack([margins[i][:L] for i in members]), axis=0)  # the best operand
+        mask = np.any(np.stack([promised[i][:L] for i in members]), axis=0)
+        flags.append(np.any(held[mask] < 0.0, axis=0))
+    return np.array(flags, dtype=bool)
+
+
+def disjunction_violations(
+    formula: STLFormula, traj: ProbabilisticTSTrajectory, promised: list[np.ndarray]
+) -> list[bool]:
+    """Per disjunction (:func:`disjunctions`): broken by ``traj`` (every operand's margin below
+    zero) at a step where the plan satisfies it.
+
+    Parameters
+    ----------
+    formula : STLFormula
+    traj : ProbabilisticTSTrajectory
+        The executed belief (or the true states as a zero-covariance belief).
+    promised : list of ndarray
+        :func:`promises` of the plan.
+
+    Returns
+    -------
+    list of bool
+    """
+    if not disjunctions(formula):
+        return []
+    means, covs, actions = traj.get_mean(), traj.get_cov(), traj.get_action()
+    margins = [atom_margins(ap, means, covs, actions) for ap in propositions(formula)]
+    return [bool(v) for v in _or_flags(formula, margins, promised)]
 
 
 def face_slacks(ap: STLAtomicProposition, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
@@ -125,7 +200,8 @@ def run_record(
     -------
     dict
         ``belief_margin``, ``state_margin`` (robustness), ``belief_props``, ``belief_preds``,
-        ``state_props``, ``state_preds`` (:func:`violations`).
+        ``state_props``, ``state_preds`` (:func:`violations`), ``belief_ors``, ``state_ors``
+        (:func:`disjunction_violations`).
     """
     state_traj = state_trajectory(xi_real)
     b_props, b_preds = violations(formula, xi_sim, promised)
@@ -137,6 +213,8 @@ def run_record(
         "belief_preds": b_preds,
         "state_props": s_props,
         "state_preds": s_preds,
+        "belief_ors": disjunction_violations(formula, xi_sim, promised),
+        "state_ors": disjunction_violations(formula, state_traj, promised),
     }
 
 
@@ -152,7 +230,8 @@ def batch_monitor(
     ``means`` (L, S, n); ``covs`` (L, n, n) shared by the runs, (L, S, n, n), or None for the
     true states (the deterministic reading: zero covariance). Returns ``margin`` (S,) (the
     robustness at step 0, :func:`~idstlpy.semantics.formula_margins` over the batch), ``props``
-    (S, #propositions) and ``preds`` (S, #predicates): broken at a promised step. Each face's
+    (S, #propositions), ``preds`` (S, #predicates) and ``ors`` (S, #disjunctions,
+    :func:`disjunctions`): broken at a promised step. Each face's
     slack is :func:`~idstlpy.chance.slack` (``-(h' mean + c + z sd)``) over the batch.
     """
     L, S, n = means.shape
@@ -211,8 +290,10 @@ def batch_monitor(
         props[:, j] = np.asarray((atoms[id(ap)][mask] < 0.0).any(axis=0))
         preds.append(np.asarray((faces_of[id(ap)][:, mask] < 0.0).any(axis=1)).T)  # (S, F)
     margin = formula_margins(formula, atoms, L)[0] if L else np.full(S, -np.inf)
+    ors = _or_flags(formula, [atoms[id(ap)] for ap in propositions(formula)], [p[:L] for p in promised])
     return {
         "margin": np.asarray(margin, dtype=float),
+        "ors": ors.T.reshape(S, -1) if ors.size else np.zeros((S, 0), dtype=bool),
         "props": props,
         "preds": np.concatenate(preds, axis=1) if preds else np.zeros((S, 0), dtype=bool),
     }

@@ -21,7 +21,7 @@ from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
 from .intervals import comparison as _comparison
 from .intervals import margin_stats as _margin_stats
 from .intervals import violation_rates, wilson_interval
-from .monitor import propositions
+from .monitor import disjunctions, propositions
 
 if TYPE_CHECKING:  # the prediction is imported when asked for (validate(predict=True))
     from .prediction import ClosedLoopPrediction
@@ -73,6 +73,11 @@ class ValidationReport:
     execution_target : ExecutionTarget
         The success rates the verdict (:attr:`meets_target`, :meth:`verdict`) is against
         (default 90% belief / 95% true state).
+    disjunction_violations : dict
+        Per disjunction of propositions (``left | right | below | above``,
+        :func:`~idstlpy.execution.monitor.disjunctions`): the runs that broke it (every operand)
+        at a step the plan satisfies it, as ``proposition_violations``. Its operands' own rates
+        count a run that left one operand for another; :meth:`summary` shows the disjunction.
     """
 
     runs: int
@@ -97,6 +102,7 @@ class ValidationReport:
     replans: tuple[int, ...] = ()
     true_start: tuple[float, ...] | None = None
     execution_target: ExecutionTarget = DEFAULT_EXECUTION_TARGET
+    disjunction_violations: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def start_drawn(self) -> bool:
@@ -256,10 +262,15 @@ class ValidationReport:
                 above = "" if entry["bound_holds"] else ", ABOVE the interval"
                 text += f" (bound {_pct(entry['bound'])}{above})"
             lines.append(text)
+        # an operand of a disjunction is reported as the disjunction: a run that left it for
+        # another operand broke no promise of the formula
+        operands = {part for name in self.disjunction_violations for part in name.split(" | ")}
         rows = [
             (name, v, None if cmp is None else cmp["predicates"][name])
             for name, v in self.predicate_violations.items()
+            if name.split(": ")[0] not in operands
         ]
+        rows += [(name, v, None) for name, v in self.disjunction_violations.items()]
         if rows:
             width = max(len(name) for name, _, _ in rows)
             lines.append(f"{'violated at a promised step'.ljust(width)}  belief / true state")
@@ -347,6 +358,7 @@ class ValidationReport:
             "belief_margin": _margin_stats(self.belief_margins),
             "state_margin": _margin_stats(self.state_margins),
             "proposition_violations": {k: dict(v) for k, v in self.proposition_violations.items()},
+            "disjunction_violations": {k: dict(v) for k, v in self.disjunction_violations.items()},
             "predicate_violations": {k: dict(v) for k, v in self.predicate_violations.items()},
             "execution_target": self.execution_target.as_dict(),
             "meets_target": self.meets_target,
@@ -431,6 +443,9 @@ def build_report(
         state_margins=state_margins,
         proposition_violations=violation_rates(results, "belief_props", "state_props", prop_names),
         predicate_violations=violation_rates(results, "belief_preds", "state_preds", pred_names),
+        disjunction_violations=violation_rates(
+            results, "belief_ors", "state_ors", [name for name, _ in disjunctions(formula)]
+        ),
         elapsed=elapsed,
         executions=tuple(r["trajectories"] for r in results if "trajectories" in r),
         predicted=predicted,
