@@ -3,6 +3,13 @@
 Every pruning fact is proved on the *mean-only relaxation*: a belief can satisfy a chance
 constraint only if its mean satisfies the deterministic constraint (the covariance term is
 non-negative), so a step that no mean can make is impossible for every belief.
+
+A joint chance constraint ``prob_in(region) >= 1 - eps`` is read here as the monitor reads it
+(:func:`idstlpy.chance.joint_tail_sum`: Boole's bound with the best per-face allocation at that
+step), not at the shares the plan LP plans with: a belief the monitor accepts is labelled true
+(the prior at step 0, the sampler's and the LP's beliefs), and a belief labelled false is false
+for every allocation, so the step-0 claim is a proof. The covariance-floor claim
+(:meth:`Abstraction.out_of_reach`) reads each of its faces alone at ``eps`` (necessary).
 """
 
 from __future__ import annotations
@@ -15,7 +22,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 
 from ..backends import Backend, HighsBackend, LinearModel
-from ..chance import std_terms
+from ..chance import joint_tail_sum, quantile, std_terms
+from ..expressions import JointFace
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
 from .budget import Budget
@@ -82,6 +90,9 @@ class Abstraction:
         self.index = {id(a): i for i, a in enumerate(self.atoms)}
         self.n = n
         H, c, z, owner = [], [], [], []
+        # Joint constraints' faces: (atom, rows into H, eps), judged together (Boole's bound).
+        self.joint_groups: list[tuple[int, np.ndarray, float]] = []
+        row = 0
         for i, ap in enumerate(self.atoms):
             if ap.predicates:
                 cone = ap.cone
@@ -89,10 +100,18 @@ class Abstraction:
                 c.append(cone.c)
                 z.append(cone.z)
                 owner.extend([i] * cone.num_faces)
+                at = row + ap.num_single
+                for joint in ap.joints:
+                    self.joint_groups.append((i, np.arange(at, at + joint.num_faces), joint.eps))
+                    at += joint.num_faces
+                row += cone.num_faces
         self.H = np.vstack(H) if H else np.zeros((0, n))
         self.c = np.concatenate(c) if c else np.zeros(0)
         self.z = np.concatenate(z) if z else np.zeros(0)
         self.owner = np.asarray(owner, dtype=int)
+        self.joint_rows = np.zeros(self.H.shape[0], dtype=bool)
+        for _, rows, _ in self.joint_groups:
+            self.joint_rows[rows] = True
         self.num_atoms = len(self.atoms)
         self.mode_sets = [ap.modes for ap in self.atoms]
 
@@ -127,8 +146,30 @@ class Abstraction:
         """
         out = self._mode_truth(arrival_mode).copy()
         if self.H.shape[0]:
-            bad = self.face_slack(mean, cov) < 0
+            bad = (self.face_slack(mean, cov) < 0) & ~self.joint_rows
             out[self.owner[bad]] = False
+            if self.joint_groups:
+                out[self._joint_false(mean[None, :], cov[None])[0]] = False
+        return out
+
+    def _joint_false(self, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
+        """Per step, which propositions a joint constraint makes false (Boole's bound > eps).
+
+        Parameters
+        ----------
+        means : ndarray, shape (L, n)
+        covs : ndarray, shape (L, n, n)
+
+        Returns
+        -------
+        ndarray of bool, shape (L, num_atoms)
+        """
+        out = np.zeros((means.shape[0], self.num_atoms), dtype=bool)
+        for i, rows, eps in self.joint_groups:
+            H = self.H[rows]
+            d = -(means @ H.T + self.c[rows])
+            sd = np.sqrt(np.maximum(np.einsum("fi,tij,fj->tf", H, covs, H), 0.0))
+            out[:, i] |= joint_tail_sum(d, sd) > eps
         return out
 
     def labels(self, means: np.ndarray, covs: np.ndarray, actions: np.ndarray, start: int = 0) -> np.ndarray:
@@ -149,8 +190,11 @@ class Abstraction:
         out = np.array([self._mode_truth(int(actions[k - 1]) if k else -1) for k in range(start, L)])
         if self.H.shape[0]:
             terms = std_terms(self.H, self.z, covs[start:])
-            rows, faces = np.nonzero(-(means[start:] @ self.H.T + self.c + terms) < 0)
+            bad = (-(means[start:] @ self.H.T + self.c + terms) < 0) & ~self.joint_rows[None, :]
+            rows, faces = np.nonzero(bad)
             out[rows, self.owner[faces]] = False
+            if self.joint_groups:
+                out[self._joint_false(means[start:], covs[start:])] = False
         return out.T
 
     def _mode_truth(self, arrival_mode: int) -> np.ndarray:
@@ -249,7 +293,14 @@ class Abstraction:
             if not ap.predicates:
                 continue
             cone = ap.cone
-            terms = std_terms(cone.H, cone.z, tail)  # (K, F)
+            # A joint constraint's faces alone at its eps: necessary whatever the allocation.
+            z = np.array(
+                [
+                    float(quantile(p.joint.eps)) if isinstance(p, JointFace) else cone.z[f]
+                    for f, p in enumerate(ap.predicates)
+                ]
+            )
+            terms = std_terms(cone.H, z, tail)  # (K, F)
             if np.any(np.isnan(terms)):
                 continue  # no sound claim from a degenerate bound
             best = terms.min(axis=0)
