@@ -13,11 +13,21 @@ the solve's time cap, and its plan is kept when it is found with a larger monito
 This is a deterministic function of the first result: the same seed gives the same plan.
 
 Refutations under one allocation prove nothing about the others, so the CEGIS loop turns an
-``infeasible`` into ``budget_exhausted`` (:data:`NO_PROOF`). :func:`prove_infeasible` then tries
+``infeasible`` into ``budget_exhausted`` (:data:`NO_PROOF`). :func:`search_allocation` then tries
 the *necessary relaxation*: every joint constraint replaced by its faces, each alone at the
 joint confidence (``P[x in region] >= 1 - eps`` implies ``P[h_f' x + c_f <= 0] >= 1 - eps`` for
 every face, and every PrSTL operator is monotone in its propositions). If the relaxed problem is
 proven infeasible, so is the original one, and the result says ``infeasible``.
+
+Otherwise the relaxation's plan shows which faces a plan must approach: the allocation is
+iterated to it (after Ono and Williams' iterative risk allocation, started from the relaxed,
+over-allocated end): each face gets a share of ``eps`` in proportion to the largest violation
+probability it has on the relaxed plan where that plan meets the constraint's faces, and the
+original problem is solved again at those shares. When that fails the relaxation is tightened
+(every face alone at ``eps / 2``, ``eps / 4``, ... down to ``eps / F``, where a plan is one at
+equal shares) and the step repeats, each round within what is left of the solve's time cap.
+Any plan returned was found and checked on the original formula (the monitor reads every joint
+constraint by Boole's bound), so the relaxation's own plans are evidence, never an answer.
 """
 
 from __future__ import annotations
@@ -25,6 +35,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import logging
+import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -33,13 +44,23 @@ import numpy as np
 from ..chance import joint_tail_sum, quantile, slack
 from ..expressions import JointChanceConstraint, ProbabilisticLinearPredicate
 from ..formulas import STLAtomicProposition, STLFormula, map_atoms, map_joints
+from .joint_lp import allocation_for_plan
 from .options import SolverOptions
 from .results import SolveResult
 
 if TYPE_CHECKING:
     from ..problem import Problem
 
-__all__ = ["NO_PROOF", "after_solve", "prove_infeasible", "reallocate", "refine_allocation", "relax_joints"]
+__all__ = [
+    "NO_PROOF",
+    "after_solve",
+    "prove_infeasible",
+    "proportional_shares",
+    "reallocate",
+    "refine_allocation",
+    "relax_joints",
+    "search_allocation",
+]
 
 NO_PROOF = (
     " at the planned risk allocation of the joint chance constraints; other allocations were not "
@@ -156,24 +177,27 @@ def refine_allocation(
     return result
 
 
-def relax_joints(formula: STLFormula) -> STLFormula:
+def relax_joints(formula: STLFormula, scale: float = 1.0) -> STLFormula:
     """The necessary relaxation: each joint constraint's faces, each alone at its confidence.
 
     Parameters
     ----------
     formula : STLFormula
+    scale : float, default 1
+        Each face alone at ``scale * eps``: ``1`` is implied by ``formula`` (a necessary
+        relaxation); ``1 / F`` implies the joint constraint of ``F`` faces (equal shares).
 
     Returns
     -------
     STLFormula
-        Without joint constraints; implied by ``formula`` on every trajectory.
+        Without joint constraints; implied by ``formula`` on every trajectory when ``scale = 1``.
     """
 
     def atom(ap: STLAtomicProposition) -> STLAtomicProposition:
         if not ap.joints:
             return ap
         faces = [
-            ProbabilisticLinearPredicate(h, float(c), j.variable, j.eps)
+            ProbabilisticLinearPredicate(h, float(c), j.variable, j.eps * scale)
             for j in ap.joints
             for h, c in zip(j.H, j.c, strict=True)
         ]
@@ -228,6 +252,150 @@ def prove_infeasible(
     )
 
 
+_FLOOR = 1e-6  # no face gets less than this fraction of eps (a zero share needs zero variance)
+
+
+def proportional_shares(formula: STLFormula, means: np.ndarray, covs: np.ndarray, scale: float) -> STLFormula:
+    """Shares in proportion to what each face needs on a plan of the relaxation at ``scale``.
+
+    Per joint constraint (not fixed by the caller): at the steps where every face meets
+    ``scale * eps`` alone (where the relaxed plan may use the constraint), each face's largest
+    violation probability ``u_f``; the shares are ``eps * u_f / sum u``, each at least
+    ``1e-6 eps``. A plan that meets the constraint at those steps with ``sum u <= eps`` meets
+    every face at these shares.
+
+    Parameters
+    ----------
+    formula : STLFormula
+        The original formula (its joint constraints).
+    means : ndarray, shape (L, n)
+    covs : ndarray, shape (L, n, n)
+        The relaxed plan's beliefs.
+    scale : float
+        The relaxation's level (each face alone at ``scale * eps``).
+
+    Returns
+    -------
+    STLFormula
+        ``formula`` itself when no shares changed.
+    """
+
+    def fn(joint: JointChanceConstraint) -> JointChanceConstraint:
+        if joint.fixed or joint.eps <= 0 or joint.num_faces < 2:
+            return joint
+        d = -(means @ joint.H.T + joint.c)
+        sd = np.sqrt(np.maximum(np.einsum("fi,tij,fj->tf", joint.H, covs, joint.H), 0.0))
+        tails = joint_tail_sum(d[..., None], sd[..., None])  # (L, F): each face alone
+        used = np.all(tails <= scale * joint.eps, axis=1)
+        if not used.any():
+            return joint
+        need = np.maximum(np.max(tails[used], axis=0), _FLOOR * joint.eps)
+        shares = joint.eps * need / float(np.sum(need))
+        if np.allclose(shares, joint.shares, rtol=1e-9, atol=0.0):
+            return joint
+        return joint.with_shares(shares, fixed=False)
+
+    return map_joints(formula, fn)
+
+
+def _has_free_joint(formula: STLFormula) -> bool:
+    return any(not j.fixed and j.num_faces > 1 for ap in formula.atomic_propositions() for j in ap.joints)
+
+
+def search_allocation(
+    problem: Problem,
+    options: SolverOptions,
+    start: float,
+    result: SolveResult,
+    solve: Callable[[Problem, SolverOptions, float], SolveResult],
+) -> SolveResult:
+    """After a solve with joint constraints that found nothing: prove, or find another allocation.
+
+    The necessary relaxation first (:func:`relax_joints`): infeasible there is a proof for the
+    original problem. Then rounds of :func:`proportional_shares` on the plans of relaxations at
+    ``eps``, ``eps / 2``, ... ``eps / F`` (the most faces of any joint constraint), each followed by
+    a solve of the original problem at the new shares; the first plan found is returned. The
+    rounds stop at the solve's time cap (what is left of it) or when a relaxation finds no plan.
+
+    Parameters
+    ----------
+    problem, options, start, result, solve
+        As in :func:`refine_allocation`.
+
+    Returns
+    -------
+    SolveResult
+        ``infeasible`` (the relaxation's proof), the first ``found`` at another allocation, or
+        ``result`` with its reason saying how many allocations were tried.
+    """
+    if result.status in ("found", "infeasible"):
+        return result
+    base = problem.stl_formula
+    faces = max((j.num_faces for ap in base.atomic_propositions() for j in ap.joints), default=1)
+    scales = [1.0]
+    while scales[-1] / 2 > 1.0 / faces:
+        scales.append(scales[-1] / 2)
+    if faces > 1 and scales[-1] > 1.0 / faces:
+        scales.append(1.0 / faces)
+    tried: list[STLFormula] = [base]
+    rounds = 0
+    for scale in scales:
+        if time.perf_counter() - start >= options.total_time_cap:  # a safety cap: the rounds are few
+            break
+        relaxed = copy.copy(problem)
+        relaxed.stl_formula = relax_joints(base, scale)
+        evidence = solve(relaxed, options, start)
+        if scale == 1.0 and evidence.status == "infeasible":
+            logger.info("joint chance constraints: the necessary relaxation is infeasible, a proof")
+            return dataclasses.replace(
+                evidence,
+                formula=result.formula,
+                reason=(
+                    f"{evidence.reason} (proven on the necessary relaxation: every face of each "
+                    "joint chance constraint alone at its confidence)"
+                ),
+            )
+        if evidence.status != "found" or evidence.trajectory is None or not _has_free_joint(base):
+            break
+        beliefs = evidence.predicted if evidence.predicted is not None else evidence.trajectory
+        choices = [
+            (
+                "optimised in an LP over the relaxed plan's modes and requirements",
+                allocation_for_plan(problem, relaxed.stl_formula, evidence.trajectory),
+            ),
+            (
+                "in proportion to what the relaxed plan's faces needed",
+                proportional_shares(base, beliefs.get_mean(), beliefs.get_cov(), scale),
+            ),
+        ]
+        for how, formula in choices:
+            if formula is None or any(formula is f for f in tried):
+                continue
+            if time.perf_counter() - start >= options.total_time_cap:
+                break
+            tried.append(formula)
+            rounds += 1
+            again = copy.copy(problem)
+            again.stl_formula = formula
+            second = solve(again, options, start)
+            if second.status == "found":
+                logger.info("risk allocation: found at allocation %d (relaxation at %.3g eps)", rounds, scale)
+                second.reason += (
+                    f"; the joint chance constraints' risk {how} (a plan of the relaxation with each "
+                    f"face alone at {scale:.3g} eps), after {rounds} allocation(s) beyond the first"
+                )
+                return second
+    if rounds:
+        result = dataclasses.replace(
+            result,
+            reason=(
+                f"{result.reason}; {rounds} other allocation(s) tried, from plans of the relaxation, "
+                "found none"
+            ),
+        )
+    return result
+
+
 def after_solve(
     problem: Problem,
     options: SolverOptions,
@@ -237,8 +405,8 @@ def after_solve(
 ) -> SolveResult:
     """What a solve with joint chance constraints does after the CEGIS loop.
 
-    A found plan gets one round of risk re-allocation (:func:`refine_allocation`); a downgraded
-    ``infeasible`` is tried on the necessary relaxation (:func:`prove_infeasible`).
+    A found plan gets one round of risk re-allocation (:func:`refine_allocation`); any other
+    result is tried on the necessary relaxation and other allocations (:func:`search_allocation`).
 
     Parameters
     ----------
@@ -251,4 +419,4 @@ def after_solve(
     """
     if result.status == "found":
         return refine_allocation(problem, options, start, result, solve)
-    return prove_infeasible(problem, options, start, result, solve)
+    return search_allocation(problem, options, start, result, solve)
