@@ -13,13 +13,14 @@ chance constraint ``prob_in(region) >= 1 - eps`` per part:
 ``dwell``
     ``F[a, b] G[0, d] prob_in(region)``.
 
-Each region has 3-6 faces with random normals. At every step the part needs, a random split of
-``eps`` among the faces (a Dirichlet draw, a different one per step) fixes how far each face
-must be from the witness's mean; each face's offset is the tightest over those steps, then
-moved out by a random slack (zero now and then). The witness's Boole bound is then at most
-``eps`` at every such step: the monitor's reading of a joint constraint, so ``stl.satisfies``
-accepts the witness (checked here). Because the split changes from step to step, no single
-per-face allocation fixed in advance need suit every step: the case the issue reports.
+Each region is an axis-aligned box or has 3-6 faces with random normals. At every step the part
+needs, a random split of ``eps`` among the faces (a Dirichlet draw, a different one per step)
+fixes how far each face must be from the witness's mean; each face's offset is the tightest over
+those steps, then moved out by a random slack (zero now and then). The witness's Boole bound is
+then at most ``eps`` at every such step: the monitor's reading of a joint constraint, so
+``stl.satisfies`` accepts the witness (checked here). Because the split changes from step to
+step, no single per-face allocation fixed in advance need suit every step: the case the issue
+reports.
 
 :func:`witness_probabilities` is the independent check: the region's probability at each needed
 step by Monte Carlo (and by :func:`scipy.stats.multivariate_normal.cdf` for boxes), and the
@@ -36,11 +37,13 @@ from scipy.stats import multivariate_normal, norm
 
 import idstlpy as stl
 from idstlpy.chance import joint_slack
+from idstlpy.formulas import FALSE, TRUE, STLAnd, STLAtomicProposition, STLOr, STLRelease, STLUntil
 
+from .brute_force import Trace, chance_holds
 from .joint import boole_risk, sampled_probability
 from .rollout import ModeSpec, mlo_rollout
 
-__all__ = ["JointPart", "JointInstance", "joint_instance", "witness_probabilities"]
+__all__ = ["JointPart", "JointInstance", "joint_instance", "joint_sat", "plan_check", "witness_probabilities"]
 
 
 @dataclass
@@ -118,14 +121,11 @@ def _modes(rng: np.random.Generator, n: int, m: int) -> list[ModeSpec]:
     return out
 
 
-def _directions(rng: np.random.Generator, n: int, F: int) -> np.ndarray:
-    if rng.random() < 0.4 and F >= 2 * n:
-        # a box (its faces first), then random extra faces
-        H = np.vstack([np.eye(n), -np.eye(n)])
-        extra = rng.normal(size=(F - 2 * n, n))
-        H = np.vstack([H, extra / np.linalg.norm(extra, axis=1, keepdims=True)]) if F > 2 * n else H
-        return np.asarray(H, dtype=float)
-    V = rng.normal(size=(F, n))
+def _directions(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Face normals: an axis-aligned box (3 in 10) or 3-6 random unit normals."""
+    if rng.random() < 0.3:
+        return np.vstack([np.eye(n), -np.eye(n)])
+    V = rng.normal(size=(int(rng.integers(3, 7)), n))
     return np.asarray(V / np.linalg.norm(V, axis=1, keepdims=True), dtype=float)
 
 
@@ -140,8 +140,8 @@ def _region(
 ) -> tuple[Any, JointPart]:
     """A joint constraint at ``level`` that the beliefs at ``steps`` meet (Boole, per-step split)."""
     n = means.shape[1]
-    F = int(rng.integers(3, 7))
-    H = _directions(rng, n, F)
+    H = _directions(rng, n)
+    F = H.shape[0]
     eps = (stl.prob_in(stl.Polytope(H, np.zeros(F)), variable=x) >= level).eps
     d_min = np.zeros(F)
     offs = np.full(F, np.inf)
@@ -270,17 +270,65 @@ def witness_probabilities(inst: JointInstance, samples: int = 20000, seed: int =
                 # x_i <= -c_i and -x_i <= -c_{n+i}: the box [c_{n+i}, -c_i]
                 lo_b, hi_b = part.c[n:], -part.c[:n]
                 mvn = multivariate_normal(mean=mean, cov=cov)
-                row["exact"] = float(_box_cdf(mvn, lo_b, hi_b))
+                row["exact"] = float(mvn.cdf(hi_b, lower_limit=lo_b))
             out.append(row)
     return out
 
 
-def _box_cdf(mvn: Any, lo: np.ndarray, hi: np.ndarray) -> float:
-    """``P[lo <= x <= hi]`` by inclusion-exclusion over the box's corners (n <= 3)."""
-    n = lo.shape[0]
-    total = 0.0
-    for mask in range(1 << n):
-        corner = np.where([(mask >> i) & 1 for i in range(n)], lo, hi)
-        sign = (-1) ** bin(mask).count("1")
-        total += sign * float(mvn.cdf(corner))
-    return total
+# ------------------------------------------------------------------------------------------------
+# an independent monitor for formulas with joint constraints
+
+
+def _atom_holds(ap: STLAtomicProposition, k: int, trace: Trace) -> bool:
+    """Single chance constraints by their deterministic equivalent, each joint constraint by the
+    literal Boole sum (``scipy.stats.norm``) at most its ``eps`` (the monitor's reading)."""
+    if ap is FALSE:
+        return False
+    if ap is TRUE:
+        return True
+    mean, cov = trace.states[k]
+    for p in ap.predicates[: ap.num_single]:
+        if not chance_holds(p.h, p.c, p.eps, mean, cov):
+            return False
+    for j in ap.joints:
+        # the bound may sit on eps to rounding (zero-slack witnesses): a relative 1e-9 of eps
+        if boole_risk(j.H, j.c, mean, cov) > j.eps * (1 + 1e-9):
+            return False
+    return not (ap.modes is not None and k > 0 and trace.actions[k - 1] not in ap.modes)
+
+
+def joint_sat(formula: Any, k: int, trace: Trace) -> bool:
+    """``trace |=_k formula`` by the literal definitions, joint constraints read by Boole's bound."""
+    if k >= len(trace):
+        return False
+    if isinstance(formula, STLAtomicProposition):
+        return _atom_holds(formula, k, trace)
+    if isinstance(formula, STLAnd):
+        return all(joint_sat(c, k, trace) for c in formula.children)
+    if isinstance(formula, STLOr):
+        return any(joint_sat(c, k, trace) for c in formula.children)
+    if isinstance(formula, STLUntil):
+        f1, f2, a, b = formula.left, formula.right, formula.a, formula.b
+        return any(
+            joint_sat(f2, k1, trace) and all(joint_sat(f1, k2, trace) for k2 in range(k + a, k1))
+            for k1 in range(k + a, k + b + 1)
+        )
+    if isinstance(formula, STLRelease):
+        f1, f2, a, b = formula.left, formula.right, formula.a, formula.b
+        for k1 in range(k + a, k + b + 1):
+            if joint_sat(f1, k1, trace) and all(joint_sat(f2, k2, trace) for k2 in range(k + a, k1 + 1)):
+                return True
+        return all(joint_sat(f2, k1, trace) for k1 in range(k + a, k + b + 1))
+    raise TypeError(f"unknown formula type {type(formula).__name__}")
+
+
+def plan_check(inst: JointInstance, plan: stl.ProbabilisticTSTrajectory) -> tuple[bool, bool]:
+    """A returned plan judged twice: ``(monitor, oracle)``.
+
+    ``monitor`` is ``stl.satisfies`` on the plan's own beliefs; ``oracle`` re-rolls the plan's
+    modes and controls with the independent :func:`oracles.rollout.mlo_rollout` and judges the
+    original formula with :func:`joint_sat`.
+    """
+    monitor = bool(stl.satisfies(plan, inst.formula))
+    trace = mlo_rollout(inst.modes, inst.mean0, inst.cov0, plan.get_action(), plan.get_control())
+    return monitor, joint_sat(inst.formula, 0, trace)
