@@ -314,6 +314,12 @@ class Abstraction:
                     f"the confidence of {self.names()[i]} is out of reach: even the smallest covariance "
                     f"a belief can have (a sound lower bound; rms std {sd:.3g} at the last step checked) "
                     f"leaves no mean inside it{every}"
+                    + (
+                        " (each face of a joint chance constraint alone at its eps, which every "
+                        "risk allocation needs)"
+                        if ap.joints
+                        else ""
+                    )
                 )
         return out
 

@@ -128,7 +128,10 @@ def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, st
             " under the MLO reading; with state-dependent sensor noise that is no proof for "
             "guarantee='closed_loop'"
         )
-    if status == "infeasible" and ctx.joint:
+    # With no candidate refuted and no MILP solved, the proof is LP pruning's alone, which does
+    # not depend on the risk allocation (mean regions, each joint face alone at its eps, the
+    # step-0 labels read by Boole's bound): it stands for the joint constraints as they are.
+    if status == "infeasible" and ctx.joint and (ctx.stats.candidates or ctx.stats.milp_calls):
         status = "budget_exhausted"
         reason += NO_PROOF  # allocation.prove_infeasible may prove it on the relaxation
     if status == "budget_exhausted":
