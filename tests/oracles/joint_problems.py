@@ -156,11 +156,13 @@ def _region(
     slack = float(rng.choice([0.0, 1e-6, 1e-3, 0.02, 0.1])) * sd0
     c = offs - slack * rng.random(F)
     # Zero slack computed in floating point may miss by a rounding error: move the faces out by
-    # the fewest ulps (doubling) that the monitor's reading accepts at every step.
+    # the fewest ulps (doubling) that the monitor's reading accepts at every step. The reading is
+    # taken over the whole trace, as the monitor takes it: its root search stops within 1e-12 of
+    # the scale of each step's bracket, on the feasible side (a margin of -1e-12 at zero slack).
     ulp = np.spacing(np.maximum(np.abs(c), 1e-300))
     for i in range(64):
         shifted = c - (0.0 if i == 0 else 2.0 ** (i - 1)) * ulp
-        if all(float(joint_slack(H, shifted, eps, means[k], covs[k])) >= 0 for k in steps):
+        if np.all(joint_slack(H, shifted, eps, means, covs)[steps] >= 0):
             c = shifted
             break
     part = JointPart(kind, H, c, eps, list(steps))

@@ -13,21 +13,29 @@ the solve's time cap, and its plan is kept when it is found with a larger monito
 This is a deterministic function of the first result: the same seed gives the same plan.
 
 Refutations under one allocation prove nothing about the others, so the CEGIS loop turns an
-``infeasible`` into ``budget_exhausted`` (:data:`NO_PROOF`). :func:`search_allocation` then tries
-the *necessary relaxation*: every joint constraint replaced by its faces, each alone at the
-joint confidence (``P[x in region] >= 1 - eps`` implies ``P[h_f' x + c_f <= 0] >= 1 - eps`` for
-every face, and every PrSTL operator is monotone in its propositions). If the relaxed problem is
+``infeasible`` that rests on a refuted candidate or a MILP into ``budget_exhausted``
+(:data:`NO_PROOF`); LP pruning's own proofs do not depend on the allocation (mean regions, each
+joint face alone at its ``eps``, step-0 labels read by Boole's bound) and stand.
+
+Any other result without a plan goes to :func:`search_allocation`. It solves the *necessary
+relaxation* first: every joint constraint replaced by its faces, each alone at the joint
+confidence (``P[x in region] >= 1 - eps`` implies ``P[h_f' x + c_f <= 0] >= 1 - eps`` for every
+face, and every PrSTL operator is monotone in its propositions). If the relaxed problem is
 proven infeasible, so is the original one, and the result says ``infeasible``.
 
-Otherwise the relaxation's plan shows which faces a plan must approach: the allocation is
-iterated to it (after Ono and Williams' iterative risk allocation, started from the relaxed,
-over-allocated end): each face gets a share of ``eps`` in proportion to the largest violation
-probability it has on the relaxed plan where that plan meets the constraint's faces, and the
-original problem is solved again at those shares. When that fails the relaxation is tightened
-(every face alone at ``eps / 2``, ``eps / 4``, ... down to ``eps / F``, where a plan is one at
-equal shares) and the step repeats, each round within what is left of the solve's time cap.
-Any plan returned was found and checked on the original formula (the monitor reads every joint
-constraint by Boole's bound), so the relaxation's own plans are evidence, never an answer.
+Otherwise the relaxation's plan is evidence of where a plan runs (its modes, the requirements
+of its witness). Per plan, two allocations are tried, each by solving the original problem
+again at those shares: the one of :func:`~.joint_lp.allocation_for_plan` (an LP over that plan's
+modes and requirements that optimises every step's per-face risks with the controls, under a
+sound piecewise-linear bound of the Gaussian tail; each face then gets the largest risk it used),
+then shares in proportion to the largest violation probability each face has on the relaxed
+plan itself (:func:`proportional_shares`). When both fail, the relaxation is tightened (every
+face alone at ``eps / 2``, ``eps / 4``, ... down to ``eps / F``, where a plan is one at equal
+shares) for another plan, and the rounds repeat: at most ``2 (1 + ceil(log2 F))`` solves beyond
+the relaxations, within what is left of the solve's time cap (a safety cap: the rounds are
+counted, so the same seed gives the same answer). Any plan returned was found and checked on
+the original formula (the monitor reads every joint constraint by Boole's bound); the
+relaxation's own plans are evidence, never an answer.
 """
 
 from __future__ import annotations
@@ -54,7 +62,6 @@ if TYPE_CHECKING:
 __all__ = [
     "NO_PROOF",
     "after_solve",
-    "prove_infeasible",
     "proportional_shares",
     "reallocate",
     "refine_allocation",
@@ -204,52 +211,6 @@ def relax_joints(formula: STLFormula, scale: float = 1.0) -> STLFormula:
         return STLAtomicProposition([*ap.predicates[: ap.num_single], *faces], ap.modes, name=ap.name)
 
     return map_atoms(formula, atom)
-
-
-def prove_infeasible(
-    problem: Problem,
-    options: SolverOptions,
-    start: float,
-    result: SolveResult,
-    solve: Callable[[Problem, SolverOptions, float], SolveResult],
-) -> SolveResult:
-    """Turn a downgraded ``infeasible`` into a proof when the necessary relaxation is infeasible.
-
-    Parameters
-    ----------
-    problem : Problem
-    options : SolverOptions
-    start : float
-        ``time.perf_counter()`` at the first line of the solve (the relaxed solve gets what is left
-        of the time cap).
-    result : SolveResult
-        The first result: acted on only when it is a ``budget_exhausted`` the CEGIS loop
-        downgraded from ``infeasible`` (its reason ends with :data:`NO_PROOF`).
-    solve : callable
-        ``solve(problem, options, start) -> SolveResult`` (the CEGIS loop).
-
-    Returns
-    -------
-    SolveResult
-        ``infeasible`` (the relaxed solve's proof and statistics, the original formula) or
-        ``result``.
-    """
-    if result.status != "budget_exhausted" or not result.reason.endswith(NO_PROOF):
-        return result
-    relaxed = copy.copy(problem)
-    relaxed.stl_formula = relax_joints(problem.stl_formula)
-    second = solve(relaxed, options, start)
-    if second.status != "infeasible":
-        return result
-    logger.info("joint chance constraints: the necessary relaxation is infeasible, a proof")
-    return dataclasses.replace(
-        second,
-        formula=result.formula,
-        reason=(
-            f"{second.reason} (proven on the necessary relaxation: every face of each joint "
-            "chance constraint alone at its confidence)"
-        ),
-    )
 
 
 _FLOOR = 1e-6  # no face gets less than this fraction of eps (a zero share needs zero variance)

@@ -133,7 +133,7 @@ def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, st
     # step-0 labels read by Boole's bound): it stands for the joint constraints as they are.
     if status == "infeasible" and ctx.joint and (ctx.stats.candidates or ctx.stats.milp_calls):
         status = "budget_exhausted"
-        reason += NO_PROOF  # allocation.prove_infeasible may prove it on the relaxation
+        reason += NO_PROOF  # allocation.search_allocation may prove it on the relaxation
     if status == "budget_exhausted":
         advice = budget_advice(
             reason,
