@@ -150,3 +150,16 @@ def test_a_prior_outside_the_joint_constraint_is_proven_infeasible():
     assert result.status == "infeasible", result.reason
     assert "initial belief does not satisfy" in result.reason
     assert "no proof" not in result.reason
+
+
+def test_the_eager_milp_reads_the_prior_as_the_monitor_does():
+    """The eager MILP's step-0 margin rows (an objective) read the joint constraint at the prior by
+    Boole's bound: the prior near one face is claimable at step 0, so the first MILP finds the
+    plan (at the planned shares it was excluded, and only the allocation search found one)."""
+    problem, H, c, prior = _box_problem([0.8, 0.0])
+    result = problem.solve_result(
+        rrt_timeout=2, seed=0, guarantee="mlo", lazy_candidates=0, objective="margin"
+    )
+    assert result.status == "found", result.reason
+    assert result.stats.milp_calls >= 1
+    assert "allocation(s) beyond the first" not in result.reason

@@ -108,6 +108,8 @@ def allocation_for_plan(
     actions = np.asarray(plan.modes[1 : plan.length], dtype=int)
     K = int(actions.shape[0])
     reqs = [(k, i) for (k, i) in plan.requirements() if k >= 1 and abs_o.atoms[i].predicates]
+    # Step 0's requirements are the prior's: no rows, and no say in the shares either (labels and
+    # the MILP's step-0 rows read a joint constraint at the prior by Boole's bound, not at shares).
     if K == 0 or not any(abs_o.atoms[i].joints for _, i in reqs):
         return None
     covs, _ = covariance_schedule(system.system_modes, problem.initial_state.cov, actions)

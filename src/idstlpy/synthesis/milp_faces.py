@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.sparse import coo_matrix
 
-from ..chance import std_terms
+from ..chance import joint_slack, std_terms
 from .milp_bounds import hard_steps, invariant_box, margin_cap, state_boxes, support, support_points
 
 if TYPE_CHECKING:
@@ -219,11 +219,17 @@ def _step0_rows(
     s_cols: list[int] = []
     s_vals: list[float] = []
     s_hi: list[float] = []
+    # A joint constraint is read at the prior as the monitor reads it (Boole's bound, the best
+    # allocation), not at its planned shares: its faces' rows give way to its joint slack.
+    joint0 = {i: np.inf for i, _, _ in abstraction.joint_groups}
+    for i, rows, eps in abstraction.joint_groups:
+        r0 = float(joint_slack(F[rows], abstraction.c[rows], eps, spec.context.mean0, cov0))
+        joint0[i] = min(joint0[i], r0)
     for i in range(abstraction.num_atoms):
-        faces = abstraction.owner == i
-        if not faces.any():
+        faces = (abstraction.owner == i) & ~abstraction.joint_rows
+        if not (abstraction.owner == i).any():
             continue
-        slack0 = float(np.min(face0[faces]))
+        slack0 = min(float(np.min(face0[faces])) if faces.any() else np.inf, joint0.get(i, np.inf))
         col = int(p[i, 0]) - 1
         if slack0 < 0:
             never_p.append(col)
