@@ -41,8 +41,8 @@ from .covariances import covariance_schedule
 from .plan import trajectory_plan
 
 if TYPE_CHECKING:
+    from ..problem import Problem
     from ..trajectory import ProbabilisticTSTrajectory
-    from .problem import Problem
 
 __all__ = ["allocation_for_plan", "chord_rows"]
 
