@@ -163,3 +163,36 @@ def test_the_eager_milp_reads_the_prior_as_the_monitor_does():
     assert result.status == "found", result.reason
     assert result.stats.milp_calls >= 1
     assert "allocation(s) beyond the first" not in result.reason
+
+
+# ------------------------------------------------------------------------------------------------
+# the allocation LP's answer, read independently
+
+
+@pytest.mark.parametrize("seed", [14, 21, 36, 43, 58, 0, 1, 2])
+def test_the_allocation_lp_meets_every_joint_constraint_it_plans(seed):
+    """The LP's controls, re-rolled by the independent roll-out, meet every joint constraint the
+    relaxed plan requires with a literal Boole sum at most eps (to the LP's tolerance): the
+    risks it chose really sum to at most eps."""
+    import copy
+
+    from idstlpy.synthesis.allocation import relax_joints
+    from idstlpy.synthesis.joint_lp import optimise_risks
+
+    inst = joint_instance(seed)
+    lp = None
+    for scale in (1.0, 0.5, 0.25):  # the search's ladder: the first relaxed plan the LP can keep
+        relaxed = copy.copy(inst.problem)
+        relaxed.stl_formula = relax_joints(inst.problem.stl_formula, scale)
+        evidence = relaxed.solve_result(rrt_timeout=2, seed=0, guarantee="mlo", time_limit=120)
+        if evidence.status == "found":
+            lp = optimise_risks(inst.problem, relaxed.stl_formula, evidence.trajectory)
+        if lp is not None:
+            break
+    assert lp is not None and lp.uses
+    trace = mlo_rollout(inst.modes, inst.mean0, inst.cov0, lp.actions, lp.controls)
+    assert np.all(np.abs(lp.controls) <= 1 + 1e-7)  # the control domain
+    for joint, k in lp.uses:
+        mean, cov = trace.states[k]
+        np.testing.assert_allclose(lp.means[k], mean, rtol=1e-9, atol=1e-9)
+        assert oracle.boole_risk(joint.H, joint.c, mean, cov) <= joint.eps + 1e-6

@@ -26,6 +26,7 @@ shares are only a choice, the plan that comes of them is checked by the monitor.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -44,7 +45,7 @@ if TYPE_CHECKING:
     from ..problem import Problem
     from ..trajectory import ProbabilisticTSTrajectory
 
-__all__ = ["allocation_for_plan", "chord_rows"]
+__all__ = ["RiskLP", "allocation_for_plan", "chord_rows", "optimise_risks"]
 
 logger = logging.getLogger(__name__)
 
@@ -73,15 +74,77 @@ def chord_rows(eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     return slopes, intercepts, q, float(g[-1])
 
 
+@dataclass(frozen=True)
+class RiskLP:
+    """The allocation LP's answer for one discrete plan.
+
+    Attributes
+    ----------
+    means : ndarray, shape (K + 1, n)
+        The MLO means of the LP's controls (``means[0]`` the prior's).
+    covs : ndarray, shape (K + 1, n, n)
+        The mode sequence's covariance schedule (a lower bound under state-dependent noise).
+    controls : ndarray, shape (K, m)
+    actions : ndarray of int, shape (K,)
+    uses : list of (JointChanceConstraint, int)
+        Every joint constraint the plan requires, with the step (``>= 1``) it is required at.
+    """
+
+    means: np.ndarray
+    covs: np.ndarray
+    controls: np.ndarray
+    actions: np.ndarray
+    uses: list[tuple[JointChanceConstraint, int]]
+
+
 def allocation_for_plan(
     problem: Problem, relaxed: STLFormula, traj: ProbabilisticTSTrajectory
 ) -> STLFormula | None:
     """Shares for ``problem``'s joint constraints from the discrete plan of ``traj``.
 
+    Each face gets the largest risk it used in :func:`optimise_risks`'s answer over the steps,
+    scaled so that the shares sum to ``eps`` (at least ``1e-6 eps`` each).
+
+    Parameters
+    ----------
+    problem, relaxed, traj
+        As in :func:`optimise_risks`.
+
+    Returns
+    -------
+    STLFormula or None
+        The original formula with new shares (not fixed), or ``None`` when
+        :func:`optimise_risks` has no answer.
+    """
+    lp = optimise_risks(problem, relaxed, traj)
+    if lp is None:
+        return None
+    need: dict[int, np.ndarray] = {}
+    for joint, k in lp.uses:
+        d = -(joint.H @ lp.means[k] + joint.c)
+        sd = np.sqrt(np.maximum(np.einsum("fi,ij,fj->f", joint.H, lp.covs[k], joint.H), 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tails = np.where(sd > 0, ndtr(-d / sd), 0.0)
+        prev = need.get(id(joint))
+        need[id(joint)] = tails if prev is None else np.maximum(prev, tails)
+
+    def fn(joint: JointChanceConstraint) -> JointChanceConstraint:
+        u = need.get(id(joint))
+        if u is None or joint.fixed or joint.num_faces < 2:
+            return joint
+        u = np.maximum(u, _FLOOR * joint.eps)
+        return joint.with_shares(joint.eps * u / float(np.sum(u)), fixed=False)
+
+    return map_joints(problem.stl_formula, fn)
+
+
+def optimise_risks(problem: Problem, relaxed: STLFormula, traj: ProbabilisticTSTrajectory) -> RiskLP | None:
+    """Controls and per-step, per-face risks for the discrete plan of ``traj``, in one LP.
+
     Parameters
     ----------
     problem : Problem
-        The original problem (its formula's joint constraints get the shares).
+        The original problem (its formula's joint constraints are read by Boole's bound).
     relaxed : STLFormula
         The relaxation ``traj`` was planned for (:func:`~.allocation.relax_joints`): its
         propositions are the original ones, position for position.
@@ -91,9 +154,11 @@ def allocation_for_plan(
 
     Returns
     -------
-    STLFormula or None
-        The original formula with new shares (not fixed), or ``None`` when the plan has no
-        witness, the LP is infeasible, or no joint constraint is required.
+    RiskLP or None
+        ``None`` when the plan has no witness, the LP is infeasible, or no joint constraint is
+        required after step 0. Otherwise every required joint constraint's Boole sum at the
+        LP's beliefs is at most its ``eps`` (the chords bound the tail from above), up to the
+        LP solver's feasibility tolerance.
     """
     formula = problem.stl_formula
     system = problem.switched_system
@@ -204,20 +269,5 @@ def allocation_for_plan(
         logger.info("allocation LP for the relaxation's plan: %s", res.message)
         return None
     means = np.vstack([mean0, res.x[:nx].reshape(K, n)])
-    need: dict[int, np.ndarray] = {}
-    for joint, k, _ in uses:
-        d = -(joint.H @ means[k] + joint.c)
-        sd = np.sqrt(np.maximum(np.einsum("fi,ij,fj->f", joint.H, covs[k], joint.H), 0.0))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tails = np.where(sd > 0, ndtr(-d / sd), 0.0)
-        prev = need.get(id(joint))
-        need[id(joint)] = tails if prev is None else np.maximum(prev, tails)
-
-    def fn(joint: JointChanceConstraint) -> JointChanceConstraint:
-        u = need.get(id(joint))
-        if u is None or joint.fixed or joint.num_faces < 2:
-            return joint
-        u = np.maximum(u, _FLOOR * joint.eps)
-        return joint.with_shares(joint.eps * u / float(np.sum(u)), fixed=False)
-
-    return map_joints(formula, fn)
+    controls = res.x[nx : nx + nu].reshape(K, m)
+    return RiskLP(means, covs, controls, actions, [(joint, k) for joint, k, _ in uses])
