@@ -27,6 +27,7 @@ from ..expressions import JointFace
 from ..formulas import STLAtomicProposition, STLFormula
 from ..sets import Polytope
 from .budget import Budget
+from .proofs import AllOf, FaceProof, ModelProof, NoProof, Proof
 
 if TYPE_CHECKING:
     from ..dynamical_system import SwitchedSystem
@@ -61,6 +62,10 @@ class PruningReport:
         ``(i, j, d)``: region ``i``'s centre cannot reach region ``j``'s in ``d`` steps (but
         some mean in ``i`` reaches ``j``): a transition with no room for the execution. Not a
         proof; the proposer only prefers plans without such transitions.
+    proofs : dict
+        What proves each fact, by key ``("empty", i)``, ``("disjoint", i, j)``,
+        ``("step", i, j, q)``, ``("gap", i, j, d)``, ``("initial", i)``, ``("reach", i)``
+        (:mod:`.proofs`; read only for the certificate of an ``infeasible``).
     """
 
     empty_atoms: list[int]
@@ -70,6 +75,7 @@ class PruningReport:
     out_of_reach: dict[int, str] = field(default_factory=dict)
     impossible_gaps: list[tuple[int, int, int]] = field(default_factory=list)
     roomless_gaps: list[tuple[int, int, int]] = field(default_factory=list)
+    proofs: dict[tuple[object, ...], Proof] = field(default_factory=dict, repr=False)
 
 
 class Abstraction:
@@ -114,6 +120,8 @@ class Abstraction:
             self.joint_rows[rows] = True
         self.num_atoms = len(self.atoms)
         self.mode_sets = [ap.modes for ap in self.atoms]
+        # What proves each proposition out of reach (:meth:`out_of_reach`), for certificates.
+        self.reach_proofs: dict[int, Proof] = {}
 
     def names(self) -> list[str]:
         """Readable names of the propositions."""
@@ -261,6 +269,7 @@ class Abstraction:
         horizon, is empty cannot hold at any step. The schedule is rolled until it settles
         (or the horizon); a schedule still shrinking at ``max_steps`` proves nothing.
         """
+        self.reach_proofs = {}
         if not self.num_atoms or horizon < 1:
             return {}
         steps = min(horizon, max_steps)
@@ -306,9 +315,14 @@ class Abstraction:
             best = terms.min(axis=0)
             if not np.all(np.isfinite(best)):
                 out[i] = f"{self.names()[i]} needs zero variance (eps = 0) but every step has some"
+                self.reach_proofs[i] = NoProof(f"{out[i]} (a covariance floor: not certified)")
                 continue
             region = Polytope(cone.H, cone.c + best)
             if region.is_empty():
+                self.reach_proofs[i] = ModelProof(
+                    _region_model(cone.H, cone.c + best),
+                    f"{self.names()[i]} shrunk by the least standard-deviation terms of the covariance floor",
+                )
                 sd = float(np.sqrt(np.trace(tail[-1]) / tail.shape[1]))
                 out[i] = (
                     f"the confidence of {self.names()[i]} is out of reach: even the smallest covariance "
@@ -375,6 +389,17 @@ class Abstraction:
                     disjoint.append((i, j))
         init = self.truth(initial_mean, initial_cov, -1)
         initial_false = [i for i in range(self.num_atoms) if not init[i]]
+        proofs: dict[tuple[object, ...], Proof] = {}
+        for i in empty:
+            proofs[("empty", i)] = ModelProof(_region_model(regions[i].H, regions[i].c), f"{self.names()[i]} is empty")
+        for i, j in disjoint:
+            H = np.vstack([regions[i].H, regions[j].H])
+            c = np.concatenate([regions[i].c, regions[j].c])
+            proofs[("disjoint", i, j)] = ModelProof(
+                _region_model(H, c), f"{self.names()[i]} and {self.names()[j]} are disjoint"
+            )
+        for i in initial_false:
+            proofs[("initial", i)] = self._initial_proof(i, initial_mean, initial_cov)
         steps = self._impossible_steps(
             system,
             control_domain,
@@ -385,6 +410,7 @@ class Abstraction:
             backend or HighsBackend(),
             units,
             reach,
+            proofs,
         )
         gaps: list[tuple[int, int, int]] = []
         roomless: list[tuple[int, int, int]] = []
@@ -400,9 +426,10 @@ class Abstraction:
                 max_step_lps,
                 backend or HighsBackend(),
                 units,
+                proofs,
             )
         report = PruningReport(
-            empty, disjoint, steps, initial_false, impossible_gaps=gaps, roomless_gaps=roomless
+            empty, disjoint, steps, initial_false, impossible_gaps=gaps, roomless_gaps=roomless, proofs=proofs
         )
         logger.info(
             "LP pruning: %d empty letters, %d disjoint pairs, %d impossible steps, "
@@ -427,6 +454,7 @@ class Abstraction:
         max_lps: int,
         backend: Backend,
         units: tuple[np.ndarray, np.ndarray] | None,
+        proofs: dict[tuple[object, ...], Proof] | None = None,
     ) -> tuple[list[tuple[int, int, int]], list[tuple[int, int, int]]]:
         """Multi-step gaps: ``(proven, roomless)`` lists of ``(i, j, d)`` with ``d >= 2``.
 
@@ -456,9 +484,14 @@ class Abstraction:
                 if budget is not None:
                     budget.check("LP pruning")
                 lps += 1
-                if _reaches(system, U, regions[i], regions[j], d, backend, budget, units):
+                models: list[LinearModel] = []
+                if _reaches(system, U, regions[i], regions[j], d, backend, budget, units, models):
                     break
                 proven.append((i, j, d))
+                if proofs is not None and models:
+                    names = self.names()
+                    about = f"no mean in {names[i]} reaches {names[j]} in {d} steps (every mode sequence)"
+                    proofs[("gap", i, j, d)] = ModelProof(models[0], about)
                 d += 1
             if not (np.isfinite(self.radius(i)) and np.isfinite(self.radius(j))):
                 continue
@@ -487,6 +520,7 @@ class Abstraction:
         backend: Backend,
         units: tuple[np.ndarray, np.ndarray] | None,
         reach: bool = False,
+        proofs: dict[tuple[object, ...], Proof] | None = None,
     ) -> list[tuple[int, int, int]]:
         bounded, faced = [], []
         for i, r in enumerate(regions):
@@ -509,6 +543,7 @@ class Abstraction:
             if budget is not None:
                 budget.check("LP pruning")
             bad_modes = []
+            refuted: list[Proof] = []
             for q, mode in enumerate(system.system_modes):
                 # Variables (x, u): x in R_i, u in U, A x + B u in R_j.
                 Ri, Rj = regions[i], regions[j]
@@ -536,11 +571,28 @@ class Abstraction:
                 limit = budget.remaining() if budget is not None else 60.0
                 if backend.solve(model, max(limit, 1e-3)).status == "infeasible":
                     bad_modes.append(q)
+                    names = self.names()
+                    refuted.append(ModelProof(model, f"no mean in {names[i]} reaches {names[j]} in one step of mode {q}"))
             if len(bad_modes) == system.num_modes:
                 out.append((i, j, -1))
+                if proofs is not None:
+                    proofs[("step", i, j, -1)] = refuted[0] if len(refuted) == 1 else AllOf(refuted)
             else:
                 out.extend((i, j, q) for q in bad_modes)
+                if proofs is not None:
+                    for q, proof in zip(bad_modes, refuted, strict=True):
+                        proofs[("step", i, j, q)] = proof
         return out
+
+    def _initial_proof(self, i: int, mean: np.ndarray, cov: np.ndarray) -> Proof:
+        """The face of proposition ``i`` the initial belief violates (``initial_false``)."""
+        ap = self.atoms[i]
+        if not ap.predicates:
+            return NoProof(f"{self.names()[i]} is false at step 0 without a face")
+        cone = ap.cone
+        slack = -(cone.H @ mean + cone.c + std_terms(cone.H, cone.z, cov))
+        f = int(np.argmin(slack))
+        return FaceProof(cone.H[f], float(cone.c[f]), float(cone.z[f]), mean, cov)
 
 
 def _point(x: np.ndarray) -> Polytope:
@@ -558,10 +610,11 @@ def _reaches(
     backend: Backend,
     budget: Budget | None,
     units: tuple[np.ndarray, np.ndarray] | None,
+    models: list[LinearModel] | None = None,
 ) -> bool:
     """Whether some mean in ``Ri`` may reach ``Rj`` in ``d`` steps (the convex relaxation of
     :meth:`Abstraction._impossible_gaps`; the modes share ``A``). False only when the LP is
-    infeasible."""
+    infeasible (then the LP is appended to ``models``, for its proof)."""
     modes = system.system_modes
     A = modes[0].A
     n, m, Q = system.n, system.m, len(modes)
@@ -610,4 +663,16 @@ def _reaches(
         np.full(width, np.inf),
     )
     limit = budget.remaining() if budget is not None else 60.0
-    return bool(backend.solve(model, max(limit, 1e-3)).status != "infeasible")
+    reaches = bool(backend.solve(model, max(limit, 1e-3)).status != "infeasible")
+    if not reaches and models is not None:
+        models.append(model)
+    return reaches
+
+
+def _region_model(H: np.ndarray, c: np.ndarray) -> LinearModel:
+    """The LP ``H x <= -c`` (a region ``H x + c <= 0``), for the proof of its emptiness."""
+    n = H.shape[1]
+    return LinearModel(
+        np.zeros(n), csr_matrix(H), np.full(H.shape[0], -np.inf), -np.asarray(c, dtype=float),
+        np.full(n, -np.inf), np.full(n, np.inf),
+    )

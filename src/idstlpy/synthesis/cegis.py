@@ -76,6 +76,7 @@ from .optimise import optimise
 from .options import SolverOptions
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
+from .proofs import uncertified_certificate
 from .proposer import BMCProposer
 from .results import SolveResult, Status
 from .sampler_teacher import SamplerTeacher
@@ -183,6 +184,7 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
             max_gap=horizon,
         )
         report.out_of_reach = ctx.abstraction.out_of_reach(system, init.cov, horizon, budget)
+        report.proofs.update({("reach", i): p for i, p in ctx.abstraction.reach_proofs.items()})
     stats.pruned_letters = (
         len(report.empty_atoms)
         + len(report.disjoint_pairs)
@@ -233,13 +235,19 @@ def _search(
         if milp.due():
             outcome = milp.solve()
             if isinstance(outcome, EagerEnd):
-                return finish(ctx, outcome.status, outcome.reason)
+                cert = None
+                if outcome.status == "infeasible":
+                    cert = uncertified_certificate(
+                        "the eager MILP's proof (branch and bound) has no exact certificate", "milp"
+                    )
+                return finish(ctx, outcome.status, outcome.reason, certificate=cert)
             if isinstance(outcome, EagerPlan):
                 return optimise(ctx, outcome.plan, outcome.how, outcome.proof, milp)
         proposal = proposer.propose()  # propose
         if isinstance(proposal, ProposerDry):
             status: Status = "infeasible" if proposal.proven else "budget_exhausted"
-            return finish(ctx, status, f"{proposal.reason}; {ctx.counts()}")
+            cert = _certificate(ctx, proposer) if proposal.proven and ctx.proofs_hold and not ctx.joint else None
+            return finish(ctx, status, f"{proposal.reason}; {ctx.counts()}", certificate=cert)
         plan = proposal
         stats.candidates += 1
         verdict = _teach(ctx, teachers, proposer, plan)  # teach
@@ -260,6 +268,17 @@ def _search(
         else:
             why = verdict.why
         _abandon(ctx, proposer, plan, verdict, why)  # abandon
+
+
+def _certificate(ctx: SolveContext, proposer: Proposer) -> dict[str, object] | None:
+    """The certificate of the proposer's proven dry run (:meth:`~.proposer.BMCProposer.certificate`),
+    timed in the statistics' ``time_certificate``."""
+    make = getattr(proposer, "certificate", None)
+    if make is None:
+        return None
+    with ctx.stats.clock("time_certificate"):
+        cert: dict[str, object] = make()
+    return cert
 
 
 def _stop(ctx: SolveContext) -> str | None:

@@ -15,7 +15,7 @@ import logging
 import os
 import sys
 import warnings
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from ..belief import rollout
 from ..errors import ExecutionTargetWarning
@@ -51,6 +51,7 @@ def finish(
     reason: str,
     plan: Verified | None = None,
     claim: ObjectiveClaim | None = None,
+    certificate: dict[str, Any] | None = None,
 ) -> SolveResult:
     """The solve's :class:`~.results.SolveResult` (see the module docstring).
 
@@ -64,6 +65,9 @@ def finish(
         The plan found (``status == "found"``).
     claim : ObjectiveClaim, optional
         The found plan's objective (the optimiser's).
+    certificate : dict, optional
+        The certificate of an ``infeasible`` (:mod:`.proofs`); kept only when the result stays
+        ``infeasible``, whose reason then says when it is not certified.
     """
     stats = ctx.stats
     below = ctx.target.below if status != "found" else None
@@ -80,6 +84,11 @@ def finish(
     stats.time_total = ctx.budget.elapsed()
     if status != "found":
         status, reason = _unfound(ctx, status, reason)
+    if status != "infeasible":
+        certificate = None
+    elif certificate is None or not certificate.get("certified"):
+        why = "no certificate was made" if certificate is None else str(certificate.get("summary", ""))
+        reason += f"; this proof is not certified ({why})"
     traj = None if plan is None else plan.traj
     execution = None
     if status == "found" and traj is not None:
@@ -117,6 +126,7 @@ def finish(
         predicted=None if plan is None else plan.predicted,
         closest=closest,
         execution=execution,
+        certificate=certificate,
     )
 
 

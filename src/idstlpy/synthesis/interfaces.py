@@ -28,6 +28,7 @@ from .plan import DiscretePlan
 if TYPE_CHECKING:
     from ..problem import Problem
     from .bmc import BMCEncoder
+    from .proofs import Proof
     from .results import SolveStats
 
 __all__ = [
@@ -57,11 +58,14 @@ class Conflict:
         the conflict depends on them; ``None`` when it holds for every mode sequence.
     proof : str
         What proves it (e.g. "Farkas certificate of the plan LP").
+    certificate : Proof, optional
+        How to build its checkable justification (:mod:`.proofs`); ``None``: none kept.
     """
 
     requirements: list[tuple[int, int]]
     modes: np.ndarray | None
     proof: str
+    certificate: Proof | None = field(default=None, repr=False, compare=False)
 
 
 @dataclass

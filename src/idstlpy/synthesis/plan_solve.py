@@ -32,6 +32,7 @@ from ..backends import Backend, LinearModel
 from .interfaces import Budget
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext, PlanRows, build_plan_rows, covariance_jacobian, plan_requirements
+from .proofs import FaceProof, NoProof, Proof, RowsProof
 
 if TYPE_CHECKING:
     from ..sets import Polytope
@@ -88,6 +89,9 @@ class LPOutcome:
         The rows the LP was built from when they are the plain plan rows of the plan (no given
         covariances, trust region or input back-off): the room LP of the same plan on the same
         covariances reads them instead of building them again (the mode search's scores).
+    proof : Proof or None
+        When infeasible: what proves the conflict (the Farkas ray of its rows, or the face no
+        belief meets), for the certificate of an ``infeasible`` (:mod:`.proofs`).
     """
 
     status: Literal["feasible", "infeasible", "unknown"]
@@ -99,6 +103,7 @@ class LPOutcome:
     why: str = ""
     excess: float = float("nan")
     rows: PlanRows | None = field(default=None, compare=False, repr=False)
+    proof: Proof | None = field(default=None, compare=False, repr=False)
 
     @property
     def feasible(self) -> bool:
@@ -209,7 +214,14 @@ def solve_plan_lp(
     rows = _plan_rows(context, plan, covs, region, control_backoff, budget)
     if rows.impossible:
         return LPOutcome(
-            "infeasible", rows.exact, None, None, rows.impossible[:1], rows.covs, excess=float("inf")
+            "infeasible",
+            rows.exact,
+            None,
+            None,
+            rows.impossible[:1],
+            rows.covs,
+            excess=float("inf"),
+            proof=_impossible_proof(context, rows),
         )
     goal = goal if goal is not None else LPGoal()
     limit = float(min(time_limit, 1e9))
@@ -288,7 +300,58 @@ def _elastic(
         slack = z[rows.nx + rows.nu : rows.nx + rows.nu + ns]
         involved = [r for r in range(ns) if slack[r] > FEASIBLE_TOL]
     conflict = [rows.requirements[r] for r in involved]
-    return LPOutcome("infeasible", rows.exact, controls, means, conflict, rows.covs, excess=excess)
+    proof = _farkas(rows, sol.row_duals, involved) if sol.row_duals is not None else None
+    return LPOutcome(
+        "infeasible", rows.exact, controls, means, conflict, rows.covs, excess=excess, proof=proof
+    )
+
+
+def _farkas(rows: PlanRows, duals: np.ndarray, involved: list[int]) -> RowsProof:
+    """The conflict's rows and the elastic LP's duals as a Farkas ray of them.
+
+    The elastic LP's optimal duals ``pi`` (``d objective / d bound``) meet ``pi' A = 0`` on the
+    plan's columns (free, cost 0) and ``pi' b = excess > 0``; so ``-pi`` over the dynamics,
+    the control domain and the faces of the conflict's requirements is a Farkas ray of those
+    rows (the faces of the other requirements carry no dual). Only the steps up to the
+    conflict's last are kept; the faces are the rows the proof is about (not pivots of the
+    exact repair), the dynamics and control rows may absorb the ray's rounding.
+    """
+    K, n, m = rows.K, rows.n, rows.m
+    nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
+    per = nU // K if K else 0
+    owners = np.asarray(rows.face_owner)
+    faces = np.flatnonzero(np.isin(owners, involved)) if involved else np.zeros(0, dtype=int)
+    last = max((rows.requirements[r][0] for r in involved), default=K)
+    last = min(max(int(last), 1), K)
+    eq_rows = np.arange(last * n)
+    u_rows = np.arange(last * per)
+    A = vstack([rows.A_eq[eq_rows], rows.A_U[u_rows], rows.face_H[faces]]).tocsr()
+    rhs = np.concatenate([rows.b_eq[eq_rows], rows.b_U[u_rows], -rows.face_off[faces]])
+    y = -np.concatenate([duals[eq_rows], duals[nE + u_rows], duals[nE + nU + faces]])
+    equality = np.zeros(rhs.shape[0], dtype=bool)
+    equality[: eq_rows.size] = True
+    pivots = np.zeros(rhs.shape[0], dtype=bool)
+    pivots[: eq_rows.size + u_rows.size] = True
+    kind = "exact" if rows.exact else "lower-bound covariance"
+    about = f"plan LP ({kind}, {last} steps): dynamics, control domain and {faces.size} required faces"
+    return RowsProof(A, rhs, equality, y, pivots, about)
+
+
+def _impossible_proof(context: PlanLPContext, rows: PlanRows) -> Proof:
+    """What proves the first requirement no belief meets: the face of it that fails at its
+    step's covariance whatever the mean (``eps = 0`` with positive variance along the face, or
+    a face that does not read the mean and fails)."""
+    from ..chance import std_terms
+
+    k, i = rows.impossible[0]
+    cone = context.abstraction.atoms[i].cone
+    cov = rows.covs[k]
+    terms = std_terms(cone.H, cone.z, cov)
+    live = np.linalg.norm(cone.H * rows.scaling.dx[None, :], axis=1) != 0
+    for f in range(cone.num_faces):
+        if np.isinf(terms[f]) or (not live[f] and cone.c[f] + terms[f] > 0):
+            return FaceProof(cone.H[f], float(cone.c[f]), float(cone.z[f]), np.zeros(cov.shape[0]), cov)
+    return NoProof(f"requirement {(k, i)}: no face found that fails on its own")
 
 
 def _backed_off(rows: PlanRows, control_domain: Polytope, du: np.ndarray, backoff: np.ndarray) -> PlanRows:

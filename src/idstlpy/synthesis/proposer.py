@@ -30,6 +30,7 @@ from .bmc import BMCEncoder
 from .interfaces import Budget, Conflict, ProposerDry
 from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness
+from .proofs import NoProof, Proof, build_certificate
 from .results import SolveStats
 
 __all__ = ["BMCProposer", "min_plan_length"]
@@ -109,6 +110,10 @@ class BMCProposer:
         need = min_plan_length(formula)
         self.min_depth = int(need - 1) if math.isfinite(need) else self.H + 1
         self.hard: list[list[SymLit]] = []
+        self.hard_proofs: list[Proof] = []  # what proves each of ``hard``
+        # The proven clauses of the current encoding as added, with their proofs (the
+        # certificate of an ``infeasible``, :meth:`certificate`).
+        self.derived: list[tuple[list[int], Proof]] = []
         self.soft: list[list[SymLit]] = []
         self.depth: int | None = None
         self.enc: BMCEncoder | None = None
@@ -137,9 +142,10 @@ class BMCProposer:
                 budget=self.budget,
             )
             self.enc = enc
+            self.derived = []
             self._add_pruning()
-            for clause in self.hard:
-                self._add(clause, soft=False)
+            for clause, proof in zip(self.hard, self.hard_proofs, strict=True):
+                self._add(clause, soft=False, proof=proof)
             for clause in self.soft:
                 self._add(clause, soft=True)
             if self.abs.num_atoms:
@@ -147,33 +153,39 @@ class BMCProposer:
         self.stats.encoded_depth = max(self.stats.encoded_depth, self.bound)
         logger.info("BMC: encoding unrolled to %d steps (%d variables)", self.bound + 1, enc.num_vars)
 
+    def _proven(self, clause: list[int], key: tuple[object, ...]) -> None:
+        """Add a pruning fact's clause, remembering its proof (:attr:`PruningReport.proofs`)."""
+        proof = self.report.proofs.get(key)
+        self.derived.append((clause, proof if proof is not None else NoProof(f"LP pruning fact {key}")))
+        self._enc().add_clause(clause)
+
     def _add_pruning(self) -> None:
         enc, rep, H = self._enc(), self.report, self.bound
         for i in rep.empty_atoms:
             for k in range(H + 1):
-                enc.add_clause([-int(enc.p[i, k])])
+                self._proven([-int(enc.p[i, k])], ("empty", i))
         for i, j in rep.disjoint_pairs:
             for k in range(H + 1):
-                enc.add_clause([-int(enc.p[i, k]), -int(enc.p[j, k])])
+                self._proven([-int(enc.p[i, k]), -int(enc.p[j, k])], ("disjoint", i, j))
         for i, j, q in rep.impossible_steps:
             for k in range(H):
                 clause = [-int(enc.p[i, k]), -int(enc.p[j, k + 1])]
                 if q >= 0:
                     clause.append(-int(enc.m[q, k + 1]))
-                enc.add_clause(clause)
+                self._proven(clause, ("step", i, j, q))
         for i, j, d in rep.impossible_gaps:
             for k in range(H + 1 - d):
-                enc.add_clause([-int(enc.p[i, k]), -int(enc.p[j, k + d])])
+                self._proven([-int(enc.p[i, k]), -int(enc.p[j, k + d])], ("gap", i, j, d))
         if rep.roomless_gaps:
             self._room = enc.new_selector()
             for i, j, d in rep.roomless_gaps:
                 for k in range(H + 1 - d):
                     enc.add_clause([-int(enc.p[i, k]), -int(enc.p[j, k + d]), -self._room])
         for i in rep.initial_false:
-            enc.add_clause([-int(enc.p[i, 0])])
+            self._proven([-int(enc.p[i, 0])], ("initial", i))
         for i in rep.out_of_reach:
             for k in range(1, H + 1):
-                enc.add_clause([-int(enc.p[i, k])])
+                self._proven([-int(enc.p[i, k])], ("reach", i))
 
     def _enc(self) -> BMCEncoder:
         if self.enc is None:  # only when the formula needs longer plans than allowed
@@ -189,7 +201,7 @@ class BMCProposer:
         var = int(enc.p[idx, k]) if kind == "p" else int(enc.m[idx, k])
         return var if positive else -var
 
-    def _add(self, clause: list[SymLit], soft: bool) -> None:
+    def _add(self, clause: list[SymLit], soft: bool, proof: Proof | None = None) -> None:
         enc = self._enc()
         lits = []
         for lit in clause:
@@ -201,6 +213,8 @@ class BMCProposer:
             lits.append(v)
         if soft:
             lits.append(-enc.selector)
+        elif proof is not None:
+            self.derived.append((lits or [-enc.T], proof))
         enc.add_clause(lits or [-enc.T])
 
     @property
@@ -331,8 +345,10 @@ class BMCProposer:
         if conflict.modes is not None and self.num_modes > 1 and conflict.requirements:
             last = max(k for k, _ in conflict.requirements)
             clause += [("m", int(conflict.modes[j]), j, False) for j in range(1, last + 1)]
+        proof: Proof = conflict.certificate if conflict.certificate is not None else NoProof(conflict.proof)
         self.hard.append(clause)
-        self._add(clause, soft=False)
+        self.hard_proofs.append(proof)
+        self._add(clause, soft=False, proof=proof)
 
     @staticmethod
     def _moved(plan: DiscretePlan) -> list[tuple[int, int]]:
@@ -428,6 +444,17 @@ class BMCProposer:
         Abandoned candidates' clauses carry the selector literal: fix it to false to drop them.
         """
         return self._enc()
+
+    def certificate(self) -> dict[str, object]:
+        """The certificate of a proven dry run (:func:`~.proofs.build_certificate`): the current
+        encoding and the proven clauses, each with its proof.
+
+        Returns
+        -------
+        dict
+        """
+        enc = self._enc()
+        return build_certificate(enc.clauses, self.derived, enc.num_vars, self.options.sat_backend)
 
     def close(self) -> None:
         """Free the SAT solver."""

@@ -89,6 +89,8 @@ class SolveStats:
         execution (after repair) fell short of the execution target.
     time_prediction : float
         Seconds spent predicting executions (measured, never used to decide the search).
+    time_certificate : float
+        Seconds spent building and checking the certificate of an ``infeasible`` (measured).
     """
 
     candidates: int = 0
@@ -114,6 +116,7 @@ class SolveStats:
     predictions: int = 0
     below_target: int = 0
     time_prediction: float = 0.0
+    time_certificate: float = 0.0
 
     @contextmanager
     def clock(self, name: str) -> Iterator[None]:
@@ -217,6 +220,11 @@ class SolveResult:
         Every found plan's predicted execution (success estimates and lower bounds for the
         executed belief and the true state, per-proposition violation rates) against the
         execution target; None without a plan.
+    certificate : dict or None
+        With ``infeasible``: the proof's certificate (schema ``idstlpy.certificate/1``, see
+        :mod:`idstlpy.synthesis.certificates`), which ``idstlpy check RESULT.json`` re-checks
+        without trusting the LP and SAT solvers; its ``certified`` field is the check made at
+        the end of the solve. ``None`` otherwise.
 
     Notes
     -----
@@ -241,6 +249,7 @@ class SolveResult:
     software: dict[str, str | None] = field(default_factory=software_info)
     closest: ProbabilisticTSTrajectory | None = None
     execution: PredictedExecution | None = None
+    certificate: dict[str, Any] | None = None
 
     @property
     def plan(self) -> ProbabilisticTSTrajectory | None:
@@ -279,6 +288,14 @@ class SolveResult:
         if not (math.isfinite(v) and math.isfinite(b)):
             return float("nan")
         return abs(v - b) / max(1.0, abs(v))
+
+    @property
+    def certified(self) -> bool | None:
+        """Whether the ``infeasible`` proof's certificate verified when the solve ended (``None``
+        for other statuses). Re-check a saved result with ``idstlpy check``."""
+        if self.status != "infeasible":
+            return None
+        return bool(self.certificate is not None and self.certificate.get("certified"))
 
     @property
     def found(self) -> bool:
@@ -328,6 +345,7 @@ class SolveResult:
             "software": dict(self.software),
             "closest": None if self.closest is None else _trajectory_to_dict(self.closest),
             "execution": None if self.execution is None else self.execution.to_dict(),
+            "certificate": self.certificate,
         }
 
     @classmethod
@@ -394,6 +412,7 @@ class SolveResult:
             _software_from(data.get("software")),
             closest=None if data.get("closest") is None else _trajectory_from_dict(data["closest"]),
             execution=None if execution is None else PredictedExecution.from_dict(execution),
+            certificate=data.get("certificate") if isinstance(data.get("certificate"), dict) else None,
         )
 
     def save(self, path: str | os.PathLike[str]) -> Path:

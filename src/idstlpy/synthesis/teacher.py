@@ -65,7 +65,7 @@ def _prefix_conflict(plan: DiscretePlan, out: LPOutcome, num_modes: int) -> Conf
     last = max((k for k, _ in out.conflict), default=0)
     modes = plan.modes[: last + 1].copy() if num_modes > 1 else None
     kind = "exact" if out.exact else "lower-bound covariance"
-    return Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})")
+    return Conflict(out.conflict, modes, f"Farkas certificate of the plan LP ({kind})", out.proof)
 
 
 class LPTeacher(Teacher):
@@ -345,7 +345,7 @@ class LPTeacher(Teacher):
                     "Farkas certificate of the plan LP over every mode sequence (every mode's input "
                     "at once, the covariance floor over all switching sequences)"
                 )
-                return Refuted(Conflict(every.conflict, None, proof))
+                return Refuted(Conflict(every.conflict, None, proof, every.proof))
             searched = self._search_modes(plan, out if whole else None, budget, stats)
             if searched is not None:
                 again = self._solve(searched, margin, budget, stats)
