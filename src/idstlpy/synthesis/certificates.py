@@ -22,7 +22,7 @@ dict saved with the result) lets both be re-checked without trusting either:
 
 - the checker (:func:`check_certificate`) verifies every justification a derived clause uses,
   then asks a SAT solver of another family than the one that searched (:func:`second_solver`:
-  Glucose for CaDiCaL, CaDiCaL otherwise) whether the CNF is unsatisfiable.
+  MiniSat for CaDiCaL, CaDiCaL otherwise) whether the CNF is unsatisfiable.
 
 What the certificate does not re-derive: that the encoding clauses encode the formula and that
 an LP's rows are the ones its derived clause speaks of (both are built by the project's code,
@@ -60,7 +60,7 @@ __all__ = [
 CERTIFICATE_SCHEMA = "idstlpy.certificate/1"
 """Identifier and version of a certificate's JSON form."""
 
-_GLUCOSE = "glucose4"
+_MINISAT = "minisat22"
 _CADICAL = "cadical195"
 
 
@@ -75,9 +75,9 @@ def second_solver(primary: str) -> str:
     Returns
     -------
     str
-        ``"glucose4"`` when ``primary`` is a CaDiCaL, else ``"cadical195"``.
+        ``"minisat22"`` (MiniSat) when ``primary`` is a CaDiCaL, else ``"cadical195"``.
     """
-    return _GLUCOSE if primary.lower().startswith("cadical") else _CADICAL
+    return _MINISAT if primary.lower().startswith("cadical") else _CADICAL
 
 
 # -- clauses ------------------------------------------------------------------------------------
@@ -121,18 +121,15 @@ def decode_clauses(text: str) -> list[list[int]]:
         raw = zlib.decompress(base64.b64decode(text.encode("ascii"), validate=True))
     except (ValueError, zlib.error) as exc:
         raise ValueError(f"the clauses are not a valid encoding: {exc}") from None
-    flat = np.frombuffer(raw, dtype="<i4").tolist()
-    out: list[list[int]] = []
-    cur: list[int] = []
-    for v in flat:
-        if v == 0:
-            out.append(cur)
-            cur = []
-        else:
-            cur.append(int(v))
-    if cur:
+    if len(raw) % 4:
+        raise ValueError("the clauses are not a valid encoding: not a whole number of int32")
+    flat = np.frombuffer(raw, dtype="<i4")
+    ends = np.flatnonzero(flat == 0)
+    if flat.size and (not ends.size or ends[-1] != flat.size - 1):
         raise ValueError("the clauses are not a valid encoding: the last one has no terminating 0")
-    return out
+    values = flat.tolist()
+    starts = np.concatenate([[0], ends[:-1] + 1]).tolist() if ends.size else []
+    return [values[a:b] for a, b in zip(starts, ends.tolist(), strict=True)]
 
 
 # -- exact numbers ------------------------------------------------------------------------------
@@ -577,7 +574,7 @@ def check_certificate(cert: Mapping[str, Any]) -> CertificateCheck:
     counts["encoding clauses"] = len(encoding)
     counts["derived clauses"] = len(derived)
     if not messages:
-        solver_name = str(cert.get("second_solver", _GLUCOSE))
+        solver_name = str(cert.get("second_solver", _MINISAT))
         sat = _satisfiable(solver_name, encoding + derived)
         if sat is None:
             messages.append(f"the second SAT solver {solver_name!r} cannot be used")

@@ -247,6 +247,33 @@ def uncertified_certificate(why: str, route: str) -> dict[str, Any]:
     }
 
 
+CORE_FROM = 16
+"""Distinct proofs above which only an unsatisfiable core's are built (a SAT call saves their LPs
+and exact repairs; below, building them all costs less than the call)."""
+
+
+def _core(
+    encoding: Sequence[Sequence[int]],
+    derived: Sequence[tuple[Sequence[int], Proof]],
+    num_vars: int,
+    primary: str,
+) -> list[int] | None:
+    """Indices of derived clauses that the encoding needs to stay unsatisfiable (``None``: it is
+    satisfiable with all of them)."""
+    from pysat.solvers import Solver
+
+    with Solver(name=primary, bootstrap_with=[list(c) for c in encoding]) as solver:
+        selectors = []
+        for i, (clause, _) in enumerate(derived):
+            s = num_vars + 1 + i
+            selectors.append(s)
+            solver.add_clause([int(v) for v in clause] + [-s])
+        if solver.solve(assumptions=selectors):
+            return None
+        got = solver.get_core() or []
+    return sorted(int(s) - num_vars - 1 for s in got)
+
+
 def build_certificate(
     encoding: Sequence[Sequence[int]],
     derived: Sequence[tuple[Sequence[int], Proof]],
@@ -256,10 +283,11 @@ def build_certificate(
 ) -> dict[str, Any]:
     """The certificate that the encoding and the derived clauses are unsatisfiable.
 
-    An unsatisfiable core of the derived clauses is taken (a SAT solver of another family than
-    ``primary``, each derived clause behind a selector), only the core's justifications are
-    built, and the certificate is checked once (:func:`~.certificates.check_certificate`): its
-    ``certified`` field is that check's verdict.
+    An unsatisfiable core of the derived clauses is taken (the search's solver ``primary``, each
+    derived clause behind a selector: the core is not trusted, only small), only the core's
+    justifications are built, and the certificate is checked once
+    (:func:`~.certificates.check_certificate`: exactly, and with a SAT solver of another family
+    than ``primary``): its ``certified`` field is that check's verdict.
 
     Parameters
     ----------
@@ -279,25 +307,14 @@ def build_certificate(
     dict
         The certificate (:data:`~.certificates.CERTIFICATE_SCHEMA`).
     """
-    from pysat.solvers import Solver
-
     t0 = time.perf_counter()
     backend = backend if backend is not None else HighsBackend()
     second = second_solver(primary)
-    core: list[int] | None
-    with Solver(name=second, bootstrap_with=[list(c) for c in encoding]) as solver:
-        selectors = []
-        for i, (clause, _) in enumerate(derived):
-            s = num_vars + 1 + i
-            selectors.append(s)
-            solver.add_clause([int(v) for v in clause] + [-s])
-        if solver.solve(assumptions=selectors):
-            core = None
-        else:
-            got = solver.get_core() or []
-            core = sorted(int(s) - num_vars - 1 for s in got)
+    core: list[int] | None = list(range(len(derived)))
+    if len({id(proof) for _, proof in derived}) > CORE_FROM:
+        core = _core(encoding, derived, num_vars, primary)
     if core is None:
-        why = f"the second SAT solver ({second}) finds the proven clauses satisfiable"
+        why = f"the SAT solver ({primary}) finds the proven clauses satisfiable on a second look"
         logger.warning("certificate: %s", why)
         out = uncertified_certificate(why, "sat")
         out["failed"] = True
