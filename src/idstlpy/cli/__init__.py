@@ -18,6 +18,7 @@ Exit status, the same for every subcommand (``docs/cli.md``):
 3     a job failed with an error (its record has ``status = "error"``)
 4     every plan found and executed, but a validation's measured success rates fall short of
       its execution target (default 90% belief / 95% true state; ``validate --target``)
+5     ``check``: some ``infeasible`` result's certificate fails, is missing or is not certified
 130   interrupted (Ctrl-C)
 ====  ==========================================================================================
 
@@ -58,7 +59,7 @@ __all__ = [
     "EXIT_INTERRUPTED",
 ]
 
-_COMMAND_MODULES: tuple[str, ...] = ("demo", "files", "plot", "example")
+_COMMAND_MODULES: tuple[str, ...] = ("demo", "files", "plot", "example", "check")
 
 
 def _add_global_options(parser: argparse.ArgumentParser, top: bool) -> None:
@@ -90,7 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="idstlpy",
         description="Active perception and control synthesis from PrSTL specifications.",
         epilog="exit status: 0 ok, 1 no plan, 2 usage or input error, 3 a job failed, "
-        "4 validated below the execution target (docs/cli.md)",
+        "4 validated below the execution target, 5 a certificate does not verify (docs/cli.md)",
     )
     from .._version import software_info
 

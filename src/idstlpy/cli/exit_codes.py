@@ -11,6 +11,7 @@ __all__ = [
     "EXIT_USAGE",
     "EXIT_FAILED",
     "EXIT_BELOW_TARGET",
+    "EXIT_UNCERTIFIED",
     "EXIT_INTERRUPTED",
     "exit_status",
 ]
@@ -26,6 +27,9 @@ EXIT_FAILED = 3
 EXIT_BELOW_TARGET = 4
 """Every plan found and executed, but some validation's measured success rates fall short of its
 execution target (``record["validation"]["meets_target"]`` is false)."""
+EXIT_UNCERTIFIED = 5
+"""``idstlpy check``: some ``infeasible`` result's certificate fails, is missing or is not
+certified."""
 EXIT_INTERRUPTED = 130
 """Interrupted (Ctrl-C)."""
 

@@ -148,6 +148,20 @@ def _fraction(value: Any) -> Fraction:
     raise ValueError(f"not a number: {value!r}")
 
 
+class _Exact:
+    """Float to :class:`~fractions.Fraction`, each distinct value converted once (an LP's
+    entries repeat: the dynamics are the same at every step)."""
+
+    def __init__(self) -> None:
+        self.memo: dict[float, Fraction] = {}
+
+    def __call__(self, value: float) -> Fraction:
+        got = self.memo.get(value)
+        if got is None:
+            got = self.memo[value] = Fraction(value)
+        return got
+
+
 def _text(q: Fraction) -> str:
     return str(q.numerator) if q.denominator == 1 else f"{q.numerator}/{q.denominator}"
 
@@ -207,11 +221,16 @@ def check_farkas(cert: Mapping[str, Any]) -> str | None:
     str or None
         ``None`` when it proves its rows infeasible, else what fails.
     """
+    exact = _Exact()
+
+    def number(v: Any) -> Fraction:
+        return exact(v) if type(v) is float and np.isfinite(v) else _fraction(v)
+
     try:
         indptr = [int(v) for v in cert["indptr"]]
         indices = [int(v) for v in cert["indices"]]
-        data = [_fraction(v) for v in cert["data"]]
-        rhs = [_fraction(v) for v in cert["rhs"]]
+        data = [number(v) for v in cert["data"]]
+        rhs = [number(v) for v in cert["rhs"]]
         sense = str(cert["sense"])
         ray = [_fraction(v) for v in cert["ray"]]
     except (KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
@@ -306,7 +325,8 @@ def exact_ray(
 
 
 def _value(ray: Mapping[int, Fraction], rhs: np.ndarray) -> Fraction:
-    return sum((q * Fraction(float(rhs[r])) for r, q in ray.items() if q), Fraction(0))
+    exact = _Exact()
+    return sum((q * exact(float(rhs[r])) for r, q in ray.items() if q), Fraction(0))
 
 
 def _solve_pivots(
@@ -328,6 +348,7 @@ def _solve_pivots(
         fixed[r] = Fraction(0)
     unknown = [r for r in range(R) if free[r] and r not in banned]
     AT = A.T.tocsr()
+    exact = _Exact()
     # One equation per column: sum_r A[r, c] y_r = 0, the fixed multipliers moved to the right.
     eqs: dict[int, dict[int, Fraction]] = {}
     rhs: dict[int, Fraction] = {}
@@ -343,11 +364,11 @@ def _solve_pivots(
             if a == 0:
                 continue
             if is_unknown[r]:
-                row[r] = Fraction(a)
+                row[r] = exact(a)
             else:
                 q = fixed.get(r, Fraction(0))
                 if q:
-                    b -= Fraction(a) * q
+                    b -= exact(a) * q
         if row or b:
             eqs[c] = row
             rhs[c] = b
