@@ -291,7 +291,8 @@ def exact_ray(
     y : ndarray, shape (R,)
         The float ray (``y >= 0`` on inequalities up to rounding, ``y'b < 0``).
     pivots : ndarray of bool, shape (R,), optional
-        Rows whose multipliers may be solved for (default: every row).
+        Rows whose multipliers may be solved for (default: every row but the one with the
+        largest multiplier, which sets the ray's scale).
     rounds : int
 
     Returns
@@ -304,6 +305,10 @@ def exact_ray(
     y = np.asarray(y, dtype=float)
     eq = np.asarray(equality, dtype=bool)
     free = np.ones(R, dtype=bool) if pivots is None else np.asarray(pivots, dtype=bool).copy()
+    if free.all() and R:
+        # Every row a pivot: the homogeneous solve would return 0; the largest multiplier is
+        # kept as it is (the ray's scale), the others solved for.
+        free[int(np.argmax(np.abs(y)))] = False
     fixed0: dict[int, Fraction] = {}
     for r in range(R):
         if not free[r]:

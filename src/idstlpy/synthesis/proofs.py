@@ -222,7 +222,7 @@ def model_rows(model: LinearModel, backend: Backend, about: str) -> RowsProof | 
     if not sol.objective > _ELASTIC_TOL * max(1, R):
         return NoProof(f"{about}: the elastic LP finds the rows feasible within tolerance (no ray)")
     y = -np.asarray(sol.row_duals, dtype=float)
-    return RowsProof(A, rhs, eq, y, np.ones(R, dtype=bool), about)
+    return RowsProof(A, rhs, eq, y, np.ones(R, dtype=bool), about)  # (exact_ray anchors the largest)
 
 
 def uncertified_certificate(why: str, route: str) -> dict[str, Any]:
