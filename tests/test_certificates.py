@@ -155,7 +155,9 @@ def test_changing_one_coefficient_of_a_farkas_row_fails(solved, data):
 def test_tampered_rays_and_faces_fail(solved):
     cert = copy.deepcopy(solved["unreachable"].certificate)
     just = cert["justifications"][_first(cert, "farkas")]
-    just["ray"][0] = str(-Fraction(just["ray"][0]) if just["sense"][0] == "L" else Fraction(just["ray"][0]) * 2)
+    just["ray"][0] = str(
+        -Fraction(just["ray"][0]) if just["sense"][0] == "L" else Fraction(just["ray"][0]) * 2
+    )
     assert not check_certificate(cert).ok
     cert = copy.deepcopy(solved["initially_false"].certificate)
     face = cert["justifications"][_first(cert, "face_violated")]

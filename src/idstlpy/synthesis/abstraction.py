@@ -391,7 +391,9 @@ class Abstraction:
         initial_false = [i for i in range(self.num_atoms) if not init[i]]
         proofs: dict[tuple[object, ...], Proof] = {}
         for i in empty:
-            proofs[("empty", i)] = ModelProof(_region_model(regions[i].H, regions[i].c), f"{self.names()[i]} is empty")
+            proofs[("empty", i)] = ModelProof(
+                _region_model(regions[i].H, regions[i].c), f"{self.names()[i]} is empty"
+            )
         for i, j in disjoint:
             H = np.vstack([regions[i].H, regions[j].H])
             c = np.concatenate([regions[i].c, regions[j].c])
@@ -572,7 +574,9 @@ class Abstraction:
                 if backend.solve(model, max(limit, 1e-3)).status == "infeasible":
                     bad_modes.append(q)
                     names = self.names()
-                    refuted.append(ModelProof(model, f"no mean in {names[i]} reaches {names[j]} in one step of mode {q}"))
+                    refuted.append(
+                        ModelProof(model, f"no mean in {names[i]} reaches {names[j]} in one step of mode {q}")
+                    )
             if len(bad_modes) == system.num_modes:
                 out.append((i, j, -1))
                 if proofs is not None:
@@ -673,6 +677,10 @@ def _region_model(H: np.ndarray, c: np.ndarray) -> LinearModel:
     """The LP ``H x <= -c`` (a region ``H x + c <= 0``), for the proof of its emptiness."""
     n = H.shape[1]
     return LinearModel(
-        np.zeros(n), csr_matrix(H), np.full(H.shape[0], -np.inf), -np.asarray(c, dtype=float),
-        np.full(n, -np.inf), np.full(n, np.inf),
+        np.zeros(n),
+        csr_matrix(H),
+        np.full(H.shape[0], -np.inf),
+        -np.asarray(c, dtype=float),
+        np.full(n, -np.inf),
+        np.full(n, np.inf),
     )

@@ -246,7 +246,9 @@ def _search(
         proposal = proposer.propose()  # propose
         if isinstance(proposal, ProposerDry):
             status: Status = "infeasible" if proposal.proven else "budget_exhausted"
-            cert = _certificate(ctx, proposer) if proposal.proven and ctx.proofs_hold and not ctx.joint else None
+            cert = (
+                _certificate(ctx, proposer) if proposal.proven and ctx.proofs_hold and not ctx.joint else None
+            )
             return finish(ctx, status, f"{proposal.reason}; {ctx.counts()}", certificate=cert)
         plan = proposal
         stats.candidates += 1

@@ -238,7 +238,11 @@ def check_farkas(cert: Mapping[str, Any]) -> str | None:
     R = len(rhs)
     if not (len(indptr) == R + 1 and len(sense) == R and len(ray) == R and len(indices) == len(data)):
         return "malformed Farkas certificate: the rows, senses and ray differ in length"
-    if indptr[0] != 0 or indptr[-1] != len(data) or any(a > b for a, b in zip(indptr, indptr[1:], strict=False)):
+    if (
+        indptr[0] != 0
+        or indptr[-1] != len(data)
+        or any(a > b for a, b in zip(indptr, indptr[1:], strict=False))
+    ):
         return "malformed Farkas certificate: the row pointers are not increasing"
     total: dict[int, Fraction] = {}
     value = Fraction(0)
@@ -418,8 +422,9 @@ def _solve_pivots(
     pivoted = {p for p, _, _, _ in order}
     for r in unknown:
         if r not in pivoted:  # an unknown no equation needed: its float value, clipped
-            v = float(y[r])
-            values[r] = Fraction(v if eq[r] else max(v, 0.0)) if abs(v) > 1e-12 * scale else Fraction(0)
+            fv = float(y[r])
+            kept = fv if eq[r] else max(fv, 0.0)
+            values[r] = Fraction(kept) if abs(fv) > 1e-12 * scale else Fraction(0)
     for p, _, row, b in reversed(order):
         s = b
         for r, v in row.items():
@@ -555,7 +560,9 @@ def check_certificate(cert: Mapping[str, Any]) -> CertificateCheck:
     """
     if not isinstance(cert, Mapping) or cert.get("schema") != CERTIFICATE_SCHEMA:
         got = cert.get("schema") if isinstance(cert, Mapping) else type(cert).__name__
-        return CertificateCheck(False, False, [f"not a certificate of schema {CERTIFICATE_SCHEMA!r} (got {got!r})"])
+        return CertificateCheck(
+            False, False, [f"not a certificate of schema {CERTIFICATE_SCHEMA!r} (got {got!r})"]
+        )
     uncertified = [str(u) for u in cert.get("uncertified", [])]
     route = cert.get("route")
     if route != "sat":
@@ -566,7 +573,9 @@ def check_certificate(cert: Mapping[str, Any]) -> CertificateCheck:
     justs = cert.get("justifications")
     cnf = cert.get("cnf")
     if not isinstance(justs, list) or not isinstance(cnf, Mapping):
-        return CertificateCheck(False, False, ["the certificate has no CNF or no justifications"], uncertified)
+        return CertificateCheck(
+            False, False, ["the certificate has no CNF or no justifications"], uncertified
+        )
     verdicts: dict[int, str | None] = {}
     for idx, just in enumerate(justs):
         kind = just.get("kind") if isinstance(just, Mapping) else None

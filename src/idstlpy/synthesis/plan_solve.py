@@ -316,7 +316,7 @@ def _farkas(rows: PlanRows, duals: np.ndarray, involved: list[int]) -> RowsProof
     conflict's last are kept; the faces are the rows the proof is about (not pivots of the
     exact repair), the dynamics and control rows may absorb the ray's rounding.
     """
-    K, n, m = rows.K, rows.n, rows.m
+    K, n = rows.K, rows.n
     nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
     per = nU // K if K else 0
     owners = np.asarray(rows.face_owner)

@@ -184,7 +184,9 @@ def _as_rows(model: LinearModel) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
     fu, fl = np.isfinite(ub), np.isfinite(lb)
     blocks = [A[eq], A[up], -A[down], I[fu], -I[fl]]
     rhs = np.concatenate([lo[eq], hi[up], -lo[down], ub[fu], -lb[fl]])
-    kinds = np.concatenate([np.ones(int(eq.sum()), dtype=bool), np.zeros(rhs.size - int(eq.sum()), dtype=bool)])
+    kinds = np.concatenate(
+        [np.ones(int(eq.sum()), dtype=bool), np.zeros(rhs.size - int(eq.sum()), dtype=bool)]
+    )
     return vstack(blocks).tocsr(), rhs, kinds
 
 
