@@ -35,6 +35,7 @@ This module imports nothing from the solve loop: only NumPy, :mod:`fractions` an
 from __future__ import annotations
 
 import base64
+import heapq
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -387,9 +388,14 @@ def _solve_pivots(
             where.setdefault(r, set()).add(c)
     order: list[tuple[int, int, dict[int, Fraction], Fraction]] = []  # (pivot, column, row, b)
     live = set(eqs)
-    # Fewest unknowns first; a bucket queue keeps the choice cheap.
+    # Fewest unknowns first (a heap with stale entries skipped: an equation is pushed again each
+    # time its count changes).
+    heap = [(len(row), c) for c, row in eqs.items()]
+    heapq.heapify(heap)
     while live:
-        c = min(live, key=lambda k: len(eqs[k]))
+        count, c = heapq.heappop(heap)
+        if c not in live or count != len(eqs[c]):
+            continue
         row, b = eqs[c], rhs[c]
         live.discard(c)
         if not row:
@@ -417,6 +423,7 @@ def _solve_pivots(
                 if nv:
                     where.setdefault(r, set()).add(c2)
             rhs[c2] -= f * b
+            heapq.heappush(heap, (len(other), c2))
         where.pop(p, None)
     values: dict[int, Fraction] = {r: q for r, q in fixed.items()}
     pivoted = {p for p, _, _, _ in order}
