@@ -235,12 +235,9 @@ def _search(
         if milp.due():
             outcome = milp.solve()
             if isinstance(outcome, EagerEnd):
-                cert = None
                 if outcome.status == "infeasible":
-                    cert = uncertified_certificate(
-                        "the eager MILP's proof (branch and bound) has no exact certificate", "milp"
-                    )
-                return finish(ctx, outcome.status, outcome.reason, certificate=cert)
+                    return _milp_infeasible(ctx, proposer, teachers, milp, outcome.reason)
+                return finish(ctx, outcome.status, outcome.reason)
             if isinstance(outcome, EagerPlan):
                 return optimise(ctx, outcome.plan, outcome.how, outcome.proof, milp)
         proposal = proposer.propose()  # propose
@@ -270,6 +267,61 @@ def _search(
         else:
             why = verdict.why
         _abandon(ctx, proposer, plan, verdict, why)  # abandon
+
+
+RECERTIFY_CANDIDATES = 400
+"""Candidates the lazy loop may spend re-deriving an eager MILP's ``infeasible`` (a work budget):
+its proof (branch and bound in floating point) has no certificate of its own."""
+
+
+def _milp_infeasible(
+    ctx: SolveContext, proposer: Proposer, teachers: Sequence[Teacher], milp: EagerMILP, reason: str
+) -> SolveResult:
+    """The eager MILP proved ``infeasible``: re-derive it with the lazy loop for a certificate.
+
+    The lazy loop goes on from where it was (the MILP aside) for at most
+    :data:`RECERTIFY_CANDIDATES` candidates: a proven dry run gives the certificate (the reason
+    says the proof was re-derived); a plan the monitor verifies means the MILP's proof was wrong
+    (a back end's error) and the plan is returned; anything else leaves the MILP's proof
+    uncertified, and the reason says so.
+    """
+    stats = ctx.stats
+    why = "the eager MILP's proof (branch and bound) has no exact certificate"
+    try:
+        for _ in range(RECERTIFY_CANDIDATES):
+            proposal = proposer.propose()
+            if isinstance(proposal, ProposerDry):
+                if proposal.proven and ctx.proofs_hold and not ctx.joint:
+                    cert = _certificate(ctx, proposer)
+                    if cert is not None and cert.get("certified"):
+                        reason += "; re-derived by the lazy loop, whose certificate verifies"
+                        return finish(ctx, "infeasible", reason, certificate=cert)
+                why += "; the lazy loop's re-derivation " + (
+                    "has no verified certificate" if proposal.proven else f"stopped: {proposal.reason}"
+                )
+                break
+            stats.candidates += 1
+            verdict = _teach(ctx, teachers, proposer, proposal)
+            if isinstance(verdict, Refuted):
+                _block(ctx, proposer, proposal, verdict)
+                continue
+            if isinstance(verdict, Found):
+                checked = _verify(ctx, verdict.actions, verdict.controls)
+                if checked is not None:
+                    logger.warning("the eager MILP said infeasible, but the lazy loop found a verified plan")
+                    how = (
+                        f"{verdict.how} met the plan and the monitor agrees (the eager MILP's "
+                        "'infeasible' was wrong)"
+                    )
+                    return optimise(ctx, checked, how, "lp" if verdict.exact else "sampler", milp)
+            why += "; the lazy loop's re-derivation set a candidate aside"
+            break
+        else:
+            why += f"; the lazy loop's re-derivation took more than {RECERTIFY_CANDIDATES} candidates"
+    except BudgetExceeded:
+        stats.caps_hit.append("time_limit")
+        why += "; the time limit stopped the lazy loop's re-derivation"
+    return finish(ctx, "infeasible", reason, certificate=uncertified_certificate(why, "milp"))
 
 
 def _certificate(ctx: SolveContext, proposer: Proposer) -> dict[str, object] | None:
