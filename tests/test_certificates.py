@@ -214,8 +214,19 @@ def test_cli_check_round_trips_through_the_json(solved, tmp_path, capsys):
     assert main(["check", str(tmp_path / "missing.json")]) == 2
 
 
-def test_the_eager_milp_proof_says_it_is_not_certified(tmp_path, capsys):
+def test_an_eager_milp_proof_is_re_derived_and_certified():
     result = logically_unsatisfiable().solve_result(rrt_timeout=10, seed=0, lazy_candidates=0)
+    assert result.status == "infeasible" and "eager MILP" in result.reason
+    assert "re-derived by the lazy loop" in result.reason
+    assert result.certified is True
+    assert check_certificate(result.certificate).certified
+
+
+def test_an_eager_milp_proof_without_re_derivation_says_it_is_not_certified(monkeypatch, tmp_path, capsys):
+    from idstlpy.synthesis import cegis
+
+    monkeypatch.setattr(cegis, "RECERTIFY_CANDIDATES", 0)
+    result = unreachable().solve_result(rrt_timeout=10, seed=0, lazy_candidates=0)
     assert result.status == "infeasible"
     assert result.certified is False
     assert result.certificate is not None and result.certificate["route"] == "milp"
