@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import base64
 import heapq
+import math
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -209,8 +210,20 @@ def farkas_justification(
     }
 
 
+def _ratio(value: Any) -> tuple[int, int]:
+    """``(numerator, denominator)`` of a JSON number or a ``"p/q"`` string, exactly."""
+    if isinstance(value, float) and np.isfinite(value):
+        return value.as_integer_ratio()
+    q = _fraction(value)
+    return q.numerator, q.denominator
+
+
 def check_farkas(cert: Mapping[str, Any]) -> str | None:
     """Re-check a Farkas certificate exactly (see the module docstring).
+
+    The sums are formed in integers: the ray scaled by the least common multiple of its
+    denominators, the data (floats: dyadic rationals) by the largest power of two among theirs,
+    so that no step rounds and none needs a :class:`~fractions.Fraction` per operation.
 
     Parameters
     ----------
@@ -222,18 +235,13 @@ def check_farkas(cert: Mapping[str, Any]) -> str | None:
     str or None
         ``None`` when it proves its rows infeasible, else what fails.
     """
-    exact = _Exact()
-
-    def number(v: Any) -> Fraction:
-        return exact(v) if type(v) is float and np.isfinite(v) else _fraction(v)
-
     try:
         indptr = [int(v) for v in cert["indptr"]]
         indices = [int(v) for v in cert["indices"]]
-        data = [number(v) for v in cert["data"]]
-        rhs = [number(v) for v in cert["rhs"]]
+        data = [_ratio(v) for v in cert["data"]]
+        rhs = [_ratio(v) for v in cert["rhs"]]
         sense = str(cert["sense"])
-        ray = [_fraction(v) for v in cert["ray"]]
+        ray = [_ratio(v) for v in cert["ray"]]
     except (KeyError, TypeError, ValueError, ZeroDivisionError) as exc:
         return f"malformed Farkas certificate: {exc}"
     R = len(rhs)
@@ -245,27 +253,36 @@ def check_farkas(cert: Mapping[str, Any]) -> str | None:
         or any(a > b for a, b in zip(indptr, indptr[1:], strict=False))
     ):
         return "malformed Farkas certificate: the row pointers are not increasing"
-    total: dict[int, Fraction] = {}
-    value = Fraction(0)
+    if any(d <= 0 for _, d in ray):
+        return "malformed Farkas certificate: a multiplier has a non-positive denominator"
+    common = math.lcm(*(d for _, d in ray)) if ray else 1
+    Y = [p * (common // d) for p, d in ray]  # the ray times `common`: integers, same signs
+    # Every float is a dyadic rational: scale by the largest denominator (a power of two).
+    D = max([d for _, d in data] + [d for _, d in rhs] + [1])
+    total: dict[int, int] = {}
+    value = 0
     for r in range(R):
-        y = ray[r]
+        y = Y[r]
         if sense[r] == "L":
             if y < 0:
-                return f"the multiplier of inequality row {r} is negative ({y})"
+                return f"the multiplier of inequality row {r} is negative ({float(Fraction(*ray[r])):.3g})"
         elif sense[r] != "E":
             return f"row {r} has an unknown sense {sense[r]!r}"
         if y == 0:
             continue
         for p in range(indptr[r], indptr[r + 1]):
+            num, den = data[p]
             col = indices[p]
-            total[col] = total.get(col, Fraction(0)) + y * data[p]
-        value += y * rhs[r]
+            total[col] = total.get(col, 0) + y * num * (D // den)
+        num, den = rhs[r]
+        value += y * num * (D // den)
     bad = [c for c, v in total.items() if v != 0]
     if bad:
         c = min(bad)
-        return f"y'A is not zero: column {c} sums to {float(total[c]):.3g} ({len(bad)} columns)"
+        residual = float(Fraction(total[c], common * D))
+        return f"y'A is not zero: column {c} sums to {residual:.3g} ({len(bad)} columns)"
     if value >= 0:
-        return f"y'b = {float(value):.3g} is not negative"
+        return f"y'b = {float(Fraction(value, common * D)):.3g} is not negative"
     return None
 
 
@@ -403,14 +420,16 @@ def _solve_pivots(
                 return None  # the fixed multipliers leave a residual no pivot can take
             continue
         # Prefer equalities (free sign), then the inequality the float ray leans on most.
-        p = max(row, key=lambda r: (bool(eq[r]), abs(float(y[r])) * abs(float(row[r]))))
+        p = max(row, key=lambda r: (bool(eq[r]), abs(float(y[r]))))
         a = row[p]
         order.append((p, c, row, b))
         for c2 in list(where.get(p, ())):
             if c2 == c or c2 not in live:
                 continue
             other = eqs[c2]
-            f = other.pop(p) / a
+            f = other.pop(p)
+            if a != 1:
+                f = f / a
             for r, v in row.items():
                 if r == p:
                     continue
@@ -437,7 +456,8 @@ def _solve_pivots(
         for r, v in row.items():
             if r != p:
                 s -= v * values[r]
-        values[p] = s / row[p]
+        a = row[p]
+        values[p] = s if a == 1 else s / a
     negative = [r for r in unknown if not eq[r] and values.get(r, Fraction(0)) < 0]
     return values, negative
 
