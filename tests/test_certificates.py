@@ -278,3 +278,14 @@ def test_the_checker_imports_nothing_from_the_solve_loop():
         elif isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)
     assert not any(name.startswith(".") or name.startswith("idstlpy") for name in names), names
+
+
+def test_idstlpy_solve_writes_a_certificate_that_idstlpy_check_verifies(tmp_path, capsys):
+    unsat = Path(__file__).resolve().parents[1] / "examples" / "unsatisfiable.toml"
+    assert main(["solve", str(unsat), "--out", str(tmp_path), "--quiet"]) == 1
+    (record,) = tmp_path.glob("*.json")
+    data = json.loads(record.read_text())
+    assert data["status"] == "infeasible" and data["certificate"]["certified"] is True
+    capsys.readouterr()
+    assert main(["check", str(record)]) == 0
+    assert "certificate verified" in capsys.readouterr().out

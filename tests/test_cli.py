@@ -19,7 +19,7 @@ FAST = ["--set", "solver.rrt_timeout=5", "--set", "solver.time_limit=60"]
 
 
 def test_command_modules_tuple():
-    assert _COMMAND_MODULES == ("demo", "files", "plot", "example")
+    assert _COMMAND_MODULES == ("demo", "files", "plot", "example", "check")
 
 
 @pytest.mark.parametrize(
