@@ -120,8 +120,9 @@ class Abstraction:
             self.joint_rows[rows] = True
         self.num_atoms = len(self.atoms)
         self.mode_sets = [ap.modes for ap in self.atoms]
-        # What proves each proposition out of reach (:meth:`out_of_reach`), for certificates.
-        self.reach_proofs: dict[int, Proof] = {}
+        # What proves each proposition out of reach (:meth:`out_of_reach`), for certificates: by
+        # proposition, or by (proposition, step) where each step has its own.
+        self.reach_proofs: dict[int | tuple[int, int], Proof] = {}
 
     def names(self) -> list[str]:
         """Readable names of the propositions."""
@@ -315,7 +316,15 @@ class Abstraction:
             best = terms.min(axis=0)
             if not np.all(np.isfinite(best)):
                 out[i] = f"{self.names()[i]} needs zero variance (eps = 0) but every step has some"
-                self.reach_proofs[i] = NoProof(f"{out[i]} (a covariance floor: not certified)")
+                # Per step: the face with eps = 0 and positive variance at that step's floor.
+                f = int(np.flatnonzero(~np.isfinite(best))[0])
+                for k in range(1, tail.shape[0] + 1):
+                    self.reach_proofs[(i, k)] = FaceProof(
+                        cone.H[f], float(cone.c[f]), float(cone.z[f]), np.zeros(self.n), tail[k - 1]
+                    )
+                self.reach_proofs[i] = NoProof(
+                    f"{out[i]}: steps past {tail.shape[0]} rest on the covariance floor having settled"
+                )
                 continue
             region = Polytope(cone.H, cone.c + best)
             if region.is_empty():

@@ -184,7 +184,12 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
             max_gap=horizon,
         )
         report.out_of_reach = ctx.abstraction.out_of_reach(system, init.cov, horizon, budget)
-        report.proofs.update({("reach", i): p for i, p in ctx.abstraction.reach_proofs.items()})
+        report.proofs.update(
+            {
+                ("reach", *(i if isinstance(i, tuple) else (i,))): p
+                for i, p in ctx.abstraction.reach_proofs.items()
+            }
+        )
     stats.pruned_letters = (
         len(report.empty_atoms)
         + len(report.disjoint_pairs)

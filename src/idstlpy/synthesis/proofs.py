@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.sparse import csr_matrix, hstack, identity, vstack
+from scipy.sparse import csr_matrix, identity, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from .certificates import (
@@ -43,9 +43,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-_ELASTIC_TOL = 1e-9
-"""Elastic optimum at or below which an LP said infeasible is not refuted by its ray."""
 
 
 class Proof(Protocol):
@@ -127,7 +124,7 @@ class ModelProof:
     about: str
 
     def build(self, backend: Backend) -> dict[str, Any]:
-        """Solve the elastic LP for a ray, then as :class:`RowsProof`."""
+        """Solve the LP of its ray (:func:`model_rows`), then as :class:`RowsProof`."""
         rows = model_rows(self.model, backend, self.about)
         if isinstance(rows, NoProof):
             return rows.build(backend)
@@ -191,11 +188,14 @@ def _as_rows(model: LinearModel) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
 
 
 def model_rows(model: LinearModel, backend: Backend, about: str) -> RowsProof | NoProof:
-    """A float Farkas ray of an LP said infeasible, from its elastic LP's duals.
+    """A float Farkas ray of an LP said infeasible, as the solution of the ray's own LP.
 
-    The elastic LP ``min sum s`` over ``a_r' x - s_r <= b_r`` (and ``a_r' x - s_r + t_r = b_r``
-    on equalities), ``s, t >= 0``, has a positive optimum exactly when the rows are infeasible;
-    its row duals, negated, are a Farkas ray of the rows. Any back end with row duals serves.
+    The ray LP ``min b'y`` over ``A'y = 0``, ``sum of the inequality multipliers = 1``,
+    ``y >= 0`` on inequalities has a negative optimum exactly when the rows are infeasible, and
+    its solution is a ray. Unlike an elastic LP's optimum, which a solver reads as zero when the
+    rows miss each other by less than its feasibility tolerance (two regions 1e-7 apart), its
+    constraints are met to the solver's tolerance and only the sign of ``b'y`` is small; the
+    exact repair and check (:func:`~.certificates.exact_ray`) decide that sign.
 
     Parameters
     ----------
@@ -210,21 +210,16 @@ def model_rows(model: LinearModel, backend: Backend, about: str) -> RowsProof | 
     """
     A, rhs, eq = _as_rows(model)
     R, n = A.shape
-    ne = int(eq.sum())
-    S = identity(R, format="csr")
-    T = csr_matrix((np.ones(ne), (np.arange(ne), np.arange(ne))), shape=(R, ne))
-    E = hstack([A, -S, T]).tocsr()
-    lo = np.where(eq, rhs, -np.inf)
-    c = np.concatenate([np.zeros(n), np.ones(R + ne)])
-    lb = np.concatenate([np.full(n, -np.inf), np.zeros(R + ne)])
-    ub = np.full(n + R + ne, np.inf)
-    sol = backend.solve(LinearModel(c, E, lo, rhs, lb, ub), 60.0)
-    if sol.status != "optimal" or sol.row_duals is None:
-        return NoProof(f"{about}: the elastic LP for its ray ended {sol.status}")
-    if not sol.objective > _ELASTIC_TOL * max(1, R):
-        return NoProof(f"{about}: the elastic LP finds the rows feasible within tolerance (no ray)")
-    y = -np.asarray(sol.row_duals, dtype=float)
-    return RowsProof(A, rhs, eq, y, np.ones(R, dtype=bool), about)  # (exact_ray anchors the largest)
+    ineq = (~eq).astype(float)
+    M = vstack([A.T.tocsr(), csr_matrix(ineq[None, :])]).tocsr()
+    lo = np.concatenate([np.zeros(n), [1.0]])
+    lb = np.where(eq, -np.inf, 0.0)
+    sol = backend.solve(LinearModel(rhs.astype(float), M, lo, lo.copy(), lb, np.full(R, np.inf)), 60.0)
+    if sol.status != "optimal" or sol.x is None:
+        return NoProof(f"{about}: the LP for its Farkas ray ended {sol.status}")
+    if not sol.objective < 0:
+        return NoProof(f"{about}: the LP for its Farkas ray finds none (optimum {sol.objective:.3g})")
+    return RowsProof(A, rhs, eq, np.asarray(sol.x, dtype=float), np.ones(R, dtype=bool), about)
 
 
 def uncertified_certificate(why: str, route: str) -> dict[str, Any]:

@@ -185,7 +185,8 @@ class BMCProposer:
             self._proven([-int(enc.p[i, 0])], ("initial", i))
         for i in rep.out_of_reach:
             for k in range(1, H + 1):
-                self._proven([-int(enc.p[i, k])], ("reach", i))
+                key = ("reach", i, k) if ("reach", i, k) in rep.proofs else ("reach", i)
+                self._proven([-int(enc.p[i, k])], key)
 
     def _enc(self) -> BMCEncoder:
         if self.enc is None:  # only when the formula needs longer plans than allowed
