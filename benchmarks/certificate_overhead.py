@@ -27,7 +27,6 @@ def _cases(seeds: int, families: list[str]) -> Iterator[tuple[str, Callable[[], 
     sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
     from test_certificates import PROBLEMS
     from test_soundness import _solve
-
     from tests.oracles.generators import infeasible_instance
 
     for name, make in PROBLEMS.items():
