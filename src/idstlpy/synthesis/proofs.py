@@ -111,7 +111,7 @@ class RowsProof:
         cols = np.unique(self.A[used].indices) if np.any(used) else np.zeros(0, dtype=int)
         touch = np.zeros(self.A.shape[1], dtype=bool)
         touch[cols] = True
-        reaches = np.asarray(self.A.astype(bool).astype(np.int8) @ touch.astype(np.int8)).ravel() > 0
+        reaches = np.asarray(self.A.astype(bool).astype(np.int32) @ touch.astype(np.int32)).ravel() > 0
         keep: np.ndarray = used | (self.pivots & reaches)
         return np.flatnonzero(keep)
 
