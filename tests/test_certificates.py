@@ -81,6 +81,16 @@ def out_of_reach():
     return stl.Problem(system, domain, stl.to_belief([0.5], [[0.0]]), stl.eventually(1, 6, band))
 
 
+def zero_variance():
+    """A confidence of 1 (eps = 0) under process noise: every step has variance along its face."""
+    x = stl.mk_variable(1)
+    u = stl.mk_variable(1, name="u")
+    system = stl.mk_switched_sys([stl.mk_lbs([[1.0]], [[1.0]], [[0.1]])])
+    domain = stl.logical_and(u[0] >= -1, u[0] <= 1).region
+    sure = stl.logical_and(P(x[0] <= 5, 1.0), name="sure")
+    return stl.Problem(system, domain, stl.to_belief([0.0], [[0.0]]), stl.eventually(1, 4, sure))
+
+
 def two_modes_far():
     """Two modes, the goal out of reach of both: refutations over mode sequences."""
     x = stl.mk_variable(2)
@@ -101,6 +111,7 @@ PROBLEMS = {
     "initially_false": initially_false,
     "out_of_reach": out_of_reach,
     "two_modes_far": two_modes_far,
+    "zero_variance": zero_variance,
 }
 
 
