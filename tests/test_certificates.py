@@ -300,3 +300,19 @@ def test_idstlpy_solve_writes_a_certificate_that_idstlpy_check_verifies(tmp_path
     capsys.readouterr()
     assert main(["check", str(record)]) == 0
     assert "certificate verified" in capsys.readouterr().out
+
+
+def test_large_justifications_are_packed_and_still_verify(monkeypatch):
+    from idstlpy.synthesis import proofs
+    from idstlpy.synthesis.certificates import pack_json, unpack_json
+
+    monkeypatch.setattr(proofs, "PACK_FROM", 0)
+    result = unreachable().solve_result(rrt_timeout=30, seed=0)
+    cert = json.loads(json.dumps(result.certificate))
+    assert "justifications" not in cert and result.certified
+    assert check_certificate(cert).certified
+    justs = unpack_json(cert["justifications_z"])
+    just = justs[_first({"justifications": justs}, "farkas")]
+    just["data"][0] += 0.25
+    cert["justifications_z"] = pack_json(justs)
+    assert not check_certificate(cert).ok

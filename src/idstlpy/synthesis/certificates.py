@@ -8,7 +8,8 @@ dict saved with the result) lets both be re-checked without trusting either:
 - ``cnf``: the SAT encoding of the formula (``encoding`` clauses, from the project's encoder)
   together with the *derived* clauses (LP pruning facts and the teachers' refutations), each
   derived clause pointing to the justification that proves it;
-- ``justifications``: per derived clause, one of
+- ``justifications`` (or, when large, ``justifications_z``: the same list packed by
+  :func:`pack_json`): per derived clause, one of
 
   - ``farkas``: the rows of an LP (``a_r' x <= b_r`` or ``= b_r``, the float data exactly as
     the back end was given them) and a ray ``y`` in exact rationals. :func:`check_farkas`
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import base64
 import heapq
+import json
 import math
 import zlib
 from collections.abc import Mapping, Sequence
@@ -56,7 +58,9 @@ __all__ = [
     "encode_clauses",
     "exact_ray",
     "farkas_justification",
+    "pack_json",
     "second_solver",
+    "unpack_json",
 ]
 
 CERTIFICATE_SCHEMA = "idstlpy.certificate/1"
@@ -132,6 +136,44 @@ def decode_clauses(text: str) -> list[list[int]]:
     values = flat.tolist()
     starts = np.concatenate([[0], ends[:-1] + 1]).tolist() if ends.size else []
     return [values[a:b] for a, b in zip(starts, ends.tolist(), strict=True)]
+
+
+def pack_json(value: Any) -> str:
+    """JSON data as text: compact JSON, zlib-compressed, base64 (a large certificate's
+    justifications: a plan LP's rows repeat step after step and compress some 30-fold).
+
+    Parameters
+    ----------
+    value : JSON-able data
+
+    Returns
+    -------
+    str
+    """
+    raw = json.dumps(value, separators=(",", ":"), allow_nan=False).encode()
+    return base64.b64encode(zlib.compress(raw, 6)).decode("ascii")
+
+
+def unpack_json(text: str) -> Any:
+    """Inverse of :func:`pack_json`.
+
+    Parameters
+    ----------
+    text : str
+
+    Returns
+    -------
+    JSON data
+
+    Raises
+    ------
+    ValueError
+        When ``text`` is not such an encoding.
+    """
+    try:
+        return json.loads(zlib.decompress(base64.b64decode(text.encode("ascii"), validate=True)))
+    except (ValueError, zlib.error) as exc:
+        raise ValueError(f"the packed justifications are not valid: {exc}") from None
 
 
 # -- exact numbers ------------------------------------------------------------------------------
@@ -598,6 +640,11 @@ def check_certificate(cert: Mapping[str, Any]) -> CertificateCheck:
     messages: list[str] = []
     counts: dict[str, int] = {}
     justs = cert.get("justifications")
+    if justs is None and isinstance(cert.get("justifications_z"), str):
+        try:
+            justs = unpack_json(cert["justifications_z"])
+        except ValueError as exc:
+            return CertificateCheck(False, False, [str(exc)], uncertified)
     cnf = cert.get("cnf")
     if not isinstance(justs, list) or not isinstance(cnf, Mapping):
         return CertificateCheck(

@@ -12,6 +12,7 @@ into exact justifications (:mod:`.certificates`) and check the whole certificate
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Sequence
@@ -28,6 +29,7 @@ from .certificates import (
     encode_clauses,
     exact_ray,
     farkas_justification,
+    pack_json,
     second_solver,
 )
 
@@ -244,6 +246,10 @@ def uncertified_certificate(why: str, route: str) -> dict[str, Any]:
     }
 
 
+PACK_FROM = 1 << 16
+"""Characters of the justifications' JSON above which they are saved packed
+(:func:`~.certificates.pack_json`)."""
+
 CORE_FROM = 16
 """Distinct proofs above which only an unsatisfiable core's are built (a SAT call saves their LPs
 and exact repairs; below, building them all costs less than the call)."""
@@ -342,6 +348,9 @@ def build_certificate(
         "uncertified": [],
     }
     check = check_certificate(cert)
+    if len(json.dumps(justifications)) > PACK_FROM:
+        del cert["justifications"]
+        cert["justifications_z"] = pack_json(justifications)
     cert["certified"] = check.certified
     cert["summary"] = check.summary()
     if not check.ok:
