@@ -316,3 +316,17 @@ def test_large_justifications_are_packed_and_still_verify(monkeypatch):
     just["data"][0] += 0.25
     cert["justifications_z"] = pack_json(justs)
     assert not check_certificate(cert).ok
+
+
+def test_an_input_unbounded_in_a_direction_still_gets_an_exact_ray():
+    """A plan LP whose control domain is open on one side (no control row along it to absorb
+    the float ray's rounding): the repair solves every multiplier but the largest instead."""
+    from tests.oracles.generators import infeasible_instance
+
+    inst = infeasible_instance(2 * 7919 + 101, family="reach")
+    assert "unbounded" in inst.tags
+    result = inst.problem.solve_result(seed=inst.seed % 1000, rrt_timeout=2, time_limit=30)
+    assert result.status == "infeasible"
+    assert result.certified is True
+    kinds = [j["kind"] for j in result.certificate["justifications"]]
+    assert "farkas" in kinds

@@ -95,6 +95,10 @@ class RowsProof:
         A = self.A[keep].tocsr()
         rhs, eq = self.rhs[keep], self.equality[keep]
         exact = exact_ray(A, rhs, eq, self.ray[keep], self.pivots[keep])
+        if exact is None and not self.pivots[keep].all():
+            # The pivots could not absorb the rounding (e.g. an input unbounded in a direction:
+            # no control row along it): every multiplier but the largest solved for.
+            exact = exact_ray(A, rhs, eq, self.ray[keep])
         if exact is None:
             return {"kind": "uncertified", "why": f"{self.about}: the LP's ray could not be made exact"}
         nz = [i for i, q in enumerate(exact) if q != 0]
