@@ -248,9 +248,7 @@ def _search(
         proposal = proposer.propose()  # propose
         if isinstance(proposal, ProposerDry):
             status: Status = "infeasible" if proposal.proven else "budget_exhausted"
-            cert = (
-                _certificate(ctx, proposer) if proposal.proven and ctx.proofs_hold and not ctx.joint else None
-            )
+            cert = _certificate(ctx, proposer) if proposal.proven and _proof_stands(ctx) else None
             return finish(ctx, status, f"{proposal.reason}; {ctx.counts()}", certificate=cert)
         plan = proposal
         stats.candidates += 1
@@ -304,7 +302,7 @@ def _rederive(
         for _ in range(RECERTIFY_CANDIDATES):
             proposal = proposer.propose()
             if isinstance(proposal, ProposerDry):
-                if proposal.proven and ctx.proofs_hold and not ctx.joint:
+                if proposal.proven and _proof_stands(ctx):
                     cert = _certificate(ctx, proposer, timed=False)
                     if cert is not None and cert.get("certified"):
                         reason += "; re-derived by the lazy loop, whose certificate verifies"
@@ -335,6 +333,14 @@ def _rederive(
         stats.caps_hit.append("time_limit")
         why += "; the time limit stopped the lazy loop's re-derivation"
     return finish(ctx, "infeasible", reason, certificate=uncertified_certificate(why, "milp"))
+
+
+def _proof_stands(ctx: SolveContext) -> bool:
+    """Whether a proven dry run stays ``infeasible`` (what :func:`~.finish.finish` keeps: the
+    proofs hold under the guarantee, and with joint chance constraints only LP pruning's proof,
+    with no candidate refuted and no MILP solved): only then is its certificate built."""
+    stats = ctx.stats
+    return ctx.proofs_hold and (not ctx.joint or not (stats.candidates or stats.milp_calls))
 
 
 def _certificate(ctx: SolveContext, proposer: Proposer, timed: bool = True) -> dict[str, object] | None:
