@@ -194,3 +194,29 @@ def test_team_instances_have_a_witness_and_a_lazy_plan_fails():
     for k in (2, 3):
         checks = check_instance(k, form="all")
         assert checks["witness"][0] and not checks["lazy"][0]
+
+
+def test_a_block_no_sensor_reads_is_solved_as_a_blind_block():
+    """Two decoupled coordinates, a state-dependent sensor reading only the first: the second
+    block has no sensor row and is a blind sub-system (was a DimensionError: empty C)."""
+    x = stl.mk_variable(2)
+    u = stl.mk_variable(2, name="u")
+    mode = stl.mk_lbs(
+        A=np.eye(2),
+        B=np.eye(2),
+        W=0.01 * np.eye(2),
+        C=np.array([[1.0, 0.0]]),
+        V=lambda s: np.array([[0.1 + 0.01 * float(np.asarray(s)[..., 0].mean()) ** 2]]),
+    )
+    near = stl.logical_and(stl.prob(x[0] >= 1.0) >= 0.9, stl.prob(x[1] >= 1.0) >= 0.9, name="near")
+    problem = stl.Problem(
+        stl.mk_switched_sys([mode]),
+        stl.logical_and(u[0] >= -1, u[0] <= 1, u[1] >= -1, u[1] <= 1).region,
+        stl.to_belief(np.zeros(2), 0.01 * np.eye(2)),
+        stl.eventually(0, 6, near),
+    )
+    blocks = decoupled.split(problem)
+    assert blocks is not None and any(b.outputs.size == 0 for b in blocks)
+    result = problem.solve_result(seed=0, guarantee="mlo")
+    assert result.status == "found", result.reason
+    assert stl.satisfies(result.trajectory, problem.stl_formula)

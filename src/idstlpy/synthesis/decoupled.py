@@ -256,7 +256,8 @@ def _sub_problem(problem: Problem, block: Block) -> Problem:
     s, i, o = block.states, block.inputs, block.outputs
     A, B = mode.A[np.ix_(s, s)], mode.B[np.ix_(s, i)]
     sub: LCS
-    if isinstance(mode, POLBS):
+    # a block that no sensor row reads is blind: its sub-system has no C (an empty C is no sensor)
+    if isinstance(mode, POLBS) and o.size:
         C = mode.C[np.ix_(o, s)]
         if isinstance(mode, POLBSWithNonLinNoise):
             ref = np.asarray(problem.initial_state.mean, dtype=float)
