@@ -64,6 +64,7 @@ from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
+from . import eager
 from .abstraction import PruningReport
 from .certify import Certified, certify
 from .context import BELOW_TARGET_SEARCHED, SolveContext, Verified
@@ -157,7 +158,20 @@ def _loop(ctx: SolveContext) -> SolveResult:
         teachers = _teachers(ctx, proposer, backend)
         exact = any(teacher.exact(ctx.problem) for teacher in teachers)
         verify = functools.partial(_verify, ctx)
-        milp = EagerMILP(ctx, proposer, verify, enabled=exact and system.num_modes == 1)
+        options = ctx.options
+        # Several modes, the covariance fixed by the modes: the joint MILP chooses them (issue
+        # 31). Not under guarantee="mlo" (the paper's loop, bit for bit) nor "closed_loop", and
+        # not for an objective (whose optimum the joint model does not prove).
+        joint = (
+            exact
+            and system.num_modes > 1
+            and ctx.execution
+            and options.objective is None
+            and eager.JOINT_MODES
+        )
+        milp = EagerMILP(
+            ctx, proposer, verify, enabled=exact and system.num_modes == 1, joint=joint, teacher=teachers[0]
+        )
         return _search(ctx, proposer, teachers, milp)
     finally:
         ctx.stats.sat_calls = proposer.sat_calls

@@ -20,20 +20,30 @@ from typing import Literal
 import numpy as np
 
 from ..backends import Backend, get_backend
+from ..belief import rollout
 from ..trajectory import ProbabilisticTSTrajectory
 from .context import SolveContext, Verified, Verify
-from .interfaces import Proposer
+from .interfaces import Found, Proposer, Teacher
+from .joint_milp import JointAnswer, JointSolver, joint_supported
 from .milp import MILPOutcome, solve_milp, switch_to_eager
 from .objectives import better, objective_value
 from .options import Objective
 from .plan import DiscretePlan, extract_witness
 from .plan_lp import PlanLPContext
 from .plan_solve import TIGHTEN, LPGoal, solve_plan_lp
+from .room_measure import execution_room
 from .teacher import execution_margin
 
 __all__ = ["EagerDeclined", "EagerEnd", "EagerMILP", "EagerOutcome", "EagerPlan", "MILPProof"]
 
 logger = logging.getLogger(__name__)
+
+JOINT_MODES = True
+"""Whether LP-exact multi-mode problems under ``guarantee="execution"`` go to the joint MILP
+(benchmarks switch it off to measure the lazy loop alone)."""
+
+JOINT_ROUNDS = 60
+"""Joint MILP solves (cut rounds included) before the lazy loop takes over."""
 
 RETIME_TIGHTENINGS = (1e-12, 1e-10, 1e-8, TIGHTEN)
 """Room (relative to the smallest state unit) the effort re-timing keeps, tried in turn until
@@ -100,13 +110,29 @@ class EagerMILP:
         The loop's verify step, for the MILP's plans.
     enabled : bool
         Whether the strategy may take over (an LP-exact, single-mode problem).
+    joint : bool
+        Several modes, LP-exact (:mod:`.joint_milp`): the joint MILP chooses modes, propositions
+        and inputs together, at once (:meth:`_solve_joint`).
+    teacher : Teacher, optional
+        The plan LP teacher, which times the joint MILP's discrete plan with the room its
+        execution needs (and may improve its modes for the execution).
     """
 
-    def __init__(self, ctx: SolveContext, proposer: Proposer, verify: Verify, enabled: bool) -> None:
+    def __init__(
+        self,
+        ctx: SolveContext,
+        proposer: Proposer,
+        verify: Verify,
+        enabled: bool,
+        joint: bool = False,
+        teacher: Teacher | None = None,
+    ) -> None:
         self.ctx = ctx
         self.proposer = proposer
         self.verify = verify
-        self.enabled = enabled
+        self.enabled = enabled or joint
+        self.joint = joint
+        self.teacher = teacher
         # An optimum over the horizon is the MILP's job: with an objective, go there at once.
         options = ctx.options
         self.lazy_budget = 0 if options.objective is not None else options.lazy_candidates
@@ -118,6 +144,8 @@ class EagerMILP:
     def due(self) -> bool:
         """Whether the MILP takes over now (:func:`~.milp.switch_to_eager`)."""
         ctx = self.ctx
+        if self.joint:
+            return self.enabled  # at once: the lazy loop walks mode sequences one by one
         return self.enabled and switch_to_eager(
             self.proposer.hard, ctx.stats.candidates, self.lazy_budget, ctx.options.lazy_conflict_size
         )
@@ -125,6 +153,12 @@ class EagerMILP:
     def solve(self) -> EagerOutcome:
         """Choose the plan with the MILP, growing the bound until a plan or a proof."""
         ctx, proposer = self.ctx, self.proposer
+        if self.joint:
+            outcome = self._solve_joint()
+            if isinstance(outcome, EagerDeclined):
+                self.enabled = False
+                logger.info("joint MILP declined: %s", outcome.why)
+            return outcome
         objective = ctx.options.objective
         if objective in ("effort", "margin"):
             while proposer.grow():  # the optimum over the whole horizon, not the first bound
@@ -153,6 +187,121 @@ class EagerMILP:
             self.enabled = False
             return EagerDeclined("the MILP's plan failed verification")
         return EagerPlan(checked, MILPProof(out.proven and not borderline, scope, out.bound))
+
+    def _solve_joint(self) -> EagerOutcome:
+        """The joint MILP (:mod:`.joint_milp`) with its lazy cuts, growing the bound until a plan
+        is verified or the relaxation proves there is none.
+
+        Each round solves the model, rolls the exact recursion on its modes and adds the cuts of
+        the faces it violates; a plan whose claimed faces hold exactly is timed by the plan LP
+        teacher (the room its execution needs) and judged by the loop's verify step (monitor and
+        execution target). A plan judged below the target adds execution cuts (:meth:`_room_cuts`):
+        plans with the room their execution needs, and no proof any more.
+        """
+        ctx, proposer, stats = self.ctx, self.proposer, self.ctx.stats
+        backend = get_backend(ctx.options.milp_backend, integer=True)
+        problem, init = ctx.problem, ctx.problem.initial_state
+        context = PlanLPContext(
+            problem.switched_system, problem.control_domain, init.mean, init.cov, ctx.abstraction, ctx.units
+        )
+        why = joint_supported(context)
+        if why is not None:
+            return EagerDeclined(why)
+        solver = JointSolver(context, ctx.budget)
+        rounds = 0
+        while True:
+            ctx.budget.check("the joint MILP")
+            if rounds >= JOINT_ROUNDS:
+                return EagerDeclined(f"the joint MILP did not settle in {JOINT_ROUNDS} rounds")
+            rounds += 1
+            with stats.clock("time_lp"):
+                answer = solver.solve(proposer.export(), backend)
+            stats.milp_calls += 1
+            if answer.status == "unsupported":
+                return EagerDeclined(answer.why)
+            if answer.status == "timeout":
+                ctx.budget.check("the joint MILP")
+                return EagerEnd("budget_exhausted", f"the joint MILP stopped: {answer.why}; {ctx.counts()}")
+            if answer.status == "infeasible":
+                if not solver.proofs:
+                    return EagerEnd(
+                        "budget_exhausted",
+                        "no plan the joint MILP found meets the execution target, and no plan keeps "
+                        f"the room the execution cuts ask; {ctx.counts()}",
+                    )
+                end = self._infeasible("the joint MILP (modes chosen with the plan)")
+                if end is not None:
+                    return end
+                proposer.grow()
+                continue
+            with stats.clock("time_lp"):
+                added = solver.cut(answer)
+            if added:
+                continue
+            checked = self._joint_plan(answer, not solver.proofs)
+            if checked is not None:
+                return EagerPlan(
+                    checked,
+                    MILPProof(False, "", float("nan")),
+                    "the joint MILP chose the modes and the plan, the exact recursion and the monitor agree",
+                )
+            if not self._room_cuts(solver, answer):
+                return EagerEnd(
+                    "budget_exhausted",
+                    f"no plan the joint MILP found meets the execution target; {ctx.counts()}",
+                )
+
+    def _room_cuts(self, solver: JointSolver, answer: JointAnswer) -> int:
+        """After a plan judged below the execution target: the room its execution needs
+        (:func:`~.room_measure.execution_room`) as execution cuts of the model
+        (:meth:`~.joint_milp.JointSolver.add_room`). Returns the number of new rows."""
+        ctx = self.ctx
+        if answer.claims is None or answer.actions is None or answer.controls is None:
+            return 0
+        witness = extract_witness(ctx.formula, answer.claims, ctx.abstraction.index, prefer_late=True)
+        if witness is None:
+            return 0
+        required, L = witness
+        plan = DiscretePlan(required[:, :L], np.concatenate([[-1], answer.actions[: L - 1]]).astype(int), L)
+        problem = ctx.problem
+        traj = rollout(problem.switched_system, problem.initial_state, answer.actions, answer.controls)
+        room = execution_room(problem.switched_system, problem.control_domain, ctx.abstraction, plan, traj)
+        if room is None:
+            return 0
+        added = solver.add_room(room.requirements, room.need, answer.actions)
+        logger.info("joint MILP: plan below the execution target; %d execution cuts", added)
+        return added
+
+    def _joint_plan(self, answer: JointAnswer, own_first: bool) -> Verified | None:
+        """Verify the joint MILP's plan: timed by the plan LP teacher on its letters and modes
+        (the room its execution needs), else its own inputs (``own_first``: those first, they
+        keep the back-off's room)."""
+        ctx = self.ctx
+        if answer.claims is None or answer.actions is None or answer.controls is None:
+            return None
+        actions, controls = answer.actions, answer.controls
+        attempts = ["own", "teacher"] if own_first else ["teacher", "own"]
+        for attempt in attempts:
+            if attempt == "own":
+                checked = self.verify(actions, controls)
+                if checked is not None:
+                    return checked
+                continue
+            if self.teacher is None:
+                continue
+            witness = extract_witness(ctx.formula, answer.claims, ctx.abstraction.index, prefer_late=True)
+            if witness is None:
+                continue
+            required, L = witness
+            modes = np.concatenate([[-1], actions[: L - 1]]).astype(int)
+            plan = DiscretePlan(required[:, :L], modes, L)
+            ctx.stats.candidates += 1
+            verdict = self.teacher.teach(plan, ctx.budget, ctx.stats)
+            if isinstance(verdict, Found):
+                checked = self.verify(verdict.actions, verdict.controls)
+                if checked is not None:
+                    return checked
+        return None
 
     def _bounded(self) -> tuple[MILPOutcome, bool] | EagerEnd | EagerDeclined:
         """The MILP at growing bounds: its first plan and whether a bound on the way was
@@ -189,17 +338,17 @@ class EagerMILP:
                 continue
             return out, borderline
 
-    def _infeasible(self) -> EagerEnd | None:
+    def _infeasible(self, what: str = "the eager MILP") -> EagerEnd | None:
         """What the MILP's proof at the current bound ends, if anything (else: grow the bound)."""
         ctx, proposer = self.ctx, self.proposer
         if proposer.bound >= proposer.H:
             return EagerEnd(
-                "infeasible", f"the eager MILP proved that no plan exists within the horizon; {ctx.counts()}"
+                "infeasible", f"{what} proved that no plan exists within the horizon; {ctx.counts()}"
             )
         if proposer.bound >= proposer.cap:
             return EagerEnd(
                 "budget_exhausted",
-                f"no plan of at most max_plan_length = {ctx.options.max_plan_length} steps (eager MILP); "
+                f"no plan of at most max_plan_length = {ctx.options.max_plan_length} steps ({what}); "
                 f"{ctx.counts()}",
             )
         return None
