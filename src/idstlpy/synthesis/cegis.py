@@ -170,7 +170,12 @@ def _loop(ctx: SolveContext) -> SolveResult:
             and eager.JOINT_MODES
         )
         milp = EagerMILP(
-            ctx, proposer, verify, enabled=exact and system.num_modes == 1, joint=joint, teacher=teachers[0]
+            ctx,
+            proposer,
+            verify,
+            enabled=exact and system.num_modes == 1,
+            joint=joint,
+            teacher=teachers[0] if isinstance(teachers[0], LPTeacher) else None,
         )
         return _search(ctx, proposer, teachers, milp)
     finally:

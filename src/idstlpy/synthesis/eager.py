@@ -23,7 +23,7 @@ from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..trajectory import ProbabilisticTSTrajectory
 from .context import SolveContext, Verified, Verify
-from .interfaces import Found, Proposer, Teacher
+from .interfaces import Found, Proposer
 from .joint_milp import JointAnswer, JointSolver, joint_supported
 from .milp import MILPOutcome, solve_milp, switch_to_eager
 from .objectives import better, objective_value
@@ -32,7 +32,7 @@ from .plan import DiscretePlan, extract_witness
 from .plan_lp import PlanLPContext
 from .plan_solve import TIGHTEN, LPGoal, solve_plan_lp
 from .room_measure import execution_room
-from .teacher import execution_margin
+from .teacher import LPTeacher, execution_margin
 
 __all__ = ["EagerDeclined", "EagerEnd", "EagerMILP", "EagerOutcome", "EagerPlan", "MILPProof"]
 
@@ -41,6 +41,10 @@ logger = logging.getLogger(__name__)
 JOINT_MODES = True
 """Whether LP-exact multi-mode problems under ``guarantee="execution"`` go to the joint MILP
 (benchmarks switch it off to measure the lazy loop alone)."""
+
+JOINT_AFTER = 2
+"""The joint MILP takes over after this many times ``lazy_candidates`` lazy candidates (20 by
+default; ``lazy_candidates = 0``: at once)."""
 
 JOINT_ROUNDS = 60
 """Joint MILP solves (cut rounds included) before the lazy loop takes over."""
@@ -113,7 +117,7 @@ class EagerMILP:
     joint : bool
         Several modes, LP-exact (:mod:`.joint_milp`): the joint MILP chooses modes, propositions
         and inputs together, at once (:meth:`_solve_joint`).
-    teacher : Teacher, optional
+    teacher : LPTeacher, optional
         The plan LP teacher, which times the joint MILP's discrete plan with the room its
         execution needs (and may improve its modes for the execution).
     """
@@ -125,7 +129,7 @@ class EagerMILP:
         verify: Verify,
         enabled: bool,
         joint: bool = False,
-        teacher: Teacher | None = None,
+        teacher: LPTeacher | None = None,
     ) -> None:
         self.ctx = ctx
         self.proposer = proposer
@@ -145,7 +149,10 @@ class EagerMILP:
         """Whether the MILP takes over now (:func:`~.milp.switch_to_eager`)."""
         ctx = self.ctx
         if self.joint:
-            return self.enabled  # at once: the lazy loop walks mode sequences one by one
+            # The lazy loop first: the sensing families' problems converge there in at most 18
+            # candidates (unchanged, bit for bit); past JOINT_AFTER times lazy_candidates it is
+            # walking mode sequences one by one, and the joint MILP decides them at once.
+            return self.enabled and ctx.stats.candidates >= JOINT_AFTER * ctx.options.lazy_candidates
         return self.enabled and switch_to_eager(
             self.proposer.hard, ctx.stats.candidates, self.lazy_budget, ctx.options.lazy_conflict_size
         )
@@ -236,15 +243,17 @@ class EagerMILP:
                 continue
             with stats.clock("time_lp"):
                 added = solver.cut(answer)
-            if added:
-                continue
-            checked = self._joint_plan(answer, not solver.proofs)
+            # The plan LP decides the model's letters and modes exactly: a plan at the limit of
+            # the lower bounds often needs only its means moved (no cut round for that).
+            checked = self._joint_plan(answer, own=not added, own_first=not solver.proofs)
             if checked is not None:
                 return EagerPlan(
                     checked,
                     MILPProof(False, "", float("nan")),
                     "the joint MILP chose the modes and the plan, the exact recursion and the monitor agree",
                 )
+            if added:
+                continue
             if not self._room_cuts(solver, answer):
                 return EagerEnd(
                     "budget_exhausted",
@@ -272,15 +281,18 @@ class EagerMILP:
         logger.info("joint MILP: plan below the execution target; %d execution cuts", added)
         return added
 
-    def _joint_plan(self, answer: JointAnswer, own_first: bool) -> Verified | None:
+    def _joint_plan(self, answer: JointAnswer, own: bool, own_first: bool) -> Verified | None:
         """Verify the joint MILP's plan: timed by the plan LP teacher on its letters and modes
-        (the room its execution needs), else its own inputs (``own_first``: those first, they
-        keep the back-off's room)."""
+        (exact; the room its execution needs; the teacher's own mode search off: the model is
+        the mode search), else its own inputs when they meet the claimed faces exactly
+        (``own``; ``own_first``: those first, they keep the execution cuts' room)."""
         ctx = self.ctx
         if answer.claims is None or answer.actions is None or answer.controls is None:
             return None
         actions, controls = answer.actions, answer.controls
         attempts = ["own", "teacher"] if own_first else ["teacher", "own"]
+        if not own:
+            attempts.remove("own")
         for attempt in attempts:
             if attempt == "own":
                 checked = self.verify(actions, controls)
@@ -295,12 +307,23 @@ class EagerMILP:
             required, L = witness
             modes = np.concatenate([[-1], actions[: L - 1]]).astype(int)
             plan = DiscretePlan(required[:, :L], modes, L)
-            ctx.stats.candidates += 1
-            verdict = self.teacher.teach(plan, ctx.budget, ctx.stats)
-            if isinstance(verdict, Found):
-                checked = self.verify(verdict.actions, verdict.controls)
-                if checked is not None:
-                    return checked
+            below = ctx.stats.below_target
+            for search in (False, True):
+                # first the model's modes as they are; a plan below the execution target gets
+                # the teacher's mode search, which reads the execution (a look moved earlier)
+                if search and (ctx.stats.below_target == below or not self.teacher.mode_search):
+                    break
+                ctx.stats.candidates += 1
+                searching = self.teacher.mode_search
+                self.teacher.mode_search = search
+                try:
+                    verdict = self.teacher.teach(plan, ctx.budget, ctx.stats)
+                finally:
+                    self.teacher.mode_search = searching
+                if isinstance(verdict, Found):
+                    checked = self.verify(verdict.actions, verdict.controls)
+                    if checked is not None:
+                        return checked
         return None
 
     def _bounded(self) -> tuple[MILPOutcome, bool] | EagerEnd | EagerDeclined:

@@ -66,6 +66,9 @@ _Row = tuple[int, tuple[int, ...], float]
 standard deviation (or room)."""
 
 _MAX_BIG_M = 1e7  # normalised, scaled units: beyond this the model is numerically unreliable
+ROOM_WINDOW = 2
+"""Execution cuts hold under this many table windows of the plan's last modes."""
+
 _SD_TOL = 1e-3  # relative: a pattern's standard deviation this close to a weaker one adds no row
 _VIOLATION = 1e-5  # normalised rows: what the exact check counts as a violated face
 
@@ -523,12 +526,13 @@ class JointSolver:
     ) -> int:
         """Execution cuts: each required face-step keeps ``need`` (units of ``h'x``, per the
         atom's faces) of room beyond its lower-bound tightening whenever the modes arriving in the
-        last :attr:`CovarianceTables.window` steps are ``actions``' (the spreads the executor's
-        loop adds depend on the modes, mostly the recent ones). A heuristic of the execution
+        last :data:`ROOM_WINDOW` times :attr:`CovarianceTables.window` steps are ``actions``' (the
+        spreads the executor's loop adds depend on the modes, mostly the recent ones; a shorter
+        pattern also held plans that approach differently and need less). A heuristic of the execution
         (:mod:`.room_measure`), not a relaxation: once any is added, ``infeasible`` proves nothing
         (:attr:`proofs`). Returns the number of new rows."""
         ab = self.context.abstraction
-        window = self._tables(actions.shape[0]).window
+        window = ROOM_WINDOW * self._tables(actions.shape[0]).window
         added = 0
         for (k, i), needs in zip(requirements, need, strict=True):
             if k < 1:
