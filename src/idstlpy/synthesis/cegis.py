@@ -265,6 +265,14 @@ def _search(
             if isinstance(outcome, EagerPlan):
                 return optimise(ctx, outcome.plan, outcome.how, outcome.proof, milp)
         proposal = proposer.propose()  # propose
+        if isinstance(proposal, ProposerDry) and not proposal.proven and milp.joint and milp.enabled:
+            # Dry only because requirement sets were set aside (their modes searched, no proof):
+            # the joint MILP decides every mode sequence of them at once.
+            outcome = milp.solve()
+            if isinstance(outcome, EagerEnd):
+                return finish(ctx, outcome.status, outcome.reason)
+            if isinstance(outcome, EagerPlan):
+                return optimise(ctx, outcome.plan, outcome.how, outcome.proof, milp)
         if isinstance(proposal, ProposerDry):
             status: Status = "infeasible" if proposal.proven else "budget_exhausted"
             cert = _certificate(ctx, proposer) if proposal.proven and _proof_stands(ctx) else None
