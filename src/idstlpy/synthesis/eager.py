@@ -218,6 +218,9 @@ class EagerMILP:
         rounds = 0
         while True:
             ctx.budget.check("the joint MILP")
+            spent = ctx.options.termination.work_done(stats.candidates, stats.lp_calls)
+            if spent is not None:  # the work budget counts the plans the joint MILP hands the LP
+                return EagerEnd("budget_exhausted", f"{spent}; {ctx.counts()}")
             if rounds >= JOINT_ROUNDS:
                 return EagerDeclined(f"the joint MILP did not settle in {JOINT_ROUNDS} rounds")
             rounds += 1
