@@ -174,3 +174,14 @@ def test_run_ladder_is_increasing_and_within_the_horizon() -> None:
         ladder = run_ladder(window, H)
         assert ladder == sorted(set(ladder))
         assert all(window < r <= H for r in ladder)
+
+
+def test_a_proposer_dry_only_on_set_aside_candidates_hands_over_to_the_joint_milp() -> None:
+    # default lazy_candidates: the lazy loop runs first; its mode search sets the requirement
+    # sets aside (no proof), and the joint MILP then proves what the loop could not
+    problem = _look_or_move(3, 3)
+    result = _solve(problem, lazy_candidates=10)
+    assert result.status == "infeasible"
+    assert 0 < result.stats.candidates < 20
+    assert result.stats.milp_calls >= 1
+    assert _goal_oracle(problem, 3, 3) is None
