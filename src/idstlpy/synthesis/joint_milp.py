@@ -98,7 +98,11 @@ def _riccati(mode: LCS, S: np.ndarray) -> np.ndarray:
     R = mode.noise_cov(np.zeros(S.shape[0]))
     PCt = P @ mode.C.T
     Sy = mode.C @ PCt + R
-    K = np.linalg.solve(0.5 * (Sy + Sy.T), PCt.T).T
+    Sy = 0.5 * (Sy + Sy.T)
+    try:
+        K = np.linalg.solve(Sy, PCt.T).T
+    except np.linalg.LinAlgError:  # a noise-free sensor meeting a known direction
+        K = (np.linalg.pinv(Sy, hermitian=True) @ PCt.T).T
     post = P - K @ PCt.T
     out: np.ndarray = 0.5 * (post + post.T)
     return out
@@ -113,7 +117,10 @@ def _riccati_batch(mode: LCS, S: np.ndarray) -> np.ndarray:
     PCt = P @ mode.C.T
     Sy = mode.C @ PCt + R
     Sy = 0.5 * (Sy + np.swapaxes(Sy, 1, 2))
-    K = np.swapaxes(np.linalg.solve(Sy, np.swapaxes(PCt, 1, 2)), 1, 2)
+    try:
+        K = np.swapaxes(np.linalg.solve(Sy, np.swapaxes(PCt, 1, 2)), 1, 2)
+    except np.linalg.LinAlgError:  # a noise-free sensor meeting a known direction
+        K = np.swapaxes(np.linalg.pinv(Sy, hermitian=True) @ np.swapaxes(PCt, 1, 2), 1, 2)
     post = P - K @ np.swapaxes(PCt, 1, 2)
     return np.asarray(0.5 * (post + np.swapaxes(post, 1, 2)))
 
@@ -158,13 +165,17 @@ class CovarianceTables:
         W = [mode.process_cov for mode in self.modes]
         W_low = W[0] if all(np.array_equal(w, W[0]) for w in W) else np.zeros((n, n))
         info = np.zeros((n, n))
+        perfect = False  # a noise-free sensor: infinite information, no finite matrix bounds it
         for mode in self.modes:
             if mode.p:
                 R = mode.noise_cov(np.zeros(n))
-                info += mode.C.T @ np.linalg.solve(R, mode.C)
-        lows = np.empty((H + 1, n, n))
+                if np.linalg.cond(R) > 1e12:
+                    perfect = True
+                else:
+                    info += mode.C.T @ np.linalg.solve(R, mode.C)
+        lows = np.zeros((H + 1, n, n))  # zero: the trivial lower bound
         lows[0] = cov0
-        for j in range(1, H + 1):
+        for j in range(1, H + 1 if not perfect else 1):
             P = A @ lows[j - 1] @ A.T + W_low
             post = P @ np.linalg.inv(np.eye(n) + info @ P)  # (P^-1 + J)^-1, P may be singular
             post = 0.5 * (post + post.T)
