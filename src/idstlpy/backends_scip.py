@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import time
 from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
@@ -59,6 +60,10 @@ class ScipBackend:
     def __init__(self, params: dict[str, Any] | None = None) -> None:
         self.params = dict(params or {})
         self._last: _Cached | None = None
+        # Seconds per model entry (rows, columns, non-zeros) the slowest build on this instance
+        # took: a build that would not fit in the time left is not started (SCIP cannot be
+        # interrupted while it reads a model, seconds for a long horizon's MILP).
+        self._build_rate = 0.0
 
     @classmethod
     def is_available(cls) -> bool:
@@ -97,6 +102,7 @@ class ScipBackend:
 
         from pyscipopt import SCIP_PARAMSETTING, Model, quicksum
 
+        entered = time.perf_counter()
         limit = max(float(time_limit), 1e-3)
         key = (model.A, model.row_lo, model.row_hi, model.integrality)
         cached = self._last
@@ -121,6 +127,14 @@ class ScipBackend:
                 s.setObjective(quicksum(float(model.c[j]) * xs[j] for j in nz), "minimize")
         else:
             self._last = None
+            size = model.num_vars + model.num_rows + model.A.nnz
+            if self._build_rate * size > limit:
+                return BackendSolution(
+                    "time_limit",
+                    None,
+                    message=f"the time limit leaves {limit:.2g} s, building the model takes about "
+                    f"{self._build_rate * size:.2g} s: not started",
+                )
             s = Model()
             s.hideOutput()
             with tempfile.TemporaryDirectory(prefix="idstlpy-scip-", dir=_TMP) as tmp:
@@ -135,8 +149,16 @@ class ScipBackend:
             if len(xs) != n or (n and (xs[0].name != "x0" or xs[-1].name != f"x{n - 1}")):
                 by_name = {v.name: v for v in xs}
                 xs = [by_name[f"x{j}"] for j in range(n)]
+            self._build_rate = max(self._build_rate, (time.perf_counter() - entered) / max(size, 1))
         self._last = _Cached(key, s, xs, model.c.copy(), lb, ub)
-        s.setParam("limits/time", limit)
+        # The cap counts from this call: writing and reading the model (seconds for a long
+        # horizon's MILP) come out of it, as SCIP's own clock starts with optimize.
+        left = limit - (time.perf_counter() - entered)
+        if left <= 0:
+            return BackendSolution(
+                "time_limit", None, message="the time limit was reached building the model"
+            )
+        s.setParam("limits/time", left)
         s.setParam("parallel/maxnthreads", 1)
         if model.mip_rel_gap is not None:
             s.setParam("limits/gap", float(model.mip_rel_gap))

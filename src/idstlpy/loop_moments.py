@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 from scipy.special import ndtr
 
+from ._deadline import check
 from .belief import _joseph, kalman_gain
 from .dynamical_system import LCS, SwitchedSystem
 from .errors import InvalidArgumentError
@@ -308,6 +309,7 @@ def propagate(
     z, S, P = out.mean[0], out.cov[0], P0
     cloud = ParticleCloud.start(z0, S0, run.D, run.particles, run.rng) if run.use_particles else None
     for k in range(N):
+        check("predicting a plan's execution")  # a solve's time limit (no-op outside a solve)
         z, S, P = run.step(out, k, z, S, P, cloud)
     return out
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._deadline import check
 from ..chance import joint_tail_sum, std_terms
 from ..closed_loop import ClosedLoopMoments, sqrt_psd
 from ..formulas import STLAtomicProposition, STLFormula
@@ -69,6 +70,7 @@ def _sample_events(
     # projection on a non-box domain, which the Gaussian closure's moments leave out
     through = loop.steps is not None and (clipped or loop.unmodelled_projection)
     for k in range(L):
+        check("predicting a plan's execution")  # a solve's time limit (no-op outside a solve)
         if k and through:
             z = loop.steps[k - 1].advance(z, rng)  # type: ignore[index]
         elif k:

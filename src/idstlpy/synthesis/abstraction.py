@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.sparse import csr_matrix
+from scipy.sparse import coo_matrix, csr_matrix, diags, vstack
 
 from ..backends import Backend, HighsBackend, LinearModel
 from ..chance import joint_tail_sum, quantile, std_terms
@@ -632,46 +632,56 @@ def _reaches(
     A = modes[0].A
     n, m, Q = system.n, system.m, len(modes)
     xs, us = units if units is not None else (np.ones(n), np.ones(m))
-    # Columns: x0 (n), then per step t and mode q: w_qt (m), lambda_qt (1).
+    # Columns: x0 (n), then per step t and mode q: w_qt (m), lambda_qt (1). Built sparse, block
+    # by block: the LP has O(d) rows and columns, and a dense build (O(d^2)) took 0.75 s at
+    # d = 400, longer than a time limit may be overrun.
     width = n + d * Q * (m + 1)
-    rows: list[np.ndarray] = []
-    lo: list[np.ndarray] = []
-    hi: list[np.ndarray] = []
-
-    def add(block: np.ndarray, low: np.ndarray, high: np.ndarray) -> None:
-        rows.append(block)
-        lo.append(low)
-        hi.append(high)
-
-    start = np.zeros((Ri.H.shape[0], width))
-    start[:, :n] = Ri.H
-    add(start, np.full(Ri.H.shape[0], -np.inf), -Ri.c)
-    last = np.zeros((Rj.H.shape[0], width))
-    last[:, :n] = Rj.H @ np.linalg.matrix_power(A, d)
+    nu, ni, nj = U.H.shape[0], Ri.H.shape[0], Rj.H.shape[0]
+    # A^s for s = 0..d (the last requirement's rows read A^(d-1-t) B_q and A^d).
+    powers = [np.eye(n)]
+    for _ in range(d):
+        powers.append(A @ powers[-1])
+    if budget is not None:
+        budget.check("LP pruning")
+    dom = coo_matrix(np.hstack([U.H, U.c[:, None]]))  # one (t, q) block of the domain rows
+    blocks = d * Q
+    # Domain rows: block b = t * Q + q occupies rows b * nu.. and columns n + b * (m + 1)...
+    dom_rows = (np.arange(blocks)[:, None] * nu + dom.row[None, :]).ravel()
+    dom_cols = (n + np.arange(blocks)[:, None] * (m + 1) + dom.col[None, :]).ravel()
+    dom_vals = np.tile(dom.data, blocks)
+    # Convexity rows: sum_q lambda_qt = 1 for each t.
+    cvx_rows = np.repeat(np.arange(d), Q)
+    cvx_cols = n + np.arange(blocks) * (m + 1) + m
+    # The last requirement: Rj.H (A^d x0 + sum_t A^(d-1-t) sum_q B_q w_qt) <= -Rj.c.
+    last = np.zeros((nj, width))
+    last[:, :n] = Rj.H @ powers[d]
     for t in range(d):
-        Ap = np.linalg.matrix_power(A, d - 1 - t)
-        total = np.zeros((1, width))
         for q, mode in enumerate(modes):
             c0 = n + (t * Q + q) * (m + 1)
-            dom = np.zeros((U.H.shape[0], width))
-            dom[:, c0 : c0 + m] = U.H
-            dom[:, c0 + m] = U.c
-            add(dom, np.full(U.H.shape[0], -np.inf), np.zeros(U.H.shape[0]))
-            last[:, c0 : c0 + m] = Rj.H @ Ap @ mode.B
-            total[0, c0 + m] = 1.0
-        add(total, np.ones(1), np.ones(1))
-    add(last, np.full(Rj.H.shape[0], -np.inf), -Rj.c)
+            last[:, c0 : c0 + m] = Rj.H @ powers[d - 1 - t] @ mode.B
+    rows_dom = d * Q * nu
+    M = vstack(
+        [
+            csr_matrix(np.hstack([Ri.H, np.zeros((ni, width - n))])),
+            csr_matrix((dom_vals, (dom_rows, dom_cols)), shape=(rows_dom, width)),
+            csr_matrix((np.ones(blocks), (cvx_rows, cvx_cols)), shape=(d, width)),
+            csr_matrix(last),
+        ],
+        format="csr",
+    )
+    lo = np.concatenate([np.full(ni, -np.inf), np.full(rows_dom, -np.inf), np.ones(d), np.full(nj, -np.inf)])
+    hi = np.concatenate([-Ri.c, np.zeros(rows_dom), np.ones(d), -Rj.c])
     scale = np.concatenate([xs, np.tile(np.concatenate([us, [1.0]]), d * Q)])
-    M = np.vstack(rows) * scale[None, :]
-    norms = np.linalg.norm(M, axis=1)
+    M = csr_matrix(M @ diags(scale))
+    norms = np.sqrt(np.asarray(M.multiply(M).sum(axis=1)).ravel())
     norms = np.where(norms > 0, norms, 1.0)
     col_lo = np.full(width, -np.inf)
     col_lo[n + np.arange(d * Q) * (m + 1) + m] = 0.0
     model = LinearModel(
         np.zeros(width),
-        csr_matrix(M / norms[:, None]),
-        np.concatenate(lo) / norms,
-        np.concatenate(hi) / norms,
+        csr_matrix(diags(1.0 / norms) @ M),
+        lo / norms,
+        hi / norms,
         col_lo,
         np.full(width, np.inf),
     )

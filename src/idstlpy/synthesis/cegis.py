@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import _deadline as deadline
 from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..semantics import robustness
@@ -111,18 +112,22 @@ def synthesize(problem: Problem, options: SolverOptions, start: float | None = N
     SolveResult
     """
     ctx = SolveContext(problem, options, time.perf_counter() if start is None else start)
-    try:
-        composed = _decoupled(ctx)
-        if composed is not None:
-            return composed
-        return _loop(ctx)
-    except BudgetExceeded as exc:
-        ctx.stats.caps_hit.append("time_limit")
-        return finish(
-            ctx,
-            "budget_exhausted",
-            f"time limit of {options.total_time_cap:.3g} s reached during {exc.where}; {ctx.counts()}",
-        )
+    # The deadline reaches the loops below the synthesis (the predicted executions) through the
+    # scope; the parts that take the budget check it themselves.
+    with deadline.scope(ctx.budget.deadline):
+        try:
+            composed = _decoupled(ctx)
+            if composed is not None:
+                return composed
+            return _loop(ctx)
+        except BudgetExceeded as exc:
+            if "time_limit" not in ctx.stats.caps_hit:
+                ctx.stats.caps_hit.append("time_limit")
+            cap = f"time limit of {options.total_time_cap:.3g} s"
+            when = f"{cap} reached during {exc.where}"
+            if exc.ahead:
+                when = f"{cap} nearly reached during {exc.where}: {exc.ahead} would not fit in the time left"
+            return finish(ctx, "budget_exhausted", f"{when}; {ctx.counts()}")
 
 
 def _decoupled(ctx: SolveContext) -> SolveResult | None:
@@ -492,7 +497,13 @@ def _hold(ctx: SolveContext, checked: Verified) -> Verified | None:
         logger.info("verified plan set aside before (below the execution target): not predicted again")
         target.set_aside(known, checked)
         return None
-    execution = target.judge(checked.traj)
+    try:
+        execution = target.judge(checked.traj)
+    except BudgetExceeded:
+        # The time limit stopped the prediction of a verified plan: it is what the search got
+        # closest to (shown as result.closest), not a plan known to meet the target.
+        ctx.closest = (checked.traj.get_action(), checked.traj.get_control(), float("inf"))
+        raise
     checked = checked._replace(execution=execution)
     if execution.meets_target:
         return checked

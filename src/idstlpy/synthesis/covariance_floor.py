@@ -166,7 +166,7 @@ def covariance_floor(
     steps : int
         How many steps to roll the floor map (``K``).
     budget : Budget, optional
-        Wall-clock cap, checked every 1024 steps.
+        Wall-clock cap, checked every 64 steps.
 
     Returns
     -------
@@ -188,7 +188,7 @@ def covariance_floor(
     covs = np.empty((steps + 1, n, n))
     covs[0] = cov0
     for k in range(steps):
-        if budget is not None and not (k + 1) % 1024:
+        if budget is not None and not (k + 1) % 64:
             budget.check("the covariance floor")
         covs[k + 1] = floor_step(A, W_lo, J_hi, covs[k])
     how = (

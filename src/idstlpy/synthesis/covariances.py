@@ -57,7 +57,7 @@ def covariance_schedule(
     cov0 : ndarray, shape (n, n)
     actions : ndarray of int, shape (K,)
     budget : Budget, optional
-        Wall-clock cap, checked every 1024 steps.
+        Wall-clock cap, checked every 64 steps.
 
     Returns
     -------
@@ -74,7 +74,7 @@ def covariance_schedule(
     exact = True
     zero_mean = np.zeros(n)
     for k in range(K):
-        if budget is not None and not (k + 1) % 1024:
+        if budget is not None and not (k + 1) % 64:
             budget.check("the covariance schedule")
         mode = modes[int(actions[k])]
         P = mode.A @ covs[k] @ mode.A.T + mode.process_cov

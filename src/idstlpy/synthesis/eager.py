@@ -14,6 +14,7 @@ best bound it proved on the way (:attr:`EagerMILP.proven_bound`).
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 from typing import Literal
 
@@ -23,7 +24,7 @@ from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..trajectory import ProbabilisticTSTrajectory
 from .context import SolveContext, Verified, Verify
-from .interfaces import Found, Proposer
+from .interfaces import BudgetExceeded, Found, Proposer
 from .joint_milp import JointAnswer, JointSolver, joint_supported
 from .milp import MILPOutcome, solve_milp, switch_to_eager
 from .objectives import better, objective_value
@@ -335,18 +336,31 @@ class EagerMILP:
         ctx, proposer = self.ctx, self.proposer
         backend = get_backend(ctx.options.milp_backend, integer=True)
         borderline = False  # some bound's infeasibility rested on a tolerance (time's search)
+        last: tuple[int, float] | None = None  # the last bound's steps and seconds
         while True:
             logger.info(
                 "%d candidates tried: the eager MILP takes over at %d steps",
                 ctx.stats.candidates,
                 proposer.bound + 1,
             )
+            steps = proposer.bound + 1
+            # Building a MILP is not interruptible everywhere (its solver reads it at once): a
+            # bound that would not fit in the time left, at the last bound's pace, is not tried.
+            if last is not None and last[1] * steps / last[0] > ctx.budget.remaining():
+                raise BudgetExceeded("the eager MILP", f"its model of {steps} steps")
+            started = time.perf_counter()
             out = self._milp(backend, ctx.options.objective)
+            last = (steps, time.perf_counter() - started)
             if out.status == "unsupported":
                 logger.info("eager MILP not used: %s", out.why)
                 return EagerDeclined(out.why)
             if out.status == "timeout":
                 ctx.budget.check("the eager MILP")
+                # (its solver is given the time left: a time limit there is the overall cap)
+                if "time limit" in out.why.lower().replace("timelimit", "time limit") and (
+                    "time_limit" not in ctx.stats.caps_hit
+                ):
+                    ctx.stats.caps_hit.append("time_limit")
                 return EagerEnd("budget_exhausted", f"the eager MILP stopped: {out.why}; {ctx.counts()}")
             if out.status == "borderline":
                 # No proof either way at this bound: at the horizon that is the answer; below it

@@ -21,7 +21,8 @@ from ..belief import rollout
 from ..errors import ExecutionTargetWarning
 from .advice import budget_advice, floorless_modes
 from .allocation import NO_PROOF
-from .context import SolveContext, Verified
+from .context import PREDICT_SAMPLES, SolveContext, Verified
+from .interfaces import BudgetExceeded
 from .objectives import objective_value
 from .options import Objective
 from .results import PredictedExecution, SolveResult, Status
@@ -91,9 +92,9 @@ def finish(
         reason += f"; this proof is not certified ({why})"
     traj = None if plan is None else plan.traj
     execution = None
-    if status == "found" and traj is not None:
-        execution = ctx.target.report(traj)  # more samples than a candidate's
-        if below is not None:
+    if status == "found" and plan is not None:
+        execution, cut = _report(ctx, plan)
+        if below is not None and execution is not None:
             # the reason follows the estimate reported (rarely, one set aside on its quick
             # estimate meets the target on the precise one)
             reason += (
@@ -101,7 +102,9 @@ def finish(
                 if execution.meets_target
                 else ", predicted below target"
             )
-        _warn_below_target(ctx, execution)
+        reason += cut
+        if execution is not None:
+            _warn_below_target(ctx, execution)
         stats.time_total = ctx.budget.elapsed()
     logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
     closest = None
@@ -128,6 +131,26 @@ def finish(
         execution=execution,
         certificate=certificate,
     )
+
+
+def _report(ctx: SolveContext, plan: Verified) -> tuple[PredictedExecution | None, str]:
+    """The returned plan's predicted execution (:meth:`~.context.TargetWatch.report`: more
+    samples than a candidate's) and, when the time limit stopped it, what was reported instead
+    (the estimate the loop judged the plan on, else none) as a tail for the reason."""
+    try:
+        return ctx.target.report(plan.traj), ""
+    except BudgetExceeded:
+        if "time_limit" not in ctx.stats.caps_hit:
+            ctx.stats.caps_hit.append("time_limit")
+        if plan.execution is not None:
+            return plan.execution, (
+                f" (the time limit of {ctx.options.total_time_cap:.3g} s stopped the precise "
+                f"prediction: the execution reported is the {PREDICT_SAMPLES}-sample estimate)"
+            )
+        return None, (
+            f" (the time limit of {ctx.options.total_time_cap:.3g} s stopped the prediction of "
+            "its execution: none is reported)"
+        )
 
 
 def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, str]:

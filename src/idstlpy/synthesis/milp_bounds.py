@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.sparse import csr_matrix
 
+from .. import _deadline as deadline
 from ..backends import HighsBackend, LinearModel
 from ..chance import std_terms
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLRelease
@@ -146,6 +147,8 @@ def state_boxes(
         return np.asarray(np.where(M == 0, 0.0, P).sum(axis=1))
 
     for k in range(1, H + 1):
+        if not k % 256:
+            deadline.check("building the MILP")
         with np.errstate(invalid="ignore"):
             lo_k = prod(Ap, low[k - 1]) + prod(An, high[k - 1]) + b_low
             hi_k = prod(Ap, high[k - 1]) + prod(An, low[k - 1]) + b_high

@@ -112,6 +112,7 @@ def _probe(
     attained the solver only has to find one plan, and where it is not its presolve (probing
     on the letters, with every face shrunk by the level) usually proves it in one pass.
     """
+    budget.check("the eager MILP")
     lb = model.lb.copy()
     lb[tcol] = level
     probe = LinearModel(
@@ -274,6 +275,7 @@ def solve_feasibility(model: LinearModel, backend: Backend, budget: Budget) -> B
     if look.x is not None or look.status == "infeasible":
         return look
     logger.info("MILP: the first look found no plan (%s); full solve", look.message)
+    budget.check("the eager MILP")
     return backend.solve(model, max(budget.remaining(), 1e-3))
 
 

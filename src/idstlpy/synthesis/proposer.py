@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 
 import numpy as np
 
 from ..formulas import STLAnd, STLAtomicProposition, STLFormula, STLOr, STLRelease, STLUntil
 from .abstraction import Abstraction, PruningReport
 from .bmc import BMCEncoder
-from .interfaces import Budget, Conflict, ProposerDry
+from .interfaces import Budget, BudgetExceeded, Conflict, ProposerDry
 from .options import SolverOptions
 from .plan import DiscretePlan, extract_witness
 from .proofs import NoProof, Proof, build_certificate
@@ -104,6 +105,7 @@ class BMCProposer:
         self.report = report
         self.options = options.search
         self.budget = budget
+        self._build_seconds = 0.0
         self.stats = stats
         self.H = formula.horizon
         self.cap = min(self.H, self.options.max_plan_length - 1)
@@ -132,6 +134,7 @@ class BMCProposer:
         if self.enc is not None:
             self._sat_calls_done += self.enc.sat_calls
             self.enc.close()
+        started = time.perf_counter()
         with self.stats.clock("time_bmc"):
             enc = BMCEncoder(
                 self.formula,
@@ -150,6 +153,7 @@ class BMCProposer:
                 self._add(clause, soft=True)
             if self.abs.num_atoms:
                 enc.set_phases([int(v) for v in enc.p.ravel()])
+        self._build_seconds = time.perf_counter() - started  # (a safety cap's estimate only)
         self.stats.encoded_depth = max(self.stats.encoded_depth, self.bound)
         logger.info("BMC: encoding unrolled to %d steps (%d variables)", self.bound + 1, enc.num_vars)
 
@@ -259,7 +263,12 @@ class BMCProposer:
         if self.enc is None or self.bound >= self.cap:
             return False
         # x4: the encoding costs O(N log N), so overshooting is cheaper than rebuilding often.
-        self.bound = min(self.cap, max(4 * self.bound, self.bound + 1))
+        bound = min(self.cap, max(4 * self.bound, self.bound + 1))
+        # A build is not interruptible everywhere (the SAT solver takes its clauses at once):
+        # one that would not fit in the time left, at the last build's pace, is not started.
+        if self._build_seconds * (bound + 1) / (self.bound + 1) > self.budget.remaining():
+            raise BudgetExceeded("the SAT encoding", f"its unrolling to {bound + 1} steps")
+        self.bound = bound
         self._build()
         return True
 
