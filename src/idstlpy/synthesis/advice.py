@@ -78,7 +78,7 @@ def budget_advice(
     if "max_plan_length" in reason:
         longer = 4 * search.max_plan_length
         if horizon is not None and horizon > 0:
-            longer = min(longer, int(horizon) + 1)
+            longer = min(longer, int(horizon))
         tips.append(f"raise max_plan_length (it was {search.max_plan_length}; try {longer})")
     if sampler_abandoned:
         per = sampler.iterations

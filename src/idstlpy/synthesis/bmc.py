@@ -52,7 +52,7 @@ class BMCEncoder:
         The non-constant propositions, in a fixed order (index ``i`` of ``p[i, k]``).
     num_modes : int
     bound : int, optional
-        Last step the encoding unrolls (plans of at most ``bound + 1`` steps); default the
+        Last step the encoding unrolls (plans of at most ``bound`` steps); default the
         formula's horizon. Steps past it satisfy nothing, exactly as past the end of a plan.
     sat_backend : str
         python-sat solver name.

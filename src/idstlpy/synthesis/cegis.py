@@ -280,8 +280,9 @@ def _search(
                 return optimise(ctx, outcome.plan, outcome.how, outcome.proof, milp)
         if isinstance(proposal, ProposerDry):
             status: Status = "infeasible" if proposal.proven else "budget_exhausted"
+            why = ctx.aside_reason() if proposal.aside else proposal.reason
             cert = _certificate(ctx, proposer) if proposal.proven and _proof_stands(ctx) else None
-            return finish(ctx, status, f"{proposal.reason}; {ctx.counts()}", certificate=cert)
+            return finish(ctx, status, f"{why}; {ctx.counts()}", certificate=cert)
         plan = proposal
         stats.candidates += 1
         verdict = _teach(ctx, teachers, proposer, plan)  # teach
@@ -300,8 +301,8 @@ def _search(
                 return optimise(ctx, checked, how, "lp" if verdict.exact else "sampler", milp)
             why = _unverified(ctx, below)
         else:
-            why = verdict.why
-        _abandon(ctx, proposer, plan, verdict, why)  # abandon
+            why, below = verdict.why, False
+        _abandon(ctx, proposer, plan, verdict, why, below)  # abandon
 
 
 RECERTIFY_CANDIDATES = 400
@@ -428,13 +429,16 @@ def _block(ctx: SolveContext, proposer: Proposer, plan: DiscretePlan, verdict: R
     proposer.block(verdict.conflict)
     if verdict.set_aside:
         proposer.set_aside(plan)  # its modes were searched: no proof, not retried
+        ctx.set_aside("no modes")
     stats = ctx.stats
     stats.refuted += 1
     stats.counterexamples += 1
     logger.debug("candidate %d refuted: %s", stats.candidates, verdict.conflict.proof)
 
 
-def _abandon(ctx: SolveContext, proposer: Proposer, plan: DiscretePlan, verdict: Verdict, why: str) -> None:
+def _abandon(
+    ctx: SolveContext, proposer: Proposer, plan: DiscretePlan, verdict: Verdict, why: str, below: bool = False
+) -> None:
     """Set a candidate aside without a proof, remembering what the teachers got closest to (a
     plan whose modes were searched for the execution: its requirement set, for every mode
     sequence)."""
@@ -443,6 +447,10 @@ def _abandon(ctx: SolveContext, proposer: Proposer, plan: DiscretePlan, verdict:
     else:
         proposer.abandon(plan)
     ctx.stats.abandoned += 1
+    if isinstance(verdict, Found):
+        ctx.set_aside("below target" if below else "unverified")
+    else:
+        ctx.set_aside("gave up")
     if isinstance(verdict, Unknown):
         if verdict.budgeted:
             ctx.budget_abandoned += 1

@@ -32,6 +32,7 @@ if TYPE_CHECKING:
     from ..problem import Problem
 
 __all__ = [
+    "ASIDE_WHY",
     "BELOW_TARGET_EXTRA",
     "BELOW_TARGET_MIN",
     "BELOW_TARGET_PATIENCE",
@@ -88,6 +89,18 @@ plans are fresh draws, and on the recurrent-sensing family the plan that meets t
 after 6 new plans in a row that did not improve."""
 
 
+ASIDE_WHY = {
+    "gave up": "given up by a teacher",
+    "below target": "with a verified plan below the execution target",
+    "unverified": "with a plan that failed the verify step",
+    "no modes": (
+        "refuted for the modes tried, their requirements set aside for the other mode sequences "
+        "after the mode search met them with none"
+    ),
+}
+"""What a candidate was set aside for (:meth:`SolveContext.set_aside`), in a reason's words."""
+
+
 class Verified(NamedTuple):
     """A plan that passed the monitor: the MLO plan, its margin and, under closed_loop, the
     predicted true-state distribution the margin is about."""
@@ -133,6 +146,9 @@ class SolveContext:
         self.joint = any(ap.joints for ap in self.formula.atomic_propositions())
         # Candidates abandoned for want of work (a budget option can change them).
         self.budget_abandoned = 0
+        # Candidates set aside without a proof, by why (ASIDE_WHY's keys): the reason of a
+        # search that ran dry on them says which.
+        self.aside: dict[str, int] = {}
         # The closest partial plan a teacher reported (actions, controls, progress), for a
         # budget_exhausted result to show what the search got to.
         self.closest: tuple[np.ndarray, np.ndarray, float] | None = None
@@ -142,6 +158,17 @@ class SolveContext:
     def weights(self) -> np.ndarray | None:
         """The effort weights as an array, shape (m,) (``None``: every input weighs 1)."""
         return self.options.objectives.weights
+
+    def set_aside(self, why: str) -> None:
+        """Count one candidate set aside without a proof (``why``: a key of :data:`ASIDE_WHY`)."""
+        self.aside[why] = self.aside.get(why, 0) + 1
+
+    def aside_reason(self) -> str:
+        """Why the proposer ran dry on candidates set aside without a proof, by what set them
+        aside (each count a fact of this solve)."""
+        parts = [f"{n} {ASIDE_WHY[why]}" for why, n in sorted(self.aside.items()) if n]
+        tail = f" ({'; '.join(parts)})" if parts else ""
+        return f"every remaining candidate was set aside without a proof{tail}"
 
     def counts(self) -> str:
         """The candidates so far, as a reason's tail."""

@@ -187,7 +187,7 @@ class EagerMILP:
         # re-timing leaves room of 1e-5 of the largest state unit inside every required face.
         room = 1e-5 * float(np.max(ctx.units.dx)) if objective in (None, "time") else 0.0
         whole = proposer.bound >= proposer.H or objective == "time"  # shorter plans are all inside
-        scope = "horizon" if whole else f"plans of at most {proposer.bound + 1} steps"
+        scope = "horizon" if whole else f"plans of at most {proposer.bound} steps"
         if objective is not None and out.proven and not borderline:
             self.proven_bound = (out.bound, scope)
         checked = self._retime(out.claims, out.controls, objective, room)
@@ -341,9 +341,9 @@ class EagerMILP:
             logger.info(
                 "%d candidates tried: the eager MILP takes over at %d steps",
                 ctx.stats.candidates,
-                proposer.bound + 1,
+                proposer.bound,
             )
-            steps = proposer.bound + 1
+            steps = max(proposer.bound, 1)
             # Building a MILP is not interruptible everywhere (its solver reads it at once): a
             # bound that would not fit in the time left, at the last bound's pace, is not tried.
             if last is not None and last[1] * steps / last[0] > ctx.budget.remaining():

@@ -67,19 +67,45 @@ def _reissue(caught: list[warnings.WarningMessage], keep_target_warning: bool) -
 def _below_target_advice(
     first: SolveResult, options: SolverOptions, second: SolveResult | None
 ) -> SolveResult:
-    """Say what was tried, and what may help, when the plan returned is below target."""
+    """Say what was tried, and name the lever that decided, when the plan returned is below target.
+
+    Time only when a time cap decided (``caps_hit``): a search its work budgets ended is the same
+    search under any time limit, so the levers left are the ones that change what is searched
+    for (the candidates it may try, the tracking gains the prediction reads, the target).
+    """
     if second is not None:
         outcome = "a plan below target too" if second.status == "found" else second.status
-        tip = (
-            f"a closed-loop solve (guarantee='closed_loop') in the time left ended {outcome}; "
-            f"more time may help (time_limit={4 * options.total_time_cap:.3g})"
-        )
+        tip = f"a closed-loop solve (guarantee='closed_loop') in the time left ended {outcome}"
+        timed = "time_limit" in first.stats.caps_hit or "time_limit" in second.stats.caps_hit
+        if timed:
+            more = 4 * options.total_time_cap
+            tip += f"; the time limit stopped a search: more time may help (time_limit={more:.3g})"
+        else:
+            tip += "; " + _untimed_levers(first, options)
     else:
         tip = (
             f"no time was left for a closed-loop solve: try time_limit={4 * options.total_time_cap:.3g} "
             "or guarantee='closed_loop'"
         )
     return dataclasses.replace(first, reason=f"{first.reason}; {tip}")
+
+
+def _untimed_levers(first: SolveResult, options: SolverOptions) -> str:
+    """The levers of a below-target answer no time cap decided (its work budgets did)."""
+    levers = []
+    cands = options.termination.candidates
+    if cands is not None and f"max_candidates = {cands} reached" in first.reason:
+        levers.append(f"raise max_candidates (it was {cands}; try {4 * cands})")
+    levers.append(
+        "stronger tracking (each mode's compute_finite_horizon_lqr(...) before solving: the "
+        "predicted spread of the executions is the tracking's)"
+    )
+    target = options.execution_target
+    levers.append(f"a lower execution_target (it was {target})")
+    return (
+        "both searches ended by themselves (no time cap decided: a larger time_limit gives the "
+        f"same answer); to get a plan that meets the target: {'; or '.join(levers)}"
+    )
 
 
 def closed_loop_fallback(

@@ -118,10 +118,15 @@ class ProposerDry:
         True when only proven clauses exclude every plan (then no plan exists); False when
         abandoned candidates or the plan-length cap stand in the way.
     reason : str
+    aside : bool
+        Only candidates set aside without a proof stand in the way.
     """
 
     proven: bool
     reason: str
+    aside: bool = False
+    """True when only candidates set aside without a proof stand in the way (the loop says which
+    and why, :meth:`~.context.SolveContext.aside_reason`)."""
 
 
 class Proposer(Protocol):
@@ -138,12 +143,12 @@ class Proposer(Protocol):
 
     @property
     def bound(self) -> int:
-        """The current encoding covers plans of at most ``bound + 1`` steps."""
+        """The current encoding covers plans of at most ``bound`` steps (the states ``0..bound``)."""
         ...
 
     @property
     def cap(self) -> int:
-        """The largest ``bound`` allowed (the formula's horizon, or ``max_plan_length - 1``)."""
+        """The largest ``bound`` allowed (the formula's horizon, or ``max_plan_length``)."""
         ...
 
     @property

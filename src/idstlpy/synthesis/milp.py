@@ -19,7 +19,7 @@ problem to HiGHS' branch and bound in one piece:
 The encoding keeps the compact windows of :mod:`~idstlpy.synthesis.bmc` (``O(H log b)`` gates), so
 the model is much smaller than the usual MILP encodings of STL.
 
-Its ``infeasible`` is a proof for plans of at most ``bound + 1`` steps only when every big-M is
+Its ``infeasible`` is a proof for plans of at most ``bound`` steps only when every big-M is
 finite and moderate (a bounded control domain, or invariants that bound the means); otherwise
 the model is not built (``unsupported``) and the lazy loop goes on. Variables are scaled and
 rows normalised as in the plan LP (:mod:`.plan_lp`), so tolerances are relative to the problem.

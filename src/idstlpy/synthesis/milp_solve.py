@@ -51,7 +51,7 @@ class MILPOutcome:
     Attributes
     ----------
     status : {"found", "infeasible", "borderline", "timeout", "unsupported"}
-        ``infeasible`` is a proof for plans of at most ``bound + 1`` steps; ``borderline``: the
+        ``infeasible`` is a proof for plans of at most ``bound`` steps; ``borderline``: the
         model is infeasible only within the solvers' tolerances (no proof either way);
         ``unsupported`` means the model could not be bounded soundly (unbounded inputs, huge
         big-M).

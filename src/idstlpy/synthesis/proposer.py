@@ -1,6 +1,6 @@
 """The BMC proposer: discrete plans from a SAT encoding that is unrolled lazily.
 
-The encoding (:class:`~.bmc.BMCEncoder`) is built for plans of at most ``bound + 1`` steps and
+The encoding (:class:`~.bmc.BMCEncoder`) is built for plans of at most ``bound`` steps and
 rebuilt with a fourfold bound when no plan that short is left, so cost and memory follow the
 plan lengths actually searched, not the formula's interval bounds (``F[0, 10**9] goal`` with the
 goal three steps away unrolls a few dozen steps). Every clause the proposer learns is kept in a
@@ -108,7 +108,8 @@ class BMCProposer:
         self._build_seconds = 0.0
         self.stats = stats
         self.H = formula.horizon
-        self.cap = min(self.H, self.options.max_plan_length - 1)
+        # bound b unrolls the states 0..b: plans of at most b steps (b transitions)
+        self.cap = min(self.H, self.options.max_plan_length)
         need = min_plan_length(formula)
         self.min_depth = int(need - 1) if math.isfinite(need) else self.H + 1
         self.hard: list[list[SymLit]] = []
@@ -155,7 +156,7 @@ class BMCProposer:
                 enc.set_phases([int(v) for v in enc.p.ravel()])
         self._build_seconds = time.perf_counter() - started  # (a safety cap's estimate only)
         self.stats.encoded_depth = max(self.stats.encoded_depth, self.bound)
-        logger.info("BMC: encoding unrolled to %d steps (%d variables)", self.bound + 1, enc.num_vars)
+        logger.info("BMC: encoding unrolled to %d steps (%d variables)", self.bound, enc.num_vars)
 
     def _proven(self, clause: list[int], key: tuple[object, ...]) -> None:
         """Add a pruning fact's clause, remembering its proof (:attr:`PruningReport.proofs`)."""
@@ -267,7 +268,7 @@ class BMCProposer:
         # A build is not interruptible everywhere (the SAT solver takes its clauses at once):
         # one that would not fit in the time left, at the last build's pace, is not started.
         if self._build_seconds * (bound + 1) / (self.bound + 1) > self.budget.remaining():
-            raise BudgetExceeded("the SAT encoding", f"its unrolling to {bound + 1} steps")
+            raise BudgetExceeded("the SAT encoding", f"its unrolling to {bound} steps")
         self.bound = bound
         self._build()
         return True
@@ -320,19 +321,19 @@ class BMCProposer:
         with self.stats.clock("time_bmc"):
             hard_sat = bool(self.soft) and enc.solve(self.bound, [-enc.selector])
         if hard_sat:
-            return ProposerDry(False, "every remaining candidate was set aside by a teacher that gave up")
+            return ProposerDry(False, "every remaining candidate was set aside without a proof", aside=True)
         if self.cap < self.H:
             return ProposerDry(
                 False,
                 f"no plan of at most max_plan_length = {self.options.max_plan_length} steps; the formula's "
-                f"horizon allows {self.H + 1}",
+                f"horizon allows {self.H}",
             )
         return ProposerDry(True, self._proof_reason())
 
     def _proof_reason(self) -> str:
         """Name the proof when LP pruning alone (no teacher) excluded every plan."""
         generic = "the proven clauses exclude every discrete plan up to the formula's horizon"
-        if self.hard or self.H + 1 > self.options.max_plan_length:
+        if self.hard or self.cap < self.H:
             return generic
         truth = np.ones((self.abs.num_atoms, self.H + 1), dtype=bool)
         truth[self.report.empty_atoms, :] = False
