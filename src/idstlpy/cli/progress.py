@@ -1,8 +1,10 @@
 """What the command line shows on stderr while it works (the library itself never prints).
 
 - :class:`Ticker`: one stage at a time (``solving light_dark.toml``) with its elapsed time,
-  updated every second by a thread, plus the latest INFO message of the ``idstlpy`` loggers
-  (``candidate 3 abandoned: ...``) caught by a logging handler. On a terminal the line is
+  updated every second by a thread, the solver's counters (candidates, refuted, abandoned, the
+  current plan length, the sampler's iterations on the current candidate: the
+  ``idstlpy.progress`` records, :mod:`idstlpy._progress`) and the latest INFO message of the
+  ``idstlpy`` loggers (``candidate 3 abandoned: ...``) caught by a logging handler. On a terminal the line is
   rewritten in place; otherwise a line is printed when a stage starts, every
   :attr:`Ticker.plain_every` seconds while it lasts, and when it ends.
 - :class:`ProgressBar`: ``[#####.....] 3/8 jobs`` for batches, called by
@@ -35,6 +37,34 @@ class _LastMessage(logging.Handler):
             self.message = ""
 
 
+class _Counters(logging.Handler):
+    """Keeps the latest value of each counter the ``idstlpy.progress`` records carry."""
+
+    def __init__(self) -> None:
+        super().__init__(level=logging.DEBUG)
+        self.counters: dict[str, int] = {}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        got = getattr(record, "progress", None)
+        if isinstance(got, Mapping):
+            self.counters.update(got)
+
+    def text(self) -> str:
+        """``"12 candidates (9 refuted, 3 abandoned), length 31, sampler 2048 it"`` (or "")."""
+        c = self.counters
+        if "candidates" not in c:
+            return ""
+        out = (
+            f"{c['candidates']} candidates ({c.get('refuted', 0)} refuted, {c.get('abandoned', 0)} abandoned)"
+        )
+        if c.get("below_target"):
+            out += f", {c['below_target']} below target"
+        out += f", length {c.get('length', 0)}"
+        if c.get("sampler_iterations"):
+            out += f", sampler {c['sampler_iterations']} it"
+        return out
+
+
 class Ticker:
     """A stage line with its elapsed time, refreshed every second by a daemon thread.
 
@@ -62,7 +92,9 @@ class Ticker:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._handler: _LastMessage | None = None
+        self._counters: _Counters | None = None
         self._saved_level = logging.NOTSET
+        self._saved_progress = (logging.NOTSET, True)
 
     # -- public --------------------------------------------------------------------------------
     def start(self, text: str) -> None:
@@ -133,6 +165,14 @@ class Ticker:
         self._saved_level = logger.level
         if logger.getEffectiveLevel() > logging.INFO:
             logger.setLevel(logging.INFO)
+        # The counters are DEBUG records of their own logger, kept from every other handler
+        # while the ticker shows them.
+        counters = logging.getLogger("idstlpy.progress")
+        self._counters = _Counters()
+        self._saved_progress = (counters.level, counters.propagate)
+        counters.addHandler(self._counters)
+        counters.setLevel(logging.DEBUG)
+        counters.propagate = False
 
     def _detach(self) -> None:
         if self._handler is None:
@@ -141,10 +181,19 @@ class Ticker:
         logger.removeHandler(self._handler)
         logger.setLevel(self._saved_level)
         self._handler = None
+        counters = logging.getLogger("idstlpy.progress")
+        if self._counters is not None:
+            counters.removeHandler(self._counters)
+            self._counters = None
+        counters.setLevel(self._saved_progress[0])
+        counters.propagate = self._saved_progress[1]
 
     def _line(self, elapsed: float) -> str:
         detail = self._handler.message if self._handler is not None else ""
         line = f"{self._text}: {elapsed:.0f} s"
+        counts = self._counters.text() if self._counters is not None else ""
+        if counts:
+            line += f" | {counts}"
         if detail:
             line += f" | {detail}"
         return line

@@ -61,6 +61,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import _deadline as deadline
+from .. import _progress as progress
 from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..semantics import robustness
@@ -285,9 +286,11 @@ def _search(
             return finish(ctx, status, f"{why}; {ctx.counts()}", certificate=cert)
         plan = proposal
         stats.candidates += 1
+        _report(ctx, plan.length - 1)
         verdict = _teach(ctx, teachers, proposer, plan)  # teach
         if isinstance(verdict, Refuted):  # block
             _block(ctx, proposer, plan, verdict)
+            _report(ctx, plan.length - 1)
             continue
         if isinstance(verdict, Found):  # verify
             set_aside = stats.below_target
@@ -303,6 +306,20 @@ def _search(
         else:
             why, below = verdict.why, False
         _abandon(ctx, proposer, plan, verdict, why, below)  # abandon
+        _report(ctx, plan.length - 1)
+
+
+def _report(ctx: SolveContext, length: int) -> None:
+    """The loop's counters for a progress display (:mod:`idstlpy._progress`)."""
+    s = ctx.stats
+    progress.report(
+        candidates=s.candidates,
+        refuted=s.refuted,
+        abandoned=s.abandoned,
+        length=length,
+        below_target=s.below_target,
+        sampler_iterations=0,
+    )
 
 
 RECERTIFY_CANDIDATES = 400

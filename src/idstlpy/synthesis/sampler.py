@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .. import _progress as progress
 from ..belief import belief_step
 from .abstraction import Abstraction
 from .belief_tree import BeliefTree
@@ -196,6 +197,8 @@ class BeliefSampler:
             if g.capped or (not iters % 32 and time.perf_counter() >= deadline):
                 g.capped = True
                 break
+            if not iters % 256:
+                progress.report(sampler_iterations=iters, nodes=tree.size)
             if tree.size >= self.max_nodes:
                 logger.info("sampler: the tree holds %d nodes, its memory cap: no more growth", tree.size)
                 break
