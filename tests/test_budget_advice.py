@@ -147,3 +147,17 @@ def test_a_floorless_state_dependent_sensor_is_named_and_v_floor_turns_it_into_a
     floored = problem(0.5)
     assert floorless_modes(floored.switched_system) == []
     assert floored.solve_result(max_candidates=3, seed=0).status == "infeasible"
+
+
+def test_closest_is_a_partial_plan_when_every_candidate_was_refuted():
+    """No teacher reported a closest plan (the plan LP refuted every candidate): the longest
+    feasible prefix of the candidate refuted deepest is shown, and the statistics stay the
+    search's own."""
+    problem = _line(10.0)
+    result = problem.solve_result(max_candidates=2, lazy_candidates=5, seed=0)
+    assert result.status == "budget_exhausted" and result.stats.refuted == result.stats.candidates == 2
+    closest = result.closest
+    assert isinstance(closest, stl.ProbabilisticTSTrajectory) and closest.num_of_steps >= 1
+    assert not stl.satisfies(closest, problem.stl_formula)
+    assert np.all(np.abs(closest.get_control()) <= 1.0 + 1e-9)  # inside the control domain
+    assert result.stats.lp_calls <= 3 * result.stats.candidates + 3

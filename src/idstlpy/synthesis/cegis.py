@@ -81,7 +81,7 @@ from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
 from .proofs import uncertified_certificate
 from .proposer import BMCProposer
-from .results import SolveResult, Status
+from .results import SolveResult, SolveStats, Status
 from .sampler_teacher import SamplerTeacher
 from .teacher import LPTeacher
 
@@ -290,6 +290,11 @@ def _search(
         verdict = _teach(ctx, teachers, proposer, plan)  # teach
         if isinstance(verdict, Refuted):  # block
             _block(ctx, proposer, plan, verdict)
+            # the refuted candidate whose proof reached deepest (its prefix is the longest)
+            depth = max((k for k, _ in verdict.conflict.requirements), default=0)
+            if depth >= ctx.partial_depth:
+                ctx.partial_depth = depth
+                ctx.partial = functools.partial(_partial_plan, ctx, teachers[0], plan, verdict)
             _report(ctx, plan.length - 1)
             continue
         if isinstance(verdict, Found):  # verify
@@ -474,6 +479,31 @@ def _abandon(
         if verdict.closest is not None and (ctx.closest is None or verdict.closest[2] > ctx.closest[2]):
             ctx.closest = verdict.closest
     logger.info("candidate %d abandoned: %s", ctx.stats.candidates, why)
+
+
+PARTIAL_TRIES = 4
+"""Prefixes of the last refuted candidate tried for ``result.closest`` (each one plan LP)."""
+
+
+def _partial_plan(
+    ctx: SolveContext, teacher: Teacher, plan: DiscretePlan, refuted: Refuted
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The longest prefix of ``plan`` the teacher finds a plan for, among prefixes ending before
+    the refutation's last requirement, halved up to :data:`PARTIAL_TRIES` times: what the search
+    got closest to when every candidate was refuted (``result.closest``; not a plan). Its work is
+    counted apart (the solve's statistics stay the search's)."""
+    last = max((k for k, _ in refuted.conflict.requirements), default=plan.length - 1)
+    length = min(last, plan.length - 1)  # the steps 0..last-1, before the last requirement
+    scratch = SolveStats()
+    for _ in range(PARTIAL_TRIES):
+        if length < 2:
+            return None
+        prefix = DiscretePlan(plan.required[:, :length].copy(), plan.modes[:length].copy(), length)
+        verdict = teacher.teach(prefix, ctx.budget, scratch)
+        if isinstance(verdict, Found):
+            return verdict.actions, verdict.controls, length / plan.length
+        length //= 2
+    return None
 
 
 def _unverified(ctx: SolveContext, below: bool) -> str:

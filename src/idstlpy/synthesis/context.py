@@ -152,6 +152,10 @@ class SolveContext:
         # The closest partial plan a teacher reported (actions, controls, progress), for a
         # budget_exhausted result to show what the search got to.
         self.closest: tuple[np.ndarray, np.ndarray, float] | None = None
+        # When no teacher reported one: how to get the longest feasible prefix of the last
+        # candidate a proof refuted (set by the loop; called once, by finish).
+        self.partial: Callable[[], tuple[np.ndarray, np.ndarray, float] | None] | None = None
+        self.partial_depth = 0
         self.target = TargetWatch(problem, options, self.stats)
 
     @property

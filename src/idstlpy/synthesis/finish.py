@@ -17,6 +17,8 @@ import sys
 import warnings
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from ..belief import rollout
 from ..errors import ExecutionTargetWarning
 from .advice import budget_advice, floorless_modes
@@ -108,6 +110,8 @@ def finish(
         stats.time_total = ctx.budget.elapsed()
     logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
     closest = None
+    if status == "budget_exhausted" and ctx.closest is None and ctx.partial is not None:
+        ctx.closest = _partial(ctx)
     if status == "budget_exhausted" and ctx.closest is not None:
         acts, ctrls, _ = ctx.closest
         closest = rollout(ctx.problem.switched_system, ctx.problem.initial_state, acts, ctrls)
@@ -151,6 +155,17 @@ def _report(ctx: SolveContext, plan: Verified) -> tuple[PredictedExecution | Non
             f" (the time limit of {ctx.options.total_time_cap:.3g} s stopped the prediction of "
             "its execution: none is reported)"
         )
+
+
+def _partial(ctx: SolveContext) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """The longest feasible prefix of the last refuted candidate (``ctx.partial``), unless the
+    time limit was reached (it would run past it)."""
+    if ctx.partial is None or ctx.budget.expired():
+        return None
+    try:
+        return ctx.partial()
+    except BudgetExceeded:
+        return None
 
 
 def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, str]:
