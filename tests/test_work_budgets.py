@@ -70,3 +70,26 @@ def test_a_default_solve_is_the_same_under_load():
     with _busy():
         loaded = problem.solve_result(seed=1)
     _same(idle, loaded)
+
+
+def test_only_an_rrt_timeout_the_user_gave_caps_a_candidates_search(monkeypatch):
+    """Under the default rrt_timeout a candidate's search ends by its work budget (the solve's
+    overall cap aside); a value given is a per-candidate cap, as the paper's."""
+    import time
+
+    from idstlpy.synthesis.sampler import BeliefSampler
+
+    seen: list[float] = []
+    real = BeliefSampler.run
+
+    def spy(self, plan, iterations, rng, deadline):
+        seen.append(deadline - time.perf_counter())
+        return real(self, plan, iterations, rng, deadline)
+
+    monkeypatch.setattr(BeliefSampler, "run", spy)
+    problem = scenarios.light_dark(60, 5)
+    problem.solve_result(seed=3, max_candidates=8, sampler_iterations=50, time_limit=3600)
+    assert seen and min(seen) > 600  # only the overall cap (3600 s)
+    seen.clear()
+    problem.solve_result(seed=3, max_candidates=8, sampler_iterations=50, time_limit=3600, rrt_timeout=30)
+    assert seen and max(seen) <= 30

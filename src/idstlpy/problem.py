@@ -184,8 +184,9 @@ class Problem:
         Parameters
         ----------
         rrt_timeout : float, default 60
-            Wall-clock safety cap (seconds) on the sampler's search for one candidate; it also
-            sets the sampler's work budget (see :class:`~idstlpy.SolverOptions`).
+            Sets the sampler's work budget and the overall cap; another value than the default
+            is also a wall-clock safety cap (seconds) on the sampler's search for one candidate
+            (see :class:`~idstlpy.SolverOptions`).
         delta_near : float, default 2
             Radius within which the sampler prefers the least uncertain node to extend.
         delta_drain : float, default 0.5

@@ -31,6 +31,7 @@ from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_exe
 from .termination import Termination
 
 __all__ = [
+    "DEFAULT_RRT_TIMEOUT",
     "GUARANTEES",
     "ITERATIONS_PER_SECOND",
     "OBJECTIVES",
@@ -55,6 +56,12 @@ GUARANTEES: tuple[Guarantee, ...] = get_args(Guarantee)
 """The values of :attr:`SolverOptions.guarantee` (the first is the default)."""
 OBJECTIVES: tuple[Objective, ...] = get_args(Objective)
 """The values of :attr:`SolverOptions.objective` besides ``None``."""
+
+DEFAULT_RRT_TIMEOUT = 60.0
+"""The paper's ``rrt_timeout``, the default. At this value it only sets the work budgets (the
+sampler's iterations per candidate, the overall cap): no per-candidate clock, so that a default
+solve is decided by work on any machine under any load; any other value given is also a
+wall-clock cap on each candidate's search."""
 
 ITERATIONS_PER_SECOND = 250
 """Sampler iterations per second of ``rrt_timeout`` when ``sampler_iterations`` is not given.
@@ -113,7 +120,8 @@ class SamplerOptions:
     Parameters
     ----------
     rrt_timeout : float
-        Wall-clock safety cap (s) on one candidate's search.
+        Wall-clock safety cap (s) on one candidate's search, unless it is the default
+        (:data:`DEFAULT_RRT_TIMEOUT`: no per-candidate clock).
     iterations : int
         Iterations per candidate (the work budget that decides the search;
         :attr:`SolverOptions.iterations_per_candidate`).
@@ -228,8 +236,9 @@ class SolverOptions:
     Parameters
     ----------
     rrt_timeout : float
-        Wall-clock safety cap, in seconds, on the sampler's search for one candidate; it also
-        sets the default work budget ``sampler_iterations``.
+        Sets the default work budget ``sampler_iterations`` and the default overall cap
+        (``10 * rrt_timeout``); a value other than the default (:data:`DEFAULT_RRT_TIMEOUT`) is
+        also a wall-clock safety cap, in seconds, on the sampler's search for one candidate.
     delta_near : float
         Radius within which the sampler prefers the least uncertain node to extend.
     delta_drain : float
@@ -316,7 +325,7 @@ class SolverOptions:
     group: :attr:`sampler`, :attr:`search`, :attr:`eager`, :attr:`objectives`, :attr:`target`.
     """
 
-    rrt_timeout: float = 60.0
+    rrt_timeout: float = DEFAULT_RRT_TIMEOUT
     delta_near: float = 2.0
     delta_drain: float = 0.5
     goal_bias: float = 0.25

@@ -17,7 +17,7 @@ import numpy as np
 from ..belief import rollout
 from .abstraction import Abstraction
 from .interfaces import Budget, Found, Proposer, Refuted, Teacher, Unknown, Verdict
-from .options import SolverOptions
+from .options import DEFAULT_RRT_TIMEOUT, SolverOptions
 from .plan import DiscretePlan
 from .plan_lp import Scaling, lp_exact
 from .results import SolveStats
@@ -78,7 +78,13 @@ class SamplerTeacher(Teacher):
     def teach(self, plan: DiscretePlan, budget: Budget, stats: SolveStats) -> Verdict:
         """Search belief space for ``plan`` within its work budget; shortcut and polish a find."""
         rng = np.random.default_rng(self.seeds.spawn(1)[0])
-        cap = min(budget.deadline, time.perf_counter() + self.options.rrt_timeout)
+        # Under the default rrt_timeout the work budget alone ends a candidate's search (the
+        # solve's overall cap stays): a loaded machine runs a long horizon's 15,000 iterations in
+        # more than 60 s, and the clock would decide the plan. A value the user gave is a cap.
+        per_candidate = (
+            self.options.rrt_timeout if self.options.rrt_timeout != DEFAULT_RRT_TIMEOUT else np.inf
+        )
+        cap = min(budget.deadline, time.perf_counter() + per_candidate)
         budget_iters = self.options.iterations
         with stats.clock("time_sampling"):
             out = self.sampler.run(plan, budget_iters, rng, cap)
