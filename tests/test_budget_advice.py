@@ -161,3 +161,31 @@ def test_closest_is_a_partial_plan_when_every_candidate_was_refuted():
     assert not stl.satisfies(closest, problem.stl_formula)
     assert np.all(np.abs(closest.get_control()) <= 1.0 + 1e-9)  # inside the control domain
     assert result.stats.lp_calls <= 3 * result.stats.candidates + 3
+
+
+def test_the_candidates_advice_counts_what_settles_the_current_length():
+    """max_candidates stopped the search with few candidates of the current length left: the
+    advice counts them (each set aside: a refutation excludes at least as much), and the value
+    it suggests settles that length: the re-run finds a plan or moves past it."""
+    import re
+
+    x, u = stl.mk_variable(1, float), stl.mk_variable(1, float, name="u")
+    problem = stl.Problem(
+        stl.mk_switched_sys([stl.mk_lbs(A=[[1.0]], B=[[1.0]], W=[[0.0]])]),
+        stl.logical_and(u[0] >= -1.0, u[0] <= 1.0).region,
+        stl.to_belief(np.zeros(1), 0.01 * np.eye(1)),
+        stl.eventually(
+            0, 40, stl.logical_and(stl.prob(x[0] >= 10.0) >= 0.9, stl.prob(x[0] <= 11.0) >= 0.9, name="goal")
+        ),
+    )
+    first = problem.solve_result(seed=0, max_candidates=8, lazy_candidates=100)
+    assert first.status == "budget_exhausted"
+    got = re.search(r"try (\d+): at most (\d+) candidates of at most (\d+) steps were left", first.reason)
+    assert got is not None, first.reason
+    value, left, steps = (int(g) for g in got.groups())
+    assert value == 8 + left
+    assert first.stats.bmc_depth <= steps  # the count's proposals are not in the statistics
+    again = problem.solve_result(seed=0, max_candidates=value, lazy_candidates=100)
+    assert again.status == "found" or again.stats.bmc_depth > steps
+    if again.status == "found":
+        assert stl.satisfies(again.plan, problem.stl_formula)

@@ -43,6 +43,7 @@ def budget_advice(
     horizon: int | None = None,
     sampler_abandoned: int = 0,
     floorless: Sequence[int] = (),
+    remaining: tuple[int, int] | None = None,
 ) -> str:
     """One sentence naming what to raise after a ``budget_exhausted`` answer.
 
@@ -62,6 +63,10 @@ def budget_advice(
     floorless : sequence of int
         Modes with state-dependent sensor noise and no declared ``V_floor``
         (:func:`floorless_modes`): no more budget can turn their search into a proof.
+    remaining : (int, int), optional
+        ``(n, steps)``: at most ``n`` candidates of at most ``steps`` steps were left when
+        ``max_candidates`` stopped the search (counted up to four times the budget): the
+        candidates that settle plans of that length.
 
     Returns
     -------
@@ -72,7 +77,15 @@ def budget_advice(
     tips: list[str] = []
     stop, search, sampler = options.termination, options.search, options.sampler
     if "max_candidates" in reason and stop.candidates is not None:
-        tips.append(f"raise max_candidates (it was {stop.candidates}; try {4 * stop.candidates})")
+        if remaining is not None:
+            n, steps = remaining
+            tips.append(
+                f"raise max_candidates (it was {stop.candidates}; try {stop.candidates + n}: at most "
+                f"{n} candidates of at most {steps} steps were left, so {stop.candidates + n} settles "
+                "plans that short: a plan, or none of them left)"
+            )
+        else:
+            tips.append(f"raise max_candidates (it was {stop.candidates}; try {4 * stop.candidates})")
     if "max_lp_calls" in reason and stop.lp_calls is not None:
         tips.append(f"raise max_lp_calls (it was {stop.lp_calls}; try {4 * stop.lp_calls})")
     if "max_plan_length" in reason:

@@ -160,6 +160,7 @@ def _loop(ctx: SolveContext) -> SolveResult:
         ctx.budget,
         ctx.stats,
     )
+    ctx.remaining = functools.partial(_remaining, ctx, proposer)
     try:
         teachers = _teachers(ctx, proposer, backend)
         exact = any(teacher.exact(ctx.problem) for teacher in teachers)
@@ -185,7 +186,7 @@ def _loop(ctx: SolveContext) -> SolveResult:
         )
         return _search(ctx, proposer, teachers, milp)
     finally:
-        ctx.stats.sat_calls = proposer.sat_calls
+        ctx.stats.sat_calls = proposer.sat_calls - ctx.uncounted_sat_calls
         proposer.close()
 
 
@@ -479,6 +480,27 @@ def _abandon(
         if verdict.closest is not None and (ctx.closest is None or verdict.closest[2] > ctx.closest[2]):
             ctx.closest = verdict.closest
     logger.info("candidate %d abandoned: %s", ctx.stats.candidates, why)
+
+
+def _remaining(ctx: SolveContext, proposer: Proposer, cap: int) -> tuple[int, int] | None:
+    """``(n, steps)``: at most ``n`` candidates of at most ``steps`` steps remain (each one the
+    proposer still offers is set aside to count the next; a refutation would exclude at least as
+    much), or ``None`` past ``cap``. Called once the search has stopped: it changes the proposer."""
+    bound, calls = proposer.bound, proposer.sat_calls
+    try:
+        return _count(proposer, bound, cap)
+    finally:
+        ctx.uncounted_sat_calls += proposer.sat_calls - calls
+
+
+def _count(proposer: Proposer, bound: int, cap: int) -> tuple[int, int] | None:
+    """:func:`_remaining`'s count."""
+    for n in range(cap + 1):
+        plan = proposer.propose()
+        if isinstance(plan, ProposerDry) or proposer.bound != bound or plan.length - 1 > bound:
+            return n, bound
+        proposer.abandon(plan)
+    return None
 
 
 PARTIAL_TRIES = 4

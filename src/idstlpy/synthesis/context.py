@@ -156,6 +156,10 @@ class SolveContext:
         # candidate a proof refuted (set by the loop; called once, by finish).
         self.partial: Callable[[], tuple[np.ndarray, np.ndarray, float] | None] | None = None
         self.partial_depth = 0
+        # How many candidates of at most the current length remain (counted up to a cap by
+        # setting each aside; ``None`` past the cap): set by the loop, called once, by finish.
+        self.remaining: Callable[[int], tuple[int, int] | None] | None = None
+        self.uncounted_sat_calls = 0  # the count's (not the search's)
         self.target = TargetWatch(problem, options, self.stats)
 
     @property

@@ -11,6 +11,7 @@ partial plan.
 
 from __future__ import annotations
 
+import copy
 import logging
 import os
 import sys
@@ -168,6 +169,21 @@ def _partial(ctx: SolveContext) -> tuple[np.ndarray, np.ndarray, float] | None:
         return None
 
 
+def _remaining(ctx: SolveContext, reason: str) -> tuple[int, int] | None:
+    """When ``max_candidates`` decided: how many candidates of the current length remain (up to
+    four times the budget; :func:`~.cegis._remaining`), unless the time limit was reached."""
+    budget = ctx.options.termination.candidates
+    if budget is None or "max_candidates" not in reason or ctx.remaining is None or ctx.budget.expired():
+        return None
+    kept = copy.copy(ctx.stats)  # the count's encoding work is not the search's
+    try:
+        return ctx.remaining(4 * budget)
+    except BudgetExceeded:
+        return None
+    finally:
+        ctx.stats.__dict__.update(kept.__dict__)
+
+
 def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, str]:
     """The status and reason of a solve that ends without a plan, with what qualifies them."""
     if status == "infeasible" and not ctx.proofs_hold:
@@ -190,6 +206,7 @@ def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, st
             ctx.formula.horizon,
             ctx.budget_abandoned,
             floorless_modes(ctx.problem.switched_system),
+            _remaining(ctx, reason),
         )
         reason += f"; {advice}" if advice else ""
     if "time_limit" in ctx.stats.caps_hit:
