@@ -36,6 +36,19 @@ def _g(value: float) -> str:
     return f"{value:.3g}"
 
 
+def _candidates_tip(budget: int, remaining: tuple[int, int] | None) -> str:
+    """What to raise after ``max_candidates = budget`` decided: the value that settles the current
+    length where the candidates left were counted, else four times the budget."""
+    if remaining is None:
+        return f"raise max_candidates (it was {budget}; try {4 * budget})"
+    n, steps = remaining
+    return (
+        f"raise max_candidates (it was {budget}; try {budget + n}: at most {n} candidates of at "
+        f"most {steps} steps were left, so {budget + n} settles plans that short: a plan, or none "
+        "of them left)"
+    )
+
+
 def budget_advice(
     reason: str,
     stats: SolveStats,
@@ -77,15 +90,7 @@ def budget_advice(
     tips: list[str] = []
     stop, search, sampler = options.termination, options.search, options.sampler
     if "max_candidates" in reason and stop.candidates is not None:
-        if remaining is not None:
-            n, steps = remaining
-            tips.append(
-                f"raise max_candidates (it was {stop.candidates}; try {stop.candidates + n}: at most "
-                f"{n} candidates of at most {steps} steps were left, so {stop.candidates + n} settles "
-                "plans that short: a plan, or none of them left)"
-            )
-        else:
-            tips.append(f"raise max_candidates (it was {stop.candidates}; try {4 * stop.candidates})")
+        tips.append(_candidates_tip(stop.candidates, remaining))
     if "max_lp_calls" in reason and stop.lp_calls is not None:
         tips.append(f"raise max_lp_calls (it was {stop.lp_calls}; try {4 * stop.lp_calls})")
     if "max_plan_length" in reason:

@@ -61,12 +61,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .. import _deadline as deadline
-from .. import _progress as progress
 from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
-from . import eager
+from . import eager, stopped
 from .abstraction import PruningReport
 from .certify import Certified, certify
 from .context import BELOW_TARGET_SEARCHED, SolveContext, Verified
@@ -81,7 +80,7 @@ from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
 from .proofs import uncertified_certificate
 from .proposer import BMCProposer
-from .results import SolveResult, SolveStats, Status
+from .results import SolveResult, Status
 from .sampler_teacher import SamplerTeacher
 from .teacher import LPTeacher
 
@@ -160,7 +159,7 @@ def _loop(ctx: SolveContext) -> SolveResult:
         ctx.budget,
         ctx.stats,
     )
-    ctx.remaining = functools.partial(_remaining, ctx, proposer)
+    ctx.remaining = functools.partial(stopped.remaining, ctx, proposer)
     try:
         teachers = _teachers(ctx, proposer, backend)
         exact = any(teacher.exact(ctx.problem) for teacher in teachers)
@@ -287,7 +286,7 @@ def _search(
             return finish(ctx, status, f"{why}; {ctx.counts()}", certificate=cert)
         plan = proposal
         stats.candidates += 1
-        _report(ctx, plan.length - 1)
+        stopped.report(ctx, plan.length - 1)
         verdict = _teach(ctx, teachers, proposer, plan)  # teach
         if isinstance(verdict, Refuted):  # block
             _block(ctx, proposer, plan, verdict)
@@ -295,8 +294,8 @@ def _search(
             depth = max((k for k, _ in verdict.conflict.requirements), default=0)
             if depth >= ctx.partial_depth:
                 ctx.partial_depth = depth
-                ctx.partial = functools.partial(_partial_plan, ctx, teachers[0], plan, verdict)
-            _report(ctx, plan.length - 1)
+                ctx.partial = functools.partial(stopped.partial_plan, ctx, teachers[0], plan, verdict)
+            stopped.report(ctx, plan.length - 1)
             continue
         if isinstance(verdict, Found):  # verify
             set_aside = stats.below_target
@@ -312,20 +311,7 @@ def _search(
         else:
             why, below = verdict.why, False
         _abandon(ctx, proposer, plan, verdict, why, below)  # abandon
-        _report(ctx, plan.length - 1)
-
-
-def _report(ctx: SolveContext, length: int) -> None:
-    """The loop's counters for a progress display (:mod:`idstlpy._progress`)."""
-    s = ctx.stats
-    progress.report(
-        candidates=s.candidates,
-        refuted=s.refuted,
-        abandoned=s.abandoned,
-        length=length,
-        below_target=s.below_target,
-        sampler_iterations=0,
-    )
+        stopped.report(ctx, plan.length - 1)
 
 
 RECERTIFY_CANDIDATES = 400
@@ -480,52 +466,6 @@ def _abandon(
         if verdict.closest is not None and (ctx.closest is None or verdict.closest[2] > ctx.closest[2]):
             ctx.closest = verdict.closest
     logger.info("candidate %d abandoned: %s", ctx.stats.candidates, why)
-
-
-def _remaining(ctx: SolveContext, proposer: Proposer, cap: int) -> tuple[int, int] | None:
-    """``(n, steps)``: at most ``n`` candidates of at most ``steps`` steps remain (each one the
-    proposer still offers is set aside to count the next; a refutation would exclude at least as
-    much), or ``None`` past ``cap``. Called once the search has stopped: it changes the proposer."""
-    bound, calls = proposer.bound, proposer.sat_calls
-    try:
-        return _count(proposer, bound, cap)
-    finally:
-        ctx.uncounted_sat_calls += proposer.sat_calls - calls
-
-
-def _count(proposer: Proposer, bound: int, cap: int) -> tuple[int, int] | None:
-    """:func:`_remaining`'s count."""
-    for n in range(cap + 1):
-        plan = proposer.propose()
-        if isinstance(plan, ProposerDry) or proposer.bound != bound or plan.length - 1 > bound:
-            return n, bound
-        proposer.abandon(plan)
-    return None
-
-
-PARTIAL_TRIES = 4
-"""Prefixes of the last refuted candidate tried for ``result.closest`` (each one plan LP)."""
-
-
-def _partial_plan(
-    ctx: SolveContext, teacher: Teacher, plan: DiscretePlan, refuted: Refuted
-) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """The longest prefix of ``plan`` the teacher finds a plan for, among prefixes ending before
-    the refutation's last requirement, halved up to :data:`PARTIAL_TRIES` times: what the search
-    got closest to when every candidate was refuted (``result.closest``; not a plan). Its work is
-    counted apart (the solve's statistics stay the search's)."""
-    last = max((k for k, _ in refuted.conflict.requirements), default=plan.length - 1)
-    length = min(last, plan.length - 1)  # the steps 0..last-1, before the last requirement
-    scratch = SolveStats()
-    for _ in range(PARTIAL_TRIES):
-        if length < 2:
-            return None
-        prefix = DiscretePlan(plan.required[:, :length].copy(), plan.modes[:length].copy(), length)
-        verdict = teacher.teach(prefix, ctx.budget, scratch)
-        if isinstance(verdict, Found):
-            return verdict.actions, verdict.controls, length / plan.length
-        length //= 2
-    return None
 
 
 def _unverified(ctx: SolveContext, below: bool) -> str:
