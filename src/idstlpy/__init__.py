@@ -49,6 +49,7 @@ from .execution import (
 )
 from .execution_target import ExecutionTarget
 from .executor import ExecutorSpec, OnlineExecutor
+from .executor.markov_bound import MarkovBound, markov_bound
 from .expressions import (
     ConvexConstraint,
     ConvexRegion,
@@ -80,6 +81,7 @@ from .formulas import (
     release,
     until,
 )
+from .markov import MarkovSwitching, mk_markov_switching, with_switching
 from .problem_file import ProblemSpec, apply_overrides, load_problem
 from .progression import progress
 from .semantics import MonitorReport, monitor, robustness, satisfies
@@ -174,6 +176,12 @@ __all__ = [
     "StartCheck",
     "progress",
     "predict_closed_loop",
+    # chance switching (issue 35)
+    "MarkovSwitching",
+    "mk_markov_switching",
+    "with_switching",
+    "MarkovBound",
+    "markov_bound",
     "ClosedLoopPrediction",
     "ValidationReport",
     "ExecutionTarget",

@@ -24,7 +24,9 @@ import numpy as np
 from ..errors import InvalidArgumentError
 from ..executor import ExecutorSpec, PlantStep, ProcessNoise, StepLaw
 from ..formulas import STLFormula
+from ..markov import MarkovSwitching, switching_of
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
+from .jumps import execute_jump_batch
 from .monitor import batch_monitor, promises, run_record
 from .simulation import simulate
 
@@ -128,6 +130,9 @@ def execute_runs(
     if formula is None:
         raise InvalidArgumentError("formula: a batch needs the formula its runs are judged on, got None")
     promised = promises(formula, payload.plan, payload.num_of_steps + 1)
+    switching = switching_of(system)
+    if switching is not None:  # chance switching (issue 35): the runs of execution/jumps.py
+        return _jump_runs(payload, system, switching, formula, promised, seeds, first_index, starts)
     # (a plant step function draws from the generator it is given: one run at a time)
     if payload.policy is None and payload.batched and payload.plant is None:
         results: list[dict[str, Any]] = []
@@ -158,6 +163,38 @@ def execute_runs(
         if first_index + offset < payload.keep:
             res["trajectories"] = xi
         results.append(res)
+    return results
+
+
+def _jump_runs(
+    payload: Payload,
+    system: SwitchedSystem,
+    switching: MarkovSwitching,
+    formula: STLFormula,
+    promised: list[np.ndarray],
+    seeds: Sequence[np.random.SeedSequence],
+    first_index: int,
+    starts: np.ndarray | None,
+) -> list[dict[str, Any]]:
+    """The runs of a batch under chance switching, ``payload.batch_size`` at a time."""
+    if payload.policy is not None:
+        raise InvalidArgumentError("policy: re-planning under chance switching is not supported yet")
+    spec = payload.executor_spec(system)  # every mode may execute: every mode's gains
+    results: list[dict[str, Any]] = []
+    size = payload.batch_size
+    for lo in range(0, len(seeds), size):
+        part = seeds[lo : lo + size]
+        x0s = (
+            np.tile(payload.real_initial_state, (len(part), 1))
+            if starts is None
+            else np.asarray(starts[lo : lo + size], dtype=float)
+        )
+        keep = max(0, min(len(part), payload.keep - first_index - lo))
+        results.extend(
+            execute_jump_batch(
+                spec, switching, formula, promised, payload.plan, payload.num_of_steps, x0s, part, keep
+            )
+        )
     return results
 
 

@@ -26,9 +26,11 @@ from ..belief import GaussianBelief
 from ..dynamical_system import LCS, SwitchedSystem, register_simulator
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..executor import ExecutorSpec, OnlineExecutor, PlantStep, ProcessNoise
+from ..markov import MarkovSwitching, switching_of
 from ..sets import Polytope
 from ..tracking import GainsOverride
 from ..trajectory import ProbabilisticTSTrajectory, RealTrajectory
+from .jumps import roll_jumps
 
 __all__ = ["EXECUTOR_OPTIONS", "simulate"]
 
@@ -124,8 +126,12 @@ def simulate(
     N = _check_plan(system, reference_trajectory, num_of_steps)
     x = as_vector(real_initial_state, "real_initial_state", system.n)
     modes = reference_trajectory.get_action()[:N].tolist()
-    spec = _executor_spec(system, real_system, spec, options, modes)
+    switching = switching_of(system)
+    # under chance switching any mode may execute: the gains of every mode are resolved
+    spec = _executor_spec(system, real_system, spec, options, None if switching else modes)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if switching is not None:
+        return _run_jumps(spec, reference_trajectory, N, switching, x, rng, initial_belief)
     executor = OnlineExecutor(spec, reference_trajectory, steps=N)
     executor.reset(initial_belief)
     return _run(executor, reference_trajectory, x, rng)
@@ -160,7 +166,7 @@ def _executor_spec(
     real_system: SwitchedSystem | LCS | None,
     spec: ExecutorSpec | None,
     options: Mapping[str, Any],
-    modes: list[int],
+    modes: list[int] | None,
 ) -> ExecutorSpec:
     """``spec`` checked against ``system``, or the spec of the keyword ``options``."""
     unknown = sorted(set(options) - set(EXECUTOR_OPTIONS))
@@ -212,6 +218,28 @@ def _run(
     actions = ref.get_action()[:N]
     xi_sim = ProbabilisticTSTrajectory(means, covs, actions, controls)
     xi_real = RealTrajectory(states, observations, actions, controls)
+    return xi_sim, xi_real
+
+
+def _run_jumps(
+    spec: ExecutorSpec,
+    ref: ProbabilisticTSTrajectory,
+    N: int,
+    switching: MarkovSwitching,
+    x: np.ndarray,
+    rng: np.random.Generator,
+    initial_belief: GaussianBelief | None,
+) -> tuple[ProbabilisticTSTrajectory, RealTrajectory]:
+    """One run under chance switching (:mod:`idstlpy.execution.jumps`): the executed modes are
+    drawn first from ``rng``; ``xi_real``'s modes are the executed ones, ``xi_sim``'s the plan's."""
+    mean = None if initial_belief is None else initial_belief.mean
+    cov = None if initial_belief is None else initial_belief.cov
+    r = roll_jumps(spec, ref, N, switching, x[None, :], rng, keep=1, initial_mean=mean, initial_cov=cov)
+    actions = ref.get_action()[:N]
+    controls = r.controls[:, 0]
+    xi_sim = ProbabilisticTSTrajectory(r.means[:, 0], r.covs[:, 0], actions, controls)
+    xi_real = RealTrajectory(r.states[:, 0], r.observations[:, 0], r.executed[0], controls)
+    logger.debug("simulate: %d steps under chance switching, executed modes %s", N, r.executed[0].tolist())
     return xi_sim, xi_real
 
 

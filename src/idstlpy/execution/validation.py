@@ -83,6 +83,7 @@ from typing import TYPE_CHECKING, Any, Literal, Unpack
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ..errors import InvalidArgumentError
 from .batches import Payload, batch_size, execute_runs, run_batch, serialise
 from .intervals import wilson_interval
 from .monitor import face_slacks as _face_slacks  # noqa: F401 - the name of earlier versions
@@ -220,8 +221,14 @@ def _predict(spec: ValidationSpec) -> ClosedLoopPrediction:
 
     A true start drawn from the prior is predicted with the prior's covariance.
     """
+    from ..markov import switching_of
     from .prediction import predict_closed_loop
 
+    if switching_of(spec.executor.system) is not None:
+        raise InvalidArgumentError(
+            "predict=True: the closed-loop prediction does not follow chance switching; use "
+            "idstlpy.markov_bound(problem, plan) for the bound over the executed mode sequences"
+        )
     opts = dict(spec.predict_options)
     opts.setdefault("samples", PREDICT_SAMPLES)
     t0 = time.perf_counter()

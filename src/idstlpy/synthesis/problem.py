@@ -11,10 +11,12 @@ import time
 from typing import Any
 
 from ..errors import InvalidTypeError
+from ..markov import switching_of
 from ..problem import Problem, register_solver
 from .allocation import after_solve
 from .cegis import synthesize
 from .escalation import closed_loop_fallback
+from .markov_plan import after_switching
 from .options import SolverOptions
 from .results import SolveResult
 
@@ -59,7 +61,10 @@ def solve(problem: Problem, options: SolverOptions | None = None, /, **overrides
         return result
 
     # Under the default guarantee, a closed-loop solve when only plans below target were found.
-    return closed_loop_fallback(problem, opts, start, first, synthesize)
+    result = closed_loop_fallback(problem, opts, start, first, synthesize)
+    if switching_of(problem.switched_system) is not None:  # chance switching (markov_plan.py)
+        result = after_switching(problem, opts, result)
+    return result
 
 
 def _registered(problem: Problem, options: object | None, /, **overrides: Any) -> SolveResult:

@@ -1,0 +1,496 @@
+"""A sound lower bound on a plan's success under chance switching (issue 35).
+
+Under a :class:`~idstlpy.markov.MarkovSwitching` the executed mode sequence ``s`` is random.
+PrSTL is read over the joint distribution of the noises and the jumps: the probability that the
+execution satisfies the formula is
+
+    P[success] = sum over every executed sequence s of P(s) * P[success | s].
+
+Given ``s`` and an *observed* executed mode, the closed loop is the executor of
+:mod:`idstlpy.executor.predict` tracking the plan's means and inputs with the modes ``s`` (the
+plant, the sensor, the tracking gain and the Kalman filter of ``s_k`` at step ``k``), a
+linear-Gaussian process whose law :func:`~idstlpy.executor.predict.predict_closed_loop`
+computes exactly when every sensor's noise is constant and no input is projected on the control
+domain; its ``success_bound`` is then a sound lower bound on ``P[success | s]``.
+
+The inputs of the executor are projected on the control domain; the law is that of the loop
+without projection, and the two loops, driven by the same noises, coincide as long as no
+unprojected input leaves the domain. So, with ``c_k(s)`` the union bound over the domain's faces
+on the probability that the unprojected input of step ``k`` leaves it,
+
+    P[success | s] >= success_bound(s) - sum_k c_k(s)          (clipped at 0).
+
+The bound enumerates executed sequences best-first (in order of decreasing probability: a
+prefix's probability bounds every completion's), stops at ``max_sequences`` sequences or once
+the next one is less likely than ``min_probability``, and reports
+
+    bound = sum over the enumerated s of P(s) * max(0, success_bound(s) - sum_k c_k(s))
+
+assuming nothing of the sequences left out (their mass ``1 - covered_mass`` counts as failure).
+The point estimate is the covered sequences' model-sampled success rates weighted by their
+probabilities and renormalised by the covered mass (it assumes the rest behave alike).
+
+**The executed belief reading.** When the executed mode is observed the executor's belief is a
+Gaussian whose mean and covariance follow the observed sequence: the belief reading of the
+formula (``P[h'x + c <= 0] >= 1 - eps`` on the filter's Gaussian) is read on that belief, the
+sequence being known; the execution target's belief rate is then the mixture over sequences,
+``sum_s P(s) P[belief satisfies | s]``, bounded in the same way.
+
+**Not sound (the flag says so):** a state-dependent sensor noise on a mode of an enumerated
+sequence (the loop is then only approximately Gaussian: the bound is the Gaussian model's).
+**Not supported yet** (an error says so): an unobserved executed mode, a real system other than
+the model, a formula whose propositions name modes.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.special import ndtr
+
+from .._checks import as_float, as_int, as_vector
+from ..dynamical_system import SwitchedSystem
+from ..errors import InvalidArgumentError, InvalidTypeError
+from ..formulas import STLFormula
+from ..markov import MarkovSwitching, switching_of
+from ..sets import Polytope
+from ..trajectory import ProbabilisticTSTrajectory
+from .jump_law import roll_executed, success_of
+from .model_sampling import clopper_pearson_lower
+from .predict import predict_closed_loop
+from .predicted import ClosedLoopPrediction
+from .spec import ExecutorSpec
+
+if TYPE_CHECKING:
+    from ..problem import Problem
+
+__all__ = ["MarkovBound", "SequenceBound", "markov_bound", "sequences_by_probability"]
+
+logger = logging.getLogger(__name__)
+
+CLIP_TOLERANCE = 1e-3
+"""Clip mass above which a sequence's executions are also sampled (the analytic bound loses it)."""
+
+
+@dataclass(frozen=True)
+class _Sampler:
+    """Executions of the executor itself given an executed sequence (the sampled bound)."""
+
+    spec: ExecutorSpec | None
+    plan: ProbabilisticTSTrajectory
+    starts: np.ndarray
+    mean: np.ndarray | None
+    cov: np.ndarray | None
+    runs: int
+    confidence: float
+    seed: int
+
+    @classmethod
+    def make(
+        cls,
+        system: SwitchedSystem,
+        plan: ProbabilisticTSTrajectory,
+        domain: Polytope | None,
+        x0: ArrayLike | None,
+        runs: int,
+        delta: float,
+        max_sequences: int,
+        seed: int,
+        options: dict[str, Any],
+    ) -> _Sampler:
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 35]))
+        start = plan.get_mean(0) if x0 is None else as_vector(x0, "real_initial_state", system.n)
+        x_cov = options.get("real_initial_cov")
+        starts = np.tile(start, (runs, 1))
+        if x_cov is not None and runs:
+            starts = rng.multivariate_normal(start, np.asarray(x_cov, dtype=float), size=runs)
+        belief = options.get("initial_belief")
+        spec = None
+        if runs:
+            spec = ExecutorSpec.make(
+                system,
+                control_domain=domain,
+                process_noise=options.get("process_noise", "auto"),
+                lqr_gains=options.get("lqr_gains"),
+                default_lqr=options.get("default_lqr"),
+            )
+        mean = None if belief is None else belief.mean
+        cov = None if belief is None else belief.cov
+        confidence = 1.0 - delta / max_sequences
+        return cls(spec, plan, starts, mean, cov, runs, confidence, seed)
+
+    def run(self, formula: STLFormula, executed: np.ndarray) -> tuple[float, float, float, float]:
+        """Bounds (state, belief) and rates (state, belief) of ``runs`` executions given ``executed``."""
+        if self.spec is None:  # pragma: no cover - only called with runs
+            raise InvalidArgumentError("sampled_runs is 0")
+        # each sequence its own stream, from the seed and the sequence (order-independent)
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 36, *executed.tolist()]))
+        executed_all = np.tile(executed, (self.runs, 1))
+        r = roll_executed(self.spec, self.plan, executed_all, True, self.starts, rng, 0, self.mean, self.cov)
+        state = float(success_of(formula, r.states, None).mean())
+        belief = float(success_of(formula, r.means, r.covs).mean())
+        return (
+            clopper_pearson_lower(state, self.runs, self.confidence),
+            clopper_pearson_lower(belief, self.runs, self.confidence),
+            state,
+            belief,
+        )
+
+
+@dataclass(frozen=True)
+class SequenceBound:
+    """The verdict on one executed mode sequence.
+
+    Attributes
+    ----------
+    executed : tuple of int
+        The executed modes ``s_0 .. s_{N-1}``.
+    probability : float
+        ``P(s)`` under the plan's commands.
+    state_bound, belief_bound : float
+        Sound lower bounds on ``P[success | s]`` (true state, executed belief), the clip mass
+        deducted.
+    clip_mass : float
+        Union bound on the probability that some unprojected input leaves the control domain.
+    state_estimate, belief_estimate : float
+        Model-sampled success rates given ``s`` (the executions' when sampled; NaN without
+        samples).
+    sampled : bool
+        Whether executions given ``s`` were sampled (their bound joined the analytic one).
+    """
+
+    executed: tuple[int, ...]
+    probability: float
+    state_bound: float
+    belief_bound: float
+    clip_mass: float
+    state_estimate: float
+    belief_estimate: float
+    sampled: bool = False
+
+
+@dataclass(frozen=True)
+class MarkovBound:
+    """A plan's success under chance switching (module notes).
+
+    Attributes
+    ----------
+    state_bound, belief_bound : float
+        ``sum_s P(s) * bound(s)`` over the verified sequences: lower bounds on the probability
+        that the true states / the executed belief satisfy the formula (sound when
+        :attr:`sound`).
+    covered_mass : float
+        ``sum_s P(s)`` over the verified sequences.
+    state_estimate, belief_estimate : float
+        Point estimates (the covered sequences' sampled rates, renormalised by the mass).
+    sequences : tuple of SequenceBound
+        The verified sequences, most likely first.
+    exhausted : bool
+        True when every sequence of positive probability was verified.
+    sound : bool
+        False when a verified sequence uses a mode with state-dependent sensor noise and no
+        executions were sampled (``sampled_runs=0``).
+    confidence : float
+        1 when every sequence's bound is analytic (a proof for the linear-Gaussian loop);
+        ``1 - delta`` when some are sampled (Clopper-Pearson, union over the sequences).
+    note : str
+        Why the bound is not sound, or ``""``.
+    """
+
+    state_bound: float
+    belief_bound: float
+    covered_mass: float
+    state_estimate: float
+    belief_estimate: float
+    sequences: tuple[SequenceBound, ...]
+    exhausted: bool
+    sound: bool
+    confidence: float = 1.0
+    note: str = ""
+
+    def meets(self, target_belief: float, target_state: float) -> bool:
+        """Whether the bounds prove both execution rates (never more than they prove)."""
+        return self.sound and self.belief_bound >= target_belief and self.state_bound >= target_state
+
+
+def sequences_by_probability(
+    switching: MarkovSwitching, commanded: ArrayLike
+) -> Iterator[tuple[tuple[int, ...], float]]:
+    """Every executed sequence of positive probability, most likely first (best-first search).
+
+    A prefix's probability bounds every completion's, so popping the most probable prefix from a
+    heap yields the complete sequences in non-increasing probability; ties are broken by the
+    sequence (lexicographic), so the order is deterministic.
+
+    Parameters
+    ----------
+    switching : MarkovSwitching
+    commanded : array_like of int, shape (N,)
+
+    Yields
+    ------
+    (tuple of int, float)
+        A sequence ``s`` (N,) and ``P(s)``.
+    """
+    q = np.asarray(commanded, dtype=int)
+    N = q.shape[0]
+    if not N:
+        yield (), 1.0
+        return
+    heap: list[tuple[float, tuple[int, ...]]] = []
+    for j, p in enumerate(switching.first(int(q[0])).tolist()):
+        if p > 0:
+            heapq.heappush(heap, (-p, (j,)))
+    while heap:
+        neg, prefix = heapq.heappop(heap)
+        if len(prefix) == N:
+            yield prefix, -neg
+            continue
+        row = switching.row(int(q[len(prefix)]), prefix[-1])
+        for j, p in enumerate(row.tolist()):
+            if p > 0:
+                heapq.heappush(heap, (neg * p, (*prefix, j)))
+
+
+def _clip_mass(pred: ClosedLoopPrediction, plan: ProbabilisticTSTrajectory, domain: Polytope | None) -> float:
+    """Union bound on P[some unprojected input leaves ``domain``] in the predicted loop."""
+    if domain is None or not domain.H.shape[0]:
+        return 0.0
+    N = pred.num_of_steps
+    if not N:
+        return 0.0
+    n = plan.n
+    K = pred.tracking_gains  # (N, m, n)
+    eta_mu = pred.augmented_mean[:N, n : 2 * n]
+    eta_cov = pred.augmented_cov[:N, n : 2 * n, n : 2 * n]
+    u_mu = plan.get_control()[:N] - np.einsum("kmn,kn->km", K, eta_mu)
+    u_cov = K @ eta_cov @ np.transpose(K, (0, 2, 1))
+    H, c = domain.H, domain.c
+    mu = u_mu @ H.T + c  # (N, F): face value mean
+    var = np.einsum("fm,kmp,fp->kf", H, u_cov, H)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = np.where(sd > 0, ndtr(mu / np.where(sd > 0, sd, 1.0)), (mu > 0).astype(float))
+    return float(out.sum())
+
+
+def _check(system: SwitchedSystem, formula: STLFormula, switching: MarkovSwitching) -> None:
+    if not switching.observed:
+        raise InvalidArgumentError(
+            "switching: the bound for an unobserved executed mode is not supported yet "
+            "(simulate and validate execute it; declare observed=True for a bound)"
+        )
+    for ap in formula.atomic_propositions():
+        if ap.modes:
+            raise InvalidArgumentError(
+                f"stl_formula: proposition {ap.name or ap} names modes; the bound under chance "
+                "switching does not read mode propositions yet"
+            )
+
+
+def markov_bound(
+    problem_or_system: Problem | SwitchedSystem,
+    plan: ProbabilisticTSTrajectory,
+    *,
+    formula: STLFormula | None = None,
+    switching: MarkovSwitching | None = None,
+    control_domain: Polytope | None | str = "problem",
+    real_initial_state: ArrayLike | None = None,
+    max_sequences: int = 256,
+    min_probability: float = 1e-6,
+    samples: int = 256,
+    sampled_runs: int = 2000,
+    delta: float = 1e-3,
+    seed: int = 0,
+    **options: Any,
+) -> MarkovBound:
+    """A sound lower bound on the success of ``plan`` under chance switching (module notes).
+
+    Parameters
+    ----------
+    problem_or_system : Problem or SwitchedSystem
+        The planning model (a Problem also gives the formula and the control domain).
+    plan : ProbabilisticTSTrajectory
+        The plan; its modes are the commands, ``N`` steps.
+    formula : STLFormula, optional
+        Overrides the problem's formula (required with a system).
+    switching : MarkovSwitching, optional
+        The chain; default the system's (:func:`~idstlpy.markov.with_switching`).
+    control_domain : Polytope, None or "problem"
+        The domain the executor projects inputs on (``"problem"``: the problem's).
+    real_initial_state : array_like, shape (n,), optional
+        True start (default the plan's initial mean).
+    max_sequences : int, default 256
+        Most executed sequences verified.
+    min_probability : float, default 1e-6
+        Sequences less likely than this are left out (and counted as failures).
+    samples : int, default 256
+        Model samples per sequence for the point estimates (0: NaN estimates).
+    sampled_runs : int, default 2000
+        Executions of the executor itself per sequence whose analytic bound does not hold or
+        is weak (a state-dependent sensor; a clip mass above :data:`CLIP_TOLERANCE`); their
+        Clopper-Pearson lower bound, at confidence ``1 - delta / max_sequences`` each, then
+        joins the analytic one (0: never).
+    delta : float, default 1e-3
+        Probability that some sampled bound fails (the union over the sequences): the bound
+        holds with confidence ``1 - delta`` when a sequence was sampled, surely otherwise.
+    seed : int
+        Seed of the model samples and the executions.
+    **options
+        Further options of :func:`~idstlpy.executor.predict.predict_closed_loop`
+        (``lqr_gains``, ``default_lqr``, ``process_noise``, ``initial_belief``,
+        ``real_initial_cov``).
+
+    Returns
+    -------
+    MarkovBound
+
+    Raises
+    ------
+    InvalidArgumentError
+        Without a switching or a formula, or for what is not supported yet (module notes).
+    InvalidTypeError
+        When an argument has the wrong type.
+    """
+    system, formula, domain = _resolve(problem_or_system, formula, control_domain)
+    switching = switching if switching is not None else switching_of(system)
+    if switching is None:
+        raise InvalidArgumentError(
+            "switching: the system has no chance switching (stl.with_switching(system, "
+            "stl.mk_markov_switching(P))) and none was given"
+        )
+    if not isinstance(switching, MarkovSwitching):
+        raise InvalidTypeError(
+            f"switching must be made by mk_markov_switching, got {type(switching).__name__}"
+        )
+    _check(system, formula, switching)
+    for bad in ("closure", "control_domain", "real_system", "executor"):
+        if bad in options:
+            raise InvalidArgumentError(f"{bad}: not an option of markov_bound (the bound fixes it)")
+    max_sequences = as_int(max_sequences, "max_sequences", minimum=1)
+    min_probability = as_float(min_probability, "min_probability", low=0.0, high=1.0)
+    samples = as_int(samples, "samples", minimum=0)
+    sampled_runs = as_int(sampled_runs, "sampled_runs", minimum=0)
+    delta = as_float(delta, "delta", low=0.0, high=1.0, low_open=True)
+    unsound = False
+    commanded = plan.get_action()
+    N_ref = plan.num_of_steps
+    ctx = _Sampler.make(
+        system, plan, domain, real_initial_state, sampled_runs, delta, max_sequences, seed, options
+    )
+    verified: list[SequenceBound] = []
+    exhausted = True
+    for executed, prob in sequences_by_probability(switching, commanded):
+        if len(verified) >= max_sequences or prob < min_probability:
+            exhausted = False
+            break
+        plan_s = ProbabilisticTSTrajectory(
+            plan.get_mean(), plan.get_cov(), np.asarray(executed, dtype=int), plan.get_control()
+        )
+        pred = predict_closed_loop(
+            system, plan_s, None, real_initial_state, formula=formula, num_of_steps=N_ref,
+            samples=samples, seed=seed, control_domain=None, closure="gaussian", **options,
+        )  # fmt: skip
+        clip = _clip_mass(pred, plan, domain)
+        stateful = any(system.mode(j).has_state_dependent_noise for j in set(executed))
+        # The analytic bound is exact for constant sensor noise (module notes); the sampled one
+        # (the executor itself, projection and noise functions included) wherever it is not, or
+        # where the projection's deduction leaves little of it.
+        analytic = (float("nan"), float("nan")) if stateful else (
+            max(0.0, pred.state_success_bound - clip), max(0.0, pred.belief_success_bound - clip)
+        )  # fmt: skip
+        sampled = (float("nan"), float("nan"), float("nan"), float("nan"))
+        if ctx.runs and (stateful or clip > CLIP_TOLERANCE):
+            sampled = ctx.run(formula, np.asarray(executed, dtype=int))
+        if stateful and not ctx.runs:
+            unsound = True
+            analytic = (pred.state_success_bound, pred.belief_success_bound)
+        state_b = np.nanmax([analytic[0], sampled[0], 0.0])
+        belief_b = np.nanmax([analytic[1], sampled[1], 0.0])
+        verified.append(
+            SequenceBound(
+                executed=executed,
+                probability=prob,
+                state_bound=float(state_b),
+                belief_bound=float(belief_b),
+                clip_mass=clip,
+                state_estimate=pred.state_success_estimate if np.isnan(sampled[2]) else sampled[2],
+                belief_estimate=pred.belief_success_estimate if np.isnan(sampled[3]) else sampled[3],
+                sampled=not np.isnan(sampled[0]),
+            )
+        )
+    probs = np.array([v.probability for v in verified])
+    mass = float(probs.sum())
+    state = float(sum(v.probability * v.state_bound for v in verified))
+    belief = float(sum(v.probability * v.belief_bound for v in verified))
+    est_s = float(sum(v.probability * v.state_estimate for v in verified) / mass) if mass else float("nan")
+    est_b = float(sum(v.probability * v.belief_estimate for v in verified) / mass) if mass else float("nan")
+    note = ""
+    if unsound:
+        note = (
+            "a mode has state-dependent sensor noise and sampled_runs=0: the loop given a sequence "
+            "is only approximately Gaussian and the bound is the Gaussian model's, not a proof"
+        )
+    any_sampled = any(v.sampled for v in verified)
+    logger.debug(
+        "markov_bound: %d sequences, mass %.6g, bound state %.4g belief %.4g",
+        len(verified),
+        mass,
+        state,
+        belief,
+    )
+    return MarkovBound(
+        state_bound=min(state, mass),
+        belief_bound=min(belief, mass),
+        covered_mass=min(mass, 1.0),
+        state_estimate=est_s,
+        belief_estimate=est_b,
+        sequences=tuple(verified),
+        exhausted=exhausted,
+        sound=not unsound,
+        confidence=1.0 - delta if any_sampled else 1.0,
+        note=note,
+    )
+
+
+def _resolve(
+    problem_or_system: Problem | SwitchedSystem,
+    formula: STLFormula | None,
+    control_domain: Polytope | None | str,
+) -> tuple[SwitchedSystem, STLFormula, Polytope | None]:
+    """The system, the formula and the control domain of the arguments."""
+    if isinstance(problem_or_system, SwitchedSystem):
+        system = problem_or_system
+        problem_formula, problem_domain = None, None
+    else:
+        found = getattr(problem_or_system, "switched_system", None)  # a Problem (model layer)
+        if not isinstance(found, SwitchedSystem):
+            raise InvalidTypeError(
+                "problem_or_system must be a Problem or a SwitchedSystem, got "
+                f"{type(problem_or_system).__name__}"
+            )
+        system = found
+        problem_formula = problem_or_system.stl_formula
+        problem_domain = problem_or_system.control_domain
+    formula = formula if formula is not None else problem_formula
+    if formula is None:
+        raise InvalidArgumentError("formula: the bound needs a formula (give a Problem or formula=...)")
+    if isinstance(control_domain, str):
+        if control_domain != "problem":
+            raise InvalidArgumentError(
+                f"control_domain must be a Polytope, None or 'problem', got {control_domain!r}"
+            )
+        domain = problem_domain
+    elif control_domain is None or isinstance(control_domain, Polytope):
+        domain = control_domain
+    else:
+        raise InvalidTypeError(
+            f"control_domain must be a Polytope, None or 'problem', got {type(control_domain).__name__}"
+        )
+    return system, formula, domain
