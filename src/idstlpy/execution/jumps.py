@@ -61,7 +61,7 @@ def roll_jumps(
     starts : ndarray, shape (S, n)
         True initial states.
     rng : numpy.random.Generator
-        Every draw (executed sequences first, then the noises).
+        The noises; the executed sequences come from a stream it spawns.
     keep : int
         Runs whose observations are kept.
     initial_mean : ndarray, shape (n,), optional
@@ -74,7 +74,9 @@ def roll_jumps(
     JumpRoll
     """
     commanded = plan.get_action()[:steps]
-    executed = switching.draw(commanded, rng, starts.shape[0])
+    # The executed modes from a child stream (spawning leaves ``rng``'s state alone), so the
+    # noises are those of the run without jumps: a chain that never jumps reproduces it.
+    executed = switching.draw(commanded, rng.spawn(1)[0], starts.shape[0])
     return roll_executed(
         spec, plan, executed, switching.observed, starts, rng, keep, initial_mean, initial_cov
     )
