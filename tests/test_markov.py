@@ -208,13 +208,24 @@ def test_bound_against_exact_enumeration_of_every_sequence(names, P, steps):
 def test_truncated_bound_assumes_nothing_of_the_rest():
     problem, plan, modes, K, gains = _setup(["nominal", "failed", "dropout"], P_FAIL_DROP, 4)
     exact = _exact(problem, plan, modes, K, P_FAIL_DROP)
-    b = stl.markov_bound(problem, plan, control_domain=None, lqr_gains=gains, samples=0, max_sequences=5)
+    b = stl.markov_bound(
+        problem, plan, control_domain=None, lqr_gains=gains, samples=0, max_sequences=5, rest_runs=0
+    )
     assert len(b.sequences) == 5 and not b.exhausted
     assert b.covered_mass < 1.0
     assert b.state_bound <= b.covered_mass
     assert b.state_bound <= exact + 1e-5
     probs = [s.probability for s in b.sequences]
     assert probs == sorted(probs, reverse=True)
+    assert b.rest_runs == 0
+    full = stl.markov_bound(
+        problem, plan, control_domain=None, lqr_gains=gains, samples=0, max_sequences=5, rest_runs=3000
+    )
+    assert full.rest_runs == 3000 and full.confidence == pytest.approx(0.999)
+    assert full.state_bound == pytest.approx(b.state_bound, abs=1e-12)
+    assert full.total_state_bound <= exact + 1e-3  # (a 99.9% bound: fails with probability <= 1e-3)
+    # the remainder's runs recover most of the mass the enumeration left out
+    assert full.total_state_bound >= b.state_bound + 0.5 * (1 - b.covered_mass) * exact
     b2 = stl.markov_bound(
         problem, plan, control_domain=None, lqr_gains=gains, samples=0, min_probability=0.05
     )
@@ -368,13 +379,13 @@ def test_solve_reports_the_bound_and_judges_the_target_on_it():
         (res.execution.belief_bound, rep.belief_success_rate),
     ):
         assert bound <= rate + 4 * math.sqrt(rate * (1 - rate) / runs) + 1e-3
-    assert "under chance switching: sound bound" in res.reason
+    assert "under chance switching: bound" in res.reason
     below = res.execution.state_bound < 0.95 or res.execution.belief_bound < 0.9
     assert ("does not prove the execution target" in res.reason) == below
     said = [
         w
         for w in caught
-        if issubclass(w.category, ExecutionTargetWarning) and "sound bound" in str(w.message)
+        if issubclass(w.category, ExecutionTargetWarning) and "under chance switching" in str(w.message)
     ]
     assert len(said) == int(below)
     with warnings.catch_warnings():

@@ -131,7 +131,10 @@ def roll_executed(
     X = np.array(starts, dtype=float)
     M = np.tile(plan.get_mean(0) if initial_mean is None else initial_mean, (S, 1))
     P0 = plan.get_cov(0) if initial_cov is None else initial_cov
-    P = np.broadcast_to(P0, (S, n, n)).copy()
+    # Runs that all execute one sequence share their filter covariance while the sensor noise is
+    # constant (the step law keeps it (n, n) then); otherwise each run has its own.
+    shared = bool((executed == executed[:1]).all())
+    P = np.array(P0, dtype=float) if shared else np.broadcast_to(P0, (S, n, n)).copy()
     means, states = np.empty((N + 1, S, n)), np.empty((N + 1, S, n))
     covs = np.empty((N + 1, S, n, n))
     controls = np.empty((N, S, m))
@@ -145,16 +148,21 @@ def roll_executed(
             U = act.control(k, M[idx])
             Xj = laws[j].plant(k, X[idx], U, rng)
             Y = laws[j].observe(k, Xj, rng)
-            Mj, Pj = act.filter(k, M[idx], P[idx], U, Y)
-            X[idx], M[idx], controls[k, idx] = Xj, Mj, U
-            P[idx] = Pj if Pj.ndim == 3 else Pj[None]
+            if shared:  # one group of all the runs, in order
+                Mj, P = act.filter(k, M, P, U, Y)
+                shared = P.ndim == 2  # (a state-dependent sensor made the runs' covariances differ)
+                X, M, controls[k] = Xj, Mj, U
+            else:
+                Mj, Pj = act.filter(k, M[idx], P[idx], U, Y)
+                X[idx], M[idx], controls[k, idx] = Xj, Mj, U
+                P[idx] = Pj if Pj.ndim == 3 else Pj[None]
             if Y is not None and keep:
                 mine = idx < keep
                 if mine.any():
                     observations[k + 1, idx[mine], : Y.shape[1]] = Y[mine]
         if not (np.isfinite(M).all() and np.isfinite(X).all()):
             raise InvalidArgumentError(f"the execution diverged at step {k + 1} (non-finite state)")
-        means[k + 1], states[k + 1], covs[k + 1] = M, X, P
+        means[k + 1], states[k + 1], covs[k + 1] = M, X, P  # (a shared P broadcast over the runs)
     return JumpRoll(means, covs, states, controls, np.array(executed, dtype=int), observations)
 
 

@@ -30,6 +30,14 @@ assuming nothing of the sequences left out (their mass ``1 - covered_mass`` coun
 The point estimate is the covered sequences' model-sampled success rates weighted by their
 probabilities and renormalised by the covered mass (it assumes the rest behave alike).
 
+**The remainder, sampled.** When the verified sequences leave mass out, ``rest_runs`` executions
+of the executor itself run with sequences drawn from the chain *conditioned on the remainder*
+(drawn from the chain, the verified ones rejected); their Clopper-Pearson lower bound ``r`` on the
+success given the remainder completes the bound,
+``total_bound = bound + (1 - covered_mass) * r``, a lower bound at confidence ``1 - delta``
+(every sampled bound at ``1 - delta / (max_sequences + 1)``, a union bound). ``bound`` alone
+(nothing assumed of the rest) stays reported.
+
 **The executed belief reading.** When the executed mode is observed the executor's belief is a
 Gaussian whose mean and covariance follow the observed sequence: the belief reading of the
 formula (``P[h'x + c <= 0] >= 1 - eps`` on the filter's Gaussian) is read on that belief, the
@@ -125,6 +133,46 @@ class _Sampler:
         confidence = 1.0 - delta / max_sequences
         return cls(spec, plan, starts, mean, cov, runs, confidence, seed)
 
+    def rest(
+        self,
+        formula: STLFormula,
+        switching: MarkovSwitching,
+        verified: set[tuple[int, ...]],
+        runs: int,
+        confidence: float,
+    ) -> tuple[float, float, float, float, int]:
+        """Bounds and rates (state, belief) of executions whose sequence is none of ``verified``,
+        and how many ran: sequences drawn from the chain, those verified rejected (so the runs
+        are drawn from the chain conditioned on the remainder), at most 50 draws per run kept."""
+        if self.spec is None:  # pragma: no cover - only called with runs
+            raise InvalidArgumentError("rest_runs needs sampled executions")
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 37]))
+        commanded = self.plan.get_action()
+        kept: list[np.ndarray] = []
+        count = 0
+        for _ in range(50):
+            draws = switching.draw(commanded, rng, runs)
+            fresh = np.array([tuple(row) not in verified for row in draws.tolist()], dtype=bool)
+            kept.append(draws[fresh])
+            count += int(fresh.sum())
+            if count >= runs:
+                break
+        executed = np.concatenate(kept)[:runs]
+        S = executed.shape[0]
+        if not S:
+            return 0.0, 0.0, float("nan"), float("nan"), 0
+        starts = self.starts[:S]
+        r = roll_executed(self.spec, self.plan, executed, True, starts, rng, 0, self.mean, self.cov)
+        state = float(success_of(formula, r.states, None).mean())
+        belief = float(success_of(formula, r.means, r.covs).mean())
+        return (
+            clopper_pearson_lower(state, S, confidence),
+            clopper_pearson_lower(belief, S, confidence),
+            state,
+            belief,
+            S,
+        )
+
     def run(self, formula: STLFormula, executed: np.ndarray) -> tuple[float, float, float, float]:
         """Bounds (state, belief) and rates (state, belief) of ``runs`` executions given ``executed``."""
         if self.spec is None:  # pragma: no cover - only called with runs
@@ -188,7 +236,16 @@ class MarkovBound:
     covered_mass : float
         ``sum_s P(s)`` over the verified sequences.
     state_estimate, belief_estimate : float
-        Point estimates (the covered sequences' sampled rates, renormalised by the mass).
+        Point estimates over the covered sequences (their rates, renormalised by the mass).
+    rest_mass : float
+        ``1 - covered_mass``, the sequences not verified.
+    rest_state_bound, rest_belief_bound : float
+        Clopper-Pearson lower bounds on the success given the remainder (``rest_runs``
+        executions drawn from the chain conditioned on it); NaN without them.
+    rest_state_estimate, rest_belief_estimate : float
+        The remainder's measured rates (NaN without runs).
+    rest_runs : int
+        Executions behind them.
     sequences : tuple of SequenceBound
         The verified sequences, most likely first.
     exhausted : bool
@@ -213,10 +270,50 @@ class MarkovBound:
     sound: bool
     confidence: float = 1.0
     note: str = ""
+    rest_mass: float = 0.0
+    rest_state_bound: float = float("nan")
+    rest_belief_bound: float = float("nan")
+    rest_state_estimate: float = float("nan")
+    rest_belief_estimate: float = float("nan")
+    rest_runs: int = 0
+
+    @property
+    def total_state_bound(self) -> float:
+        """``state_bound + rest_mass * rest_state_bound`` (the remainder's sampled bound; NaN
+        counted as 0): a lower bound at confidence :attr:`confidence`."""
+        return self.state_bound + self.rest_mass * _or_zero(self.rest_state_bound)
+
+    @property
+    def total_belief_bound(self) -> float:
+        """``belief_bound + rest_mass * rest_belief_bound`` (as :attr:`total_state_bound`)."""
+        return self.belief_bound + self.rest_mass * _or_zero(self.rest_belief_bound)
+
+    @property
+    def total_state_estimate(self) -> float:
+        """The point estimate over every sequence: the verified ones' and the remainder's runs."""
+        return _mix(self.state_estimate, self.covered_mass, self.rest_state_estimate, self.rest_mass)
+
+    @property
+    def total_belief_estimate(self) -> float:
+        """As :attr:`total_state_estimate`, for the executed belief."""
+        return _mix(self.belief_estimate, self.covered_mass, self.rest_belief_estimate, self.rest_mass)
 
     def meets(self, target_belief: float, target_state: float) -> bool:
-        """Whether the bounds prove both execution rates (never more than they prove)."""
-        return self.sound and self.belief_bound >= target_belief and self.state_bound >= target_state
+        """Whether the total bounds prove both execution rates (at :attr:`confidence`)."""
+        return (
+            self.sound and self.total_belief_bound >= target_belief and self.total_state_bound >= target_state
+        )
+
+
+def _or_zero(value: float) -> float:
+    return 0.0 if np.isnan(value) else value
+
+
+def _mix(covered: float, mass: float, rest: float, rest_mass: float) -> float:
+    """The estimate over every sequence (the covered ones alone when the remainder has no runs)."""
+    if np.isnan(rest) or rest_mass <= 0.0:
+        return covered
+    return covered * mass + rest * rest_mass
 
 
 def sequences_by_probability(
@@ -305,7 +402,8 @@ def markov_bound(
     max_sequences: int = 256,
     min_probability: float = 1e-6,
     samples: int = 256,
-    sampled_runs: int = 2000,
+    sampled_runs: int = 1000,
+    rest_runs: int = 4000,
     delta: float = 1e-3,
     seed: int = 0,
     **options: Any,
@@ -332,11 +430,16 @@ def markov_bound(
         Sequences less likely than this are left out (and counted as failures).
     samples : int, default 256
         Model samples per sequence for the point estimates (0: NaN estimates).
-    sampled_runs : int, default 2000
+    sampled_runs : int, default 1000
         Executions of the executor itself per sequence whose analytic bound does not hold or
         is weak (a state-dependent sensor; a clip mass above :data:`CLIP_TOLERANCE`); their
         Clopper-Pearson lower bound, at confidence ``1 - delta / max_sequences`` each, then
         joins the analytic one (0: never).
+    rest_runs : int, default 4000
+        Executions of the executor with sequences drawn from the chain conditioned on the
+        remainder (the sequences not verified; rejection sampling, at most 50 draws per run):
+        their Clopper-Pearson bound on the remainder's success completes the bound
+        (:attr:`MarkovBound.total_state_bound`); 0: the remainder counts as failure.
     delta : float, default 1e-3
         Probability that some sampled bound fails (the union over the sequences): the bound
         holds with confidence ``1 - delta`` when a sequence was sampled, surely otherwise.
@@ -377,6 +480,7 @@ def markov_bound(
     min_probability = as_float(min_probability, "min_probability", low=0.0, high=1.0)
     samples = as_int(samples, "samples", minimum=0)
     sampled_runs = as_int(sampled_runs, "sampled_runs", minimum=0)
+    rest_runs = as_int(rest_runs, "rest_runs", minimum=0)
     delta = as_float(delta, "delta", low=0.0, high=1.0, low_open=True)
     unsound = False
     commanded = plan.get_action()
@@ -438,6 +542,16 @@ def markov_bound(
             "is only approximately Gaussian and the bound is the Gaussian model's, not a proof"
         )
     any_sampled = any(v.sampled for v in verified)
+    rest = (float("nan"), float("nan"), float("nan"), float("nan"), 0)
+    if rest_runs and not exhausted and mass < 1.0:
+        # (its own i.i.d. starts: the trials of a Clopper-Pearson bound must be independent)
+        rest_ctx = _Sampler.make(
+            system, plan, domain, real_initial_state, rest_runs, delta, max_sequences, seed + 1, options
+        )
+        rest = rest_ctx.rest(
+            formula, switching, {v.executed for v in verified}, rest_runs, 1.0 - delta / (max_sequences + 1)
+        )
+        any_sampled = any_sampled or rest[4] > 0
     logger.debug(
         "markov_bound: %d sequences, mass %.6g, bound state %.4g belief %.4g",
         len(verified),
@@ -456,6 +570,12 @@ def markov_bound(
         sound=not unsound,
         confidence=1.0 - delta if any_sampled else 1.0,
         note=note,
+        rest_mass=max(0.0, 1.0 - mass),
+        rest_state_bound=rest[0],
+        rest_belief_bound=rest[1],
+        rest_state_estimate=rest[2],
+        rest_belief_estimate=rest[3],
+        rest_runs=rest[4],
     )
 
 

@@ -6,8 +6,9 @@ for the commanded sequence (the planner does not see the jumps). Then, unless
 (:func:`~idstlpy.executor.markov_bound.markov_bound`, with the planner's reading of the
 execution: the true start drawn from the prior, inputs projected on the control domain), the
 result's :attr:`~idstlpy.SolveResult.execution` becomes that bound's (``closure="markov"``: the
-estimates are the covered sequences', the bounds the sound ones), and the execution target is
-judged on the **bounds**: when a bound is below its target the reason says so and an
+estimates and the bounds are over every sequence, the verified ones' and the sampled
+remainder's: ``total_*_bound``), and the execution target is judged on the **bounds**: when
+a bound is below its target the reason says so and an
 :class:`~idstlpy.errors.ExecutionTargetWarning` is issued, even when the estimates meet it.
 """
 
@@ -33,10 +34,10 @@ def execution_of(bound: MarkovBound, options: SolverOptions) -> PredictedExecuti
     """The bound as the result's predicted execution (``closure="markov"``)."""
     samples = len(bound.sequences)
     return PredictedExecution(
-        bound.belief_estimate,
-        bound.state_estimate,
-        bound.belief_bound,
-        bound.state_bound,
+        bound.total_belief_estimate,
+        bound.total_state_estimate,
+        bound.total_belief_bound,
+        bound.total_state_bound,
         {},
         options.execution_target,
         samples,
@@ -57,10 +58,12 @@ def after_switching(problem: Problem, options: SolverOptions, result: SolveResul
         return dataclasses.replace(result, reason=reason, execution=None)
     target = options.execution_target
     summary = (
-        f"under chance switching: sound bound belief {bound.belief_bound:.4f}, state "
-        f"{bound.state_bound:.4f} over {len(bound.sequences)} executed mode sequences of mass "
-        f"{bound.covered_mass:.6f} (confidence {bound.confidence:g}); estimates belief "
-        f"{bound.belief_estimate:.4f}, state {bound.state_estimate:.4f}"
+        f"under chance switching: bound belief {bound.total_belief_bound:.4f}, state "
+        f"{bound.total_state_bound:.4f} (confidence {bound.confidence:g}): "
+        f"{len(bound.sequences)} executed mode sequences of mass {bound.covered_mass:.6f} verified "
+        f"(bound belief {bound.belief_bound:.4f}, state {bound.state_bound:.4f}, nothing assumed of "
+        f"the rest), the rest sampled ({bound.rest_runs} runs); estimates belief "
+        f"{bound.total_belief_estimate:.4f}, state {bound.total_state_estimate:.4f}"
     )
     if not bound.meets(target.belief, target.state):
         summary += (
