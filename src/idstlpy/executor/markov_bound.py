@@ -399,7 +399,8 @@ def markov_bound(
     switching: MarkovSwitching | None = None,
     control_domain: Polytope | None | str = "problem",
     real_initial_state: ArrayLike | None = None,
-    max_sequences: int = 256,
+    max_sequences: int = 64,
+    sample_min_probability: float = 0.01,
     min_probability: float = 1e-6,
     samples: int = 256,
     sampled_runs: int = 1000,
@@ -424,8 +425,12 @@ def markov_bound(
         The domain the executor projects inputs on (``"problem"``: the problem's).
     real_initial_state : array_like, shape (n,), optional
         True start (default the plan's initial mean).
-    max_sequences : int, default 256
-        Most executed sequences verified.
+    max_sequences : int, default 64
+        Most executed sequences examined (verified or deferred to the remainder).
+    sample_min_probability : float, default 0.01
+        A sequence that needs its own executions (a state-dependent sensor, a clip mass above
+        :data:`CLIP_TOLERANCE`) and is less likely than this is left to the remainder's runs
+        instead (when ``rest_runs > 0``).
     min_probability : float, default 1e-6
         Sequences less likely than this are left out (and counted as failures).
     samples : int, default 256
@@ -481,6 +486,7 @@ def markov_bound(
     samples = as_int(samples, "samples", minimum=0)
     sampled_runs = as_int(sampled_runs, "sampled_runs", minimum=0)
     rest_runs = as_int(rest_runs, "rest_runs", minimum=0)
+    sample_min_probability = as_float(sample_min_probability, "sample_min_probability", low=0.0, high=1.0)
     delta = as_float(delta, "delta", low=0.0, high=1.0, low_open=True)
     unsound = False
     commanded = plan.get_action()
@@ -490,8 +496,9 @@ def markov_bound(
     )
     verified: list[SequenceBound] = []
     exhausted = True
+    deferred = 0
     for executed, prob in sequences_by_probability(switching, commanded):
-        if len(verified) >= max_sequences or prob < min_probability:
+        if len(verified) + deferred >= max_sequences or prob < min_probability:
             exhausted = False
             break
         plan_s = ProbabilisticTSTrajectory(
@@ -511,6 +518,12 @@ def markov_bound(
         )  # fmt: skip
         sampled = (float("nan"), float("nan"), float("nan"), float("nan"))
         if ctx.runs and (stateful or clip > CLIP_TOLERANCE):
+            if prob < sample_min_probability and rest_runs:
+                # an unlikely sequence is not worth its own runs: it stays in the remainder,
+                # whose runs (drawn from the chain) cover it in proportion to its probability
+                deferred += 1
+                exhausted = False
+                continue
             sampled = ctx.run(formula, np.asarray(executed, dtype=int))
         if stateful and not ctx.runs:
             unsound = True
