@@ -313,6 +313,8 @@ def _mix(covered: float, mass: float, rest: float, rest_mass: float) -> float:
     """The estimate over every sequence (the covered ones alone when the remainder has no runs)."""
     if np.isnan(rest) or rest_mass <= 0.0:
         return covered
+    if mass <= 0.0:  # (nothing verified: the covered estimate is NaN)
+        return rest
     return covered * mass + rest * rest_mass
 
 
