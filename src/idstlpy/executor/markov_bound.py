@@ -503,6 +503,11 @@ def markov_bound(
         if len(verified) + deferred >= max_sequences or prob < min_probability:
             exhausted = False
             break
+        stateful = any(system.mode(j).has_state_dependent_noise for j in set(executed))
+        if stateful and ctx.runs and rest_runs and prob < sample_min_probability:
+            deferred += 1  # (it would need its own runs: left to the remainder, unpredicted)
+            exhausted = False
+            continue
         plan_s = ProbabilisticTSTrajectory(
             plan.get_mean(), plan.get_cov(), np.asarray(executed, dtype=int), plan.get_control()
         )
@@ -511,7 +516,6 @@ def markov_bound(
             samples=samples, seed=seed, control_domain=None, closure="gaussian", **options,
         )  # fmt: skip
         clip = _clip_mass(pred, plan, domain)
-        stateful = any(system.mode(j).has_state_dependent_noise for j in set(executed))
         # The analytic bound is exact for constant sensor noise (module notes); the sampled one
         # (the executor itself, projection and noise functions included) wherever it is not, or
         # where the projection's deduction leaves little of it.
