@@ -328,16 +328,36 @@ def test_simulate_records_the_executed_modes_and_is_reproducible():
             assert np.isnan(obs[k + 1]).all() == (s == 2)
 
 
-def test_unobserved_switching_executes_but_is_not_bounded_yet():
+def test_unobserved_switching_is_bounded_by_the_executors_runs_below_the_independent_simulator():
     names = ["nominal", "failed"]
-    P = np.array([[[0.9, 0.1], [0.0, 1.0]], [[0.0, 1.0], [0.0, 1.0]]])
-    problem, plan, _, _, gains = _setup(names, P, 5, observed=False)
+    P = np.array([[[0.8, 0.2], [0.0, 1.0]], [[0.0, 1.0], [0.0, 1.0]]])
+    problem, plan, modes, K, gains = _setup(names, P, 5, observed=False)
     xi_sim, xi_real = stl.simulate(
         problem.switched_system, plan, 5, plan.get_mean(0), None, seed=1, lqr_gains=gains
     )
     assert np.isfinite(xi_real.get_state()).all()
+    b = stl.markov_bound(
+        problem, plan, control_domain=None, lqr_gains=gains, sampled_runs=2000, rest_runs=2000
+    )
+    assert all(s.sampled for s in b.sequences) and b.confidence == pytest.approx(0.999)
+    args = (modes, K, plan.get_mean(), plan.get_control(), P, plan.get_action().tolist())
+    runs = 4000
+    mc = monte_carlo_always(
+        *args,
+        plan.get_mean(0),
+        np.zeros((2, 2)),
+        plan.get_cov(0),
+        H,
+        C,
+        list(range(6)),
+        runs,
+        seed=9,
+        observed=False,
+    )
+    assert b.total_state_bound <= mc + 4 * math.sqrt(mc * (1 - mc) / runs) + 1e-3
+    assert b.total_state_bound >= mc - 0.05
     with pytest.raises(InvalidArgumentError, match="unobserved"):
-        stl.markov_bound(problem, plan)
+        stl.markov_bound(problem, plan, sampled_runs=0, rest_runs=0)
     problem2, plan2, _, _, gains2 = _setup(["nominal", "dropout"], np.eye(2), 5, observed=False)
     with pytest.raises(InvalidArgumentError, match="same output dimension"):
         stl.simulate(problem2.switched_system, plan2, 5, plan2.get_mean(0), None, seed=1, lqr_gains=gains2)

@@ -161,8 +161,13 @@ def monte_carlo_always(
     seed: int,
     box: tuple[np.ndarray, np.ndarray] | None = None,
     initial: np.ndarray | None = None,
+    observed: bool = True,
 ) -> float:
-    """The fraction of ``runs`` simulated executions whose true states satisfy every face at every step."""
+    """The fraction of ``runs`` simulated executions whose true states satisfy every face at every step.
+
+    ``observed=False``: the tracking gain and the filter are the commanded mode's, the plant and
+    the sensor the executed mode's (every mode must then have the same output dimension).
+    """
     rng = np.random.default_rng(seed)
     n = x0.shape[0]
     ok = 0
@@ -176,19 +181,20 @@ def monte_carlo_always(
         for k in range(len(commanded)):
             if k > 0:
                 s = int(rng.choice(P.shape[1], p=P[commanded[k], s]))
-            md = modes[s]
-            u = inputs[k] - K[s] @ (xh - means[k])
+            md = modes[s]  # the plant and the sensor
+            b = md if observed else modes[commanded[k]]  # what the executor believes
+            u = inputs[k] - K[s if observed else commanded[k]] @ (xh - means[k])
             if box is not None:
                 u = np.clip(u, box[0], box[1])
             x = md.A @ x + md.B @ u + md.W @ rng.standard_normal(md.W.shape[1])
-            xp = md.A @ xh + md.B @ u
-            Pp = md.A @ Pk @ md.A.T + md.W @ md.W.T
+            xp = b.A @ xh + b.B @ u
+            Pp = b.A @ Pk @ b.A.T + b.W @ b.W.T
             if md.C.shape[0]:
                 y = md.C @ x + md.V @ rng.standard_normal(md.V.shape[1])
-                R = md.V @ md.V.T
-                L = Pp @ md.C.T @ np.linalg.inv(md.C @ Pp @ md.C.T + R)
-                xh = xp + L @ (y - md.C @ xp)
-                IKC = np.eye(n) - L @ md.C
+                R = b.V @ b.V.T
+                L = Pp @ b.C.T @ np.linalg.inv(b.C @ Pp @ b.C.T + R)
+                xh = xp + L @ (y - b.C @ xp)
+                IKC = np.eye(n) - L @ b.C
                 Pk = IKC @ Pp @ IKC.T + L @ R @ L.T
             else:
                 xh, Pk = xp, Pp

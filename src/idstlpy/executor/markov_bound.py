@@ -46,8 +46,11 @@ sequence being known; the execution target's belief rate is then the mixture ove
 
 **Not sound (the flag says so):** a state-dependent sensor noise on a mode of an enumerated
 sequence (the loop is then only approximately Gaussian: the bound is the Gaussian model's).
-**Not supported yet** (an error says so): an unobserved executed mode, a real system other than
-the model, a formula whose propositions name modes.
+**An unobserved executed mode**: the executor tracks and filters with the commanded mode while the
+plant and the sensor are the executed one's; this module has no Gaussian law for that loop, so
+every sequence (and the remainder) is bounded by the executor's own runs (confidence
+``1 - delta``). **Not supported yet** (an error says so): a real system other than the model, a
+formula whose propositions name modes.
 """
 
 from __future__ import annotations
@@ -98,6 +101,7 @@ class _Sampler:
     runs: int
     confidence: float
     seed: int
+    observed: bool = True
 
     @classmethod
     def make(
@@ -111,6 +115,7 @@ class _Sampler:
         max_sequences: int,
         seed: int,
         options: dict[str, Any],
+        switching: MarkovSwitching | None = None,
     ) -> _Sampler:
         rng = np.random.default_rng(np.random.SeedSequence([seed, 35]))
         start = plan.get_mean(0) if x0 is None else as_vector(x0, "real_initial_state", system.n)
@@ -131,7 +136,8 @@ class _Sampler:
         mean = None if belief is None else belief.mean
         cov = None if belief is None else belief.cov
         confidence = 1.0 - delta / max_sequences
-        return cls(spec, plan, starts, mean, cov, runs, confidence, seed)
+        observed = True if switching is None else switching.observed
+        return cls(spec, plan, starts, mean, cov, runs, confidence, seed, observed)
 
     def rest(
         self,
@@ -162,7 +168,7 @@ class _Sampler:
         if not S:
             return 0.0, 0.0, float("nan"), float("nan"), 0
         starts = self.starts[:S]
-        r = roll_executed(self.spec, self.plan, executed, True, starts, rng, 0, self.mean, self.cov)
+        r = roll_executed(self.spec, self.plan, executed, self.observed, starts, rng, 0, self.mean, self.cov)
         state = float(success_of(formula, r.states, None).mean())
         belief = float(success_of(formula, r.means, r.covs).mean())
         return (
@@ -180,7 +186,9 @@ class _Sampler:
         # each sequence its own stream, from the seed and the sequence (order-independent)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 36, *executed.tolist()]))
         executed_all = np.tile(executed, (self.runs, 1))
-        r = roll_executed(self.spec, self.plan, executed_all, True, self.starts, rng, 0, self.mean, self.cov)
+        r = roll_executed(
+            self.spec, self.plan, executed_all, self.observed, self.starts, rng, 0, self.mean, self.cov
+        )
         state = float(success_of(formula, r.states, None).mean())
         belief = float(success_of(formula, r.means, r.covs).mean())
         return (
@@ -379,11 +387,11 @@ def _clip_mass(pred: ClosedLoopPrediction, plan: ProbabilisticTSTrajectory, doma
     return float(out.sum())
 
 
-def _check(system: SwitchedSystem, formula: STLFormula, switching: MarkovSwitching) -> None:
-    if not switching.observed:
+def _check(formula: STLFormula, switching: MarkovSwitching, runs: int) -> None:
+    if not switching.observed and not runs:
         raise InvalidArgumentError(
-            "switching: the bound for an unobserved executed mode is not supported yet "
-            "(simulate and validate execute it; declare observed=True for a bound)"
+            "switching: the bound for an unobserved executed mode comes from the executor's own "
+            "runs only (no Gaussian law); give sampled_runs > 0 or rest_runs > 0"
         )
     for ap in formula.atomic_propositions():
         if ap.modes:
@@ -479,7 +487,6 @@ def markov_bound(
         raise InvalidTypeError(
             f"switching must be made by mk_markov_switching, got {type(switching).__name__}"
         )
-    _check(system, formula, switching)
     for bad in ("closure", "control_domain", "real_system", "executor"):
         if bad in options:
             raise InvalidArgumentError(f"{bad}: not an option of markov_bound (the bound fixes it)")
@@ -488,13 +495,14 @@ def markov_bound(
     samples = as_int(samples, "samples", minimum=0)
     sampled_runs = as_int(sampled_runs, "sampled_runs", minimum=0)
     rest_runs = as_int(rest_runs, "rest_runs", minimum=0)
+    _check(formula, switching, sampled_runs + rest_runs)
     sample_min_probability = as_float(sample_min_probability, "sample_min_probability", low=0.0, high=1.0)
     delta = as_float(delta, "delta", low=0.0, high=1.0, low_open=True)
     unsound = False
     commanded = plan.get_action()
     N_ref = plan.num_of_steps
     ctx = _Sampler.make(
-        system, plan, domain, real_initial_state, sampled_runs, delta, max_sequences, seed, options
+        system, plan, domain, real_initial_state, sampled_runs, delta, max_sequences, seed, options, switching
     )
     verified: list[SequenceBound] = []
     exhausted = True
@@ -504,9 +512,18 @@ def markov_bound(
             exhausted = False
             break
         stateful = any(system.mode(j).has_state_dependent_noise for j in set(executed))
-        if stateful and ctx.runs and rest_runs and prob < sample_min_probability:
+        needs_runs = stateful or not switching.observed
+        if needs_runs and ctx.runs and rest_runs and prob < sample_min_probability:
             deferred += 1  # (it would need its own runs: left to the remainder, unpredicted)
             exhausted = False
+            continue
+        if not switching.observed:  # no Gaussian law of ours: the executor's own runs only
+            if not ctx.runs:
+                deferred += 1
+                exhausted = False
+                continue
+            sb, bb, se, be = ctx.run(formula, np.asarray(executed, dtype=int))
+            verified.append(SequenceBound(executed, prob, sb, bb, float("nan"), se, be, sampled=True))
             continue
         plan_s = ProbabilisticTSTrajectory(
             plan.get_mean(), plan.get_cov(), np.asarray(executed, dtype=int), plan.get_control()
@@ -565,7 +582,16 @@ def markov_bound(
     if rest_runs and not exhausted and mass < 1.0:
         # (its own i.i.d. starts: the trials of a Clopper-Pearson bound must be independent)
         rest_ctx = _Sampler.make(
-            system, plan, domain, real_initial_state, rest_runs, delta, max_sequences, seed + 1, options
+            system,
+            plan,
+            domain,
+            real_initial_state,
+            rest_runs,
+            delta,
+            max_sequences,
+            seed + 1,
+            options,
+            switching,
         )
         rest = rest_ctx.rest(
             formula, switching, {v.executed for v in verified}, rest_runs, 1.0 - delta / (max_sequences + 1)
