@@ -413,3 +413,45 @@ def test_solve_reports_the_bound_and_judges_the_target_on_it():
         mlo = sw_problem.solve_result(seed=0, guarantee="mlo")
     assert mlo.execution is None or mlo.execution.closure != "markov"
     assert "chance switching" not in mlo.reason
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 100_000),
+    second=st.sampled_from(["failed", "dropout"]),
+    steps=st.integers(2, 4),
+    limit=st.floats(0.7, 1.3),
+)
+def test_bound_never_above_the_exact_probability_on_random_chains(seed, second, steps, limit):
+    rng = np.random.default_rng(seed)
+    P = rng.dirichlet(np.ones(2) * 0.7, size=(2, 2))
+    names = ["nominal", second]
+    problem, plan, modes, K, gains = _setup(names, P, steps)
+    c = np.array([-limit, -limit])
+    exact = exact_always_probability(
+        modes,
+        K,
+        plan.get_mean(),
+        plan.get_control(),
+        np.asarray(switching_of(problem.switched_system).transitions),
+        plan.get_action().tolist(),
+        plan.get_mean(0),
+        np.zeros((2, 2)),
+        plan.get_cov(0),
+        H,
+        c,
+        list(range(steps + 1)),
+    )
+    x = stl.mk_variable(2)
+    ap = stl.logical_and(stl.prob(x[0] <= limit) >= 0.9, stl.prob(x[1] <= limit) >= 0.9, name="safe")
+    b = stl.markov_bound(
+        problem,
+        plan,
+        formula=stl.always(0, steps, ap),
+        control_domain=None,
+        lqr_gains=gains,
+        samples=0,
+        max_sequences=1000,
+    )
+    assert b.exhausted and b.confidence == 1.0
+    assert b.state_bound <= exact + 1e-5
