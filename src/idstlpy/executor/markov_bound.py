@@ -55,28 +55,26 @@ formula whose propositions name modes.
 
 from __future__ import annotations
 
-import heapq
 import logging
-from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.special import ndtr
 
-from .._checks import as_float, as_int, as_vector
+from .._checks import as_float, as_int
 from ..dynamical_system import SwitchedSystem
 from ..errors import InvalidArgumentError, InvalidTypeError
 from ..formulas import STLFormula
 from ..markov import MarkovSwitching, switching_of
 from ..sets import Polytope
 from ..trajectory import ProbabilisticTSTrajectory
-from .jump_law import roll_executed, success_of
-from .model_sampling import clopper_pearson_lower
-from .predict import predict_closed_loop
-from .predicted import ClosedLoopPrediction
-from .spec import ExecutorSpec
+from .markov_sampling import (
+    ExecutorRuns,
+    SequenceBound,
+    SequenceVerifier,
+    sequences_by_probability,
+)
 
 if TYPE_CHECKING:
     from ..problem import Problem
@@ -84,151 +82,6 @@ if TYPE_CHECKING:
 __all__ = ["MarkovBound", "SequenceBound", "markov_bound", "sequences_by_probability"]
 
 logger = logging.getLogger(__name__)
-
-CLIP_TOLERANCE = 1e-3
-"""Clip mass above which a sequence's executions are also sampled (the analytic bound loses it)."""
-
-
-@dataclass(frozen=True)
-class _Sampler:
-    """Executions of the executor itself given an executed sequence (the sampled bound)."""
-
-    spec: ExecutorSpec | None
-    plan: ProbabilisticTSTrajectory
-    starts: np.ndarray
-    mean: np.ndarray | None
-    cov: np.ndarray | None
-    runs: int
-    confidence: float
-    seed: int
-    observed: bool = True
-
-    @classmethod
-    def make(
-        cls,
-        system: SwitchedSystem,
-        plan: ProbabilisticTSTrajectory,
-        domain: Polytope | None,
-        x0: ArrayLike | None,
-        runs: int,
-        delta: float,
-        max_sequences: int,
-        seed: int,
-        options: dict[str, Any],
-        switching: MarkovSwitching | None = None,
-    ) -> _Sampler:
-        rng = np.random.default_rng(np.random.SeedSequence([seed, 35]))
-        start = plan.get_mean(0) if x0 is None else as_vector(x0, "real_initial_state", system.n)
-        x_cov = options.get("real_initial_cov")
-        starts = np.tile(start, (runs, 1))
-        if x_cov is not None and runs:
-            starts = rng.multivariate_normal(start, np.asarray(x_cov, dtype=float), size=runs)
-        belief = options.get("initial_belief")
-        spec = None
-        if runs:
-            spec = ExecutorSpec.make(
-                system,
-                control_domain=domain,
-                process_noise=options.get("process_noise", "auto"),
-                lqr_gains=options.get("lqr_gains"),
-                default_lqr=options.get("default_lqr"),
-            )
-        mean = None if belief is None else belief.mean
-        cov = None if belief is None else belief.cov
-        confidence = 1.0 - delta / max_sequences
-        observed = True if switching is None else switching.observed
-        return cls(spec, plan, starts, mean, cov, runs, confidence, seed, observed)
-
-    def rest(
-        self,
-        formula: STLFormula,
-        switching: MarkovSwitching,
-        verified: set[tuple[int, ...]],
-        runs: int,
-        confidence: float,
-    ) -> tuple[float, float, float, float, int]:
-        """Bounds and rates (state, belief) of executions whose sequence is none of ``verified``,
-        and how many ran: sequences drawn from the chain, those verified rejected (so the runs
-        are drawn from the chain conditioned on the remainder), at most 50 draws per run kept."""
-        if self.spec is None:  # pragma: no cover - only called with runs
-            raise InvalidArgumentError("rest_runs needs sampled executions")
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 37]))
-        commanded = self.plan.get_action()
-        kept: list[np.ndarray] = []
-        count = 0
-        for _ in range(50):
-            draws = switching.draw(commanded, rng, runs)
-            fresh = np.array([tuple(row) not in verified for row in draws.tolist()], dtype=bool)
-            kept.append(draws[fresh])
-            count += int(fresh.sum())
-            if count >= runs:
-                break
-        executed = np.concatenate(kept)[:runs]
-        S = executed.shape[0]
-        if not S:
-            return 0.0, 0.0, float("nan"), float("nan"), 0
-        starts = self.starts[:S]
-        r = roll_executed(self.spec, self.plan, executed, self.observed, starts, rng, 0, self.mean, self.cov)
-        state = float(success_of(formula, r.states, None).mean())
-        belief = float(success_of(formula, r.means, r.covs).mean())
-        return (
-            clopper_pearson_lower(state, S, confidence),
-            clopper_pearson_lower(belief, S, confidence),
-            state,
-            belief,
-            S,
-        )
-
-    def run(self, formula: STLFormula, executed: np.ndarray) -> tuple[float, float, float, float]:
-        """Bounds (state, belief) and rates (state, belief) of ``runs`` executions given ``executed``."""
-        if self.spec is None:  # pragma: no cover - only called with runs
-            raise InvalidArgumentError("sampled_runs is 0")
-        # each sequence its own stream, from the seed and the sequence (order-independent)
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, 36, *executed.tolist()]))
-        executed_all = np.tile(executed, (self.runs, 1))
-        r = roll_executed(
-            self.spec, self.plan, executed_all, self.observed, self.starts, rng, 0, self.mean, self.cov
-        )
-        state = float(success_of(formula, r.states, None).mean())
-        belief = float(success_of(formula, r.means, r.covs).mean())
-        return (
-            clopper_pearson_lower(state, self.runs, self.confidence),
-            clopper_pearson_lower(belief, self.runs, self.confidence),
-            state,
-            belief,
-        )
-
-
-@dataclass(frozen=True)
-class SequenceBound:
-    """The verdict on one executed mode sequence.
-
-    Attributes
-    ----------
-    executed : tuple of int
-        The executed modes ``s_0 .. s_{N-1}``.
-    probability : float
-        ``P(s)`` under the plan's commands.
-    state_bound, belief_bound : float
-        Sound lower bounds on ``P[success | s]`` (true state, executed belief), the clip mass
-        deducted.
-    clip_mass : float
-        Union bound on the probability that some unprojected input leaves the control domain.
-    state_estimate, belief_estimate : float
-        Model-sampled success rates given ``s`` (the executions' when sampled; NaN without
-        samples).
-    sampled : bool
-        Whether executions given ``s`` were sampled (their bound joined the analytic one).
-    """
-
-    executed: tuple[int, ...]
-    probability: float
-    state_bound: float
-    belief_bound: float
-    clip_mass: float
-    state_estimate: float
-    belief_estimate: float
-    sampled: bool = False
 
 
 @dataclass(frozen=True)
@@ -326,67 +179,6 @@ def _mix(covered: float, mass: float, rest: float, rest_mass: float) -> float:
     return covered * mass + rest * rest_mass
 
 
-def sequences_by_probability(
-    switching: MarkovSwitching, commanded: ArrayLike
-) -> Iterator[tuple[tuple[int, ...], float]]:
-    """Every executed sequence of positive probability, most likely first (best-first search).
-
-    A prefix's probability bounds every completion's, so popping the most probable prefix from a
-    heap yields the complete sequences in non-increasing probability; ties are broken by the
-    sequence (lexicographic), so the order is deterministic.
-
-    Parameters
-    ----------
-    switching : MarkovSwitching
-    commanded : array_like of int, shape (N,)
-
-    Yields
-    ------
-    (tuple of int, float)
-        A sequence ``s`` (N,) and ``P(s)``.
-    """
-    q = np.asarray(commanded, dtype=int)
-    N = q.shape[0]
-    if not N:
-        yield (), 1.0
-        return
-    heap: list[tuple[float, tuple[int, ...]]] = []
-    for j, p in enumerate(switching.first(int(q[0])).tolist()):
-        if p > 0:
-            heapq.heappush(heap, (-p, (j,)))
-    while heap:
-        neg, prefix = heapq.heappop(heap)
-        if len(prefix) == N:
-            yield prefix, -neg
-            continue
-        row = switching.row(int(q[len(prefix)]), prefix[-1])
-        for j, p in enumerate(row.tolist()):
-            if p > 0:
-                heapq.heappush(heap, (neg * p, (*prefix, j)))
-
-
-def _clip_mass(pred: ClosedLoopPrediction, plan: ProbabilisticTSTrajectory, domain: Polytope | None) -> float:
-    """Union bound on P[some unprojected input leaves ``domain``] in the predicted loop."""
-    if domain is None or not domain.H.shape[0]:
-        return 0.0
-    N = pred.num_of_steps
-    if not N:
-        return 0.0
-    n = plan.n
-    K = pred.tracking_gains  # (N, m, n)
-    eta_mu = pred.augmented_mean[:N, n : 2 * n]
-    eta_cov = pred.augmented_cov[:N, n : 2 * n, n : 2 * n]
-    u_mu = plan.get_control()[:N] - np.einsum("kmn,kn->km", K, eta_mu)
-    u_cov = K @ eta_cov @ np.transpose(K, (0, 2, 1))
-    H, c = domain.H, domain.c
-    mu = u_mu @ H.T + c  # (N, F): face value mean
-    var = np.einsum("fm,kmp,fp->kf", H, u_cov, H)
-    sd = np.sqrt(np.maximum(var, 0.0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = np.where(sd > 0, ndtr(mu / np.where(sd > 0, sd, 1.0)), (mu > 0).astype(float))
-    return float(out.sum())
-
-
 def _check(formula: STLFormula, switching: MarkovSwitching, runs: int) -> None:
     if not switching.observed and not runs:
         raise InvalidArgumentError(
@@ -439,17 +231,18 @@ def markov_bound(
         Most executed sequences examined (verified or deferred to the remainder).
     sample_min_probability : float, default 0.01
         A sequence that needs its own executions (a state-dependent sensor, a clip mass above
-        :data:`CLIP_TOLERANCE`) and is less likely than this is left to the remainder's runs
-        instead (when ``rest_runs > 0``).
+        :data:`~idstlpy.executor.markov_sampling.CLIP_TOLERANCE`) and is less likely than this
+        is left to the remainder's runs instead (when ``rest_runs > 0``).
     min_probability : float, default 1e-6
         Sequences less likely than this are left out (and counted as failures).
     samples : int, default 256
         Model samples per sequence for the point estimates (0: NaN estimates).
     sampled_runs : int, default 1000
         Executions of the executor itself per sequence whose analytic bound does not hold or
-        is weak (a state-dependent sensor; a clip mass above :data:`CLIP_TOLERANCE`); their
-        Clopper-Pearson lower bound, at confidence ``1 - delta / max_sequences`` each, then
-        joins the analytic one (0: never).
+        is weak (a state-dependent sensor; a clip mass above
+        :data:`~idstlpy.executor.markov_sampling.CLIP_TOLERANCE`); their Clopper-Pearson lower
+        bound, at confidence ``1 - delta / (max_sequences + 1)`` each, then joins the analytic
+        one (0: never).
     rest_runs : int, default 4000
         Executions of the executor with sequences drawn from the chain conditioned on the
         remainder (the sequences not verified; rejection sampling, at most 50 draws per run):
@@ -498,90 +291,31 @@ def markov_bound(
     _check(formula, switching, sampled_runs + rest_runs)
     sample_min_probability = as_float(sample_min_probability, "sample_min_probability", low=0.0, high=1.0)
     delta = as_float(delta, "delta", low=0.0, high=1.0, low_open=True)
-    unsound = False
-    commanded = plan.get_action()
-    N_ref = plan.num_of_steps
-    ctx = _Sampler.make(
+    runs = ExecutorRuns.make(
         system, plan, domain, real_initial_state, sampled_runs, delta, max_sequences, seed, options, switching
     )
+    verifier = SequenceVerifier(
+        system, plan, formula, switching, domain, real_initial_state, samples, seed, options, runs
+    )
     verified: list[SequenceBound] = []
-    exhausted = True
-    deferred = 0
-    for executed, prob in sequences_by_probability(switching, commanded):
+    exhausted, deferred = True, 0
+    for executed, prob in sequences_by_probability(switching, plan.get_action()):
         if len(verified) + deferred >= max_sequences or prob < min_probability:
             exhausted = False
             break
-        stateful = any(system.mode(j).has_state_dependent_noise for j in set(executed))
-        needs_runs = stateful or not switching.observed
-        if needs_runs and ctx.runs and rest_runs and prob < sample_min_probability:
-            deferred += 1  # (it would need its own runs: left to the remainder, unpredicted)
+        # an unlikely sequence that would need its own runs stays in the remainder, whose runs
+        # (drawn from the chain) cover it in proportion to its probability
+        one = verifier.bound(executed, prob, prob < sample_min_probability and rest_runs > 0)
+        if one is None:
+            deferred += 1
             exhausted = False
-            continue
-        if not switching.observed:  # no Gaussian law of ours: the executor's own runs only
-            if not ctx.runs:
-                deferred += 1
-                exhausted = False
-                continue
-            sb, bb, se, be = ctx.run(formula, np.asarray(executed, dtype=int))
-            verified.append(SequenceBound(executed, prob, sb, bb, float("nan"), se, be, sampled=True))
-            continue
-        plan_s = ProbabilisticTSTrajectory(
-            plan.get_mean(), plan.get_cov(), np.asarray(executed, dtype=int), plan.get_control()
-        )
-        pred = predict_closed_loop(
-            system, plan_s, None, real_initial_state, formula=formula, num_of_steps=N_ref,
-            samples=samples, seed=seed, control_domain=None, closure="gaussian", **options,
-        )  # fmt: skip
-        clip = _clip_mass(pred, plan, domain)
-        # The analytic bound is exact for constant sensor noise (module notes); the sampled one
-        # (the executor itself, projection and noise functions included) wherever it is not, or
-        # where the projection's deduction leaves little of it.
-        analytic = (float("nan"), float("nan")) if stateful else (
-            max(0.0, pred.state_success_bound - clip), max(0.0, pred.belief_success_bound - clip)
-        )  # fmt: skip
-        sampled = (float("nan"), float("nan"), float("nan"), float("nan"))
-        if ctx.runs and (stateful or clip > CLIP_TOLERANCE):
-            if prob < sample_min_probability and rest_runs:
-                # an unlikely sequence is not worth its own runs: it stays in the remainder,
-                # whose runs (drawn from the chain) cover it in proportion to its probability
-                deferred += 1
-                exhausted = False
-                continue
-            sampled = ctx.run(formula, np.asarray(executed, dtype=int))
-        if stateful and not ctx.runs:
-            unsound = True
-            analytic = (pred.state_success_bound, pred.belief_success_bound)
-        state_b = np.nanmax([analytic[0], sampled[0], 0.0])
-        belief_b = np.nanmax([analytic[1], sampled[1], 0.0])
-        verified.append(
-            SequenceBound(
-                executed=executed,
-                probability=prob,
-                state_bound=float(state_b),
-                belief_bound=float(belief_b),
-                clip_mass=clip,
-                state_estimate=pred.state_success_estimate if np.isnan(sampled[2]) else sampled[2],
-                belief_estimate=pred.belief_success_estimate if np.isnan(sampled[3]) else sampled[3],
-                sampled=not np.isnan(sampled[0]),
-            )
-        )
-    probs = np.array([v.probability for v in verified])
-    mass = float(probs.sum())
-    state = float(sum(v.probability * v.state_bound for v in verified))
-    belief = float(sum(v.probability * v.belief_bound for v in verified))
-    est_s = float(sum(v.probability * v.state_estimate for v in verified) / mass) if mass else float("nan")
-    est_b = float(sum(v.probability * v.belief_estimate for v in verified) / mass) if mass else float("nan")
-    note = ""
-    if unsound:
-        note = (
-            "a mode has state-dependent sensor noise and sampled_runs=0: the loop given a sequence "
-            "is only approximately Gaussian and the bound is the Gaussian model's, not a proof"
-        )
-    any_sampled = any(v.sampled for v in verified)
+        else:
+            verified.append(one)
+    mass = float(sum(v.probability for v in verified))
     rest = (float("nan"), float("nan"), float("nan"), float("nan"), 0)
     if rest_runs and not exhausted and mass < 1.0:
         # (its own i.i.d. starts: the trials of a Clopper-Pearson bound must be independent)
-        rest_ctx = _Sampler.make(
+        rest_runner = ExecutorRuns.make(
             system,
             plan,
             domain,
@@ -593,10 +327,33 @@ def markov_bound(
             options,
             switching,
         )
-        rest = rest_ctx.rest(
+        rest = rest_runner.rest(
             formula, switching, {v.executed for v in verified}, rest_runs, 1.0 - delta / (max_sequences + 1)
         )
-        any_sampled = any_sampled or rest[4] > 0
+    return _summarise(verified, exhausted, verifier.unsound, rest, delta)
+
+
+def _summarise(
+    verified: list[SequenceBound],
+    exhausted: bool,
+    unsound: bool,
+    rest: tuple[float, float, float, float, int],
+    delta: float,
+) -> MarkovBound:
+    """The :class:`MarkovBound` of the verified sequences and the remainder's runs."""
+    mass = float(sum(v.probability for v in verified))
+    state = float(sum(v.probability * v.state_bound for v in verified))
+    belief = float(sum(v.probability * v.belief_bound for v in verified))
+    nan = float("nan")
+    est_s = float(sum(v.probability * v.state_estimate for v in verified) / mass) if mass else nan
+    est_b = float(sum(v.probability * v.belief_estimate for v in verified) / mass) if mass else nan
+    note = ""
+    if unsound:
+        note = (
+            "a mode has state-dependent sensor noise and sampled_runs=0: the loop given a sequence "
+            "is only approximately Gaussian and the bound is the Gaussian model's, not a proof"
+        )
+    any_sampled = any(v.sampled for v in verified) or rest[4] > 0
     logger.debug(
         "markov_bound: %d sequences, mass %.6g, bound state %.4g belief %.4g",
         len(verified),
