@@ -131,7 +131,8 @@ class ExecutorRuns:
             )
         mean = None if belief is None else belief.mean
         cov = None if belief is None else belief.cov
-        confidence = 1.0 - delta / max_sequences
+        # (at most max_sequences sequences and the remainder: a union bound over max_sequences + 1)
+        confidence = 1.0 - delta / (max_sequences + 1)
         observed = True if switching is None else switching.observed
         return cls(spec, plan, starts, mean, cov, runs, confidence, seed, observed)
 
