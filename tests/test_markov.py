@@ -14,6 +14,7 @@ from oracles.markov import Mode, all_sequences, exact_always_probability, monte_
 
 import idstlpy as stl
 from idstlpy.errors import DimensionError, ExecutionTargetWarning, InvalidArgumentError, InvalidTypeError
+from idstlpy.executor.jump_online import JumpExecutor
 from idstlpy.executor.markov_bound import sequences_by_probability
 from idstlpy.markov import switching_of
 
@@ -455,3 +456,26 @@ def test_bound_never_above_the_exact_probability_on_random_chains(seed, second, 
     )
     assert b.exhausted and b.confidence == 1.0
     assert b.state_bound <= exact + 1e-5
+
+
+def test_the_online_jump_executor_is_simulates_loop_with_jumps():
+    problem, plan, _, _, gains = _setup(["nominal", "failed", "dropout"], P_FAIL_DROP, 6)
+    sysm = problem.switched_system
+    for seed in range(5):
+        xi_sim, xi_real = stl.simulate(sysm, plan, 6, plan.get_mean(0), None, seed=seed, lqr_gains=gains)
+        ex = JumpExecutor(sysm, plan, lqr_gains=gains)
+        executed = xi_real.get_action()
+        obs = xi_real.get_observation()
+        for k in range(6):
+            q, u = ex.command(int(executed[k]))
+            assert q == plan.get_action()[k]
+            np.testing.assert_array_equal(u, xi_sim.get_control()[k])
+            y = obs[k + 1]
+            ex.observe(None if np.isnan(y).all() else y)
+            np.testing.assert_array_equal(ex.mean, xi_sim.get_mean()[k + 1])
+        assert ex.done
+    ex = JumpExecutor(sysm, plan, lqr_gains=gains)
+    with pytest.raises(InvalidArgumentError, match="executed mode is observed"):
+        ex.command()
+    with pytest.raises(InvalidArgumentError, match="no chance switching"):
+        JumpExecutor(stl.mk_switched_sys(list(sysm.system_modes)), plan, lqr_gains=gains)

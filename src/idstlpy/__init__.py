@@ -49,6 +49,7 @@ from .execution import (
 )
 from .execution_target import ExecutionTarget
 from .executor import ExecutorSpec, OnlineExecutor
+from .executor.jump_online import JumpExecutor
 from .executor.markov_bound import MarkovBound, markov_bound
 from .expressions import (
     ConvexConstraint,
@@ -182,6 +183,7 @@ __all__ = [
     "with_switching",
     "MarkovBound",
     "markov_bound",
+    "JumpExecutor",
     "ClosedLoopPrediction",
     "ValidationReport",
     "ExecutionTarget",
