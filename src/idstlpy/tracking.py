@@ -232,9 +232,23 @@ class PolytopeProjection:
         return out.reshape(U.shape)
 
     def one(self, u: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """The projection of one input ``u`` (m,) outside, ``values = H u + c`` (F,): the
-        least-distance programme ``min ||x|| s.t. -H x >= values`` by non-negative least squares
-        (Lawson and Hanson, ch. 23), ``u + x``."""
+        """The projection of one input outside the domain.
+
+        Solves the least-distance programme ``min ||x|| s.t. -H x >= values`` by non-negative
+        least squares (Lawson and Hanson, ch. 23) and returns ``u + x``.
+
+        Parameters
+        ----------
+        u : numpy.ndarray, shape (m,)
+            The input, outside the domain.
+        values : numpy.ndarray, shape (F,)
+            ``H u + c``, the domain's face values at ``u`` (positive on the violated faces).
+
+        Returns
+        -------
+        numpy.ndarray, shape (m,)
+            The closest point of the domain to ``u``.
+        """
         from scipy.optimize import nnls
 
         m = self.m
