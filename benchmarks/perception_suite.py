@@ -7,9 +7,9 @@ Each instance is solved once per seed with the paper's sampler parameters (``rrt
 delta_near=2, delta_drain=0.5, goal_bias=0.25, min_num_of_steps=3, max_num_of_steps=15``) and a
 ``time_limit`` per solve; the row records the status, the wall-clock solve time, the plan length
 and the solver's statistics. A found plan is executed ``--runs`` times with
-``stl.validate`` (real system: every planning mode's ``A, B`` as ``mk_lcs``; tracking gains of
-README's "Execute the plan" section, ``horizon=5, Q_final=Q=I, R=0.05 I``; true start offset from
-the prior mean like the paper's) and the belief / true-state success rates are recorded.
+``stl.validate`` (real system: every planning mode's ``A, B`` as ``mk_lcs``; the tracking gains
+the plan was made for, ``plan.tracking``; true start offset from the prior mean like the
+paper's) and the belief / true-state success rates are recorded.
 
 A row whose status contradicts what is known is flagged in ``check``: ``UNSOUND`` for
 ``infeasible`` on a kind with a verified witness or ``found`` on the infeasible kind, ``BAD PLAN``
@@ -78,14 +78,6 @@ FIELDS = (
 )
 
 
-def _gains(problem: Any) -> None:
-    """README's tracking gains on every planning mode (``horizon=5, Q_final=Q=I, R=0.05 I``)."""
-    for mode in problem.switched_system.system_modes:
-        mode.compute_finite_horizon_lqr(
-            horizon=5, Q_final=np.identity(mode.n), Q=np.identity(mode.n), R=0.05 * np.identity(mode.m)
-        )
-
-
 def run_job(
     kind: str, size: str, seed: int, time_limit: float, runs: int, commit: str = ""
 ) -> dict[str, Any]:
@@ -126,7 +118,6 @@ def run_job(
             if not stl.satisfies(again, problem.stl_formula):
                 checks.append("BAD PLAN: the re-rolled plan fails the monitor")
             if runs > 0:
-                _gains(problem)
                 t1 = time.perf_counter()
                 report = stl.validate(
                     problem,

@@ -28,7 +28,7 @@ from .errors import DimensionError, InvalidTypeError
 from .loop_moments import ClosedLoopMoments, prob_le, propagate, step_parts
 from .loop_samples import LoopStep, NoiseInterpolant, batched_gain, cubature, sqrt_psd
 from .sets import Polytope
-from .tracking import box_bounds, mode_gains, system_gains
+from .tracking import box_bounds, mode_gains, plan_fallback, system_gains
 from .trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
@@ -101,17 +101,21 @@ def gains_for(
     actions: np.ndarray,
     lqr_gains: Mapping[int, Sequence[np.ndarray]] | Sequence[Sequence[np.ndarray] | None] | None,
     default_lqr: Mapping[str, Any] | None,
+    plan: ProbabilisticTSTrajectory | None = None,
 ) -> dict[int, list[np.ndarray]]:
     """Tracking gains (:func:`idstlpy.tracking.mode_gains`) of every mode the plan uses.
+
+    Modes without their own gains (and without ``lqr_gains`` / ``default_lqr``) are tracked with
+    the gains the plan was made for (:func:`idstlpy.tracking.plan_fallback`), else the defaults.
 
     Returns
     -------
     dict
         Mode -> list of gains, each shape (m, n).
     """
-
-    if lqr_gains is not None or default_lqr is not None:
-        return system_gains(system, lqr_gains, default_lqr, actions.tolist())
+    fallback = plan_fallback(system, plan)
+    if lqr_gains is not None or default_lqr is not None or fallback is not None:
+        return system_gains(system, lqr_gains, default_lqr, actions.tolist(), fallback)
     # The defaults depend on the mode's A and B only, and the planner asks for them hundreds of
     # times a solve (every candidate's predicted loop): the Riccati recursions are kept by content.
     out = {}
@@ -152,7 +156,7 @@ def _planning_loop(
     n = system.n
     N = plan.num_of_steps
     actions = np.asarray(plan.get_action(), dtype=int)[:N]
-    gains = gains_for(system, actions, lqr_gains, default_lqr)
+    gains = gains_for(system, actions, lqr_gains, default_lqr, plan)
     arrays = [plan.get_mean(), plan.get_cov(), plan.get_action(), plan.get_control()]
     arrays += [g for q in sorted(gains) for g in gains[q]]
     key = (id(system), id(control_domain), closure, N, n, *(hash(a.tobytes()) for a in arrays))

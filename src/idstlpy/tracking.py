@@ -13,7 +13,10 @@ remain).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,13 +26,18 @@ from .lqr import finite_horizon_lqr, riccati_costs
 from .sets import Polytope
 
 if TYPE_CHECKING:
-    from .dynamical_system import LCS
+    from .dynamical_system import LCS, SwitchedSystem
 
 __all__ = [
     "gain_at",
     "tracking_input",
     "system_gains",
     "DEFAULT_LQR",
+    "FITTED_SCALES",
+    "TrackingGains",
+    "fitted_weights",
+    "plan_fallback",
+    "planning_gains",
     "box_bounds",
     "control_projector",
     "PolytopeProjection",
@@ -51,9 +59,13 @@ def _weight(value: Any, size: int) -> Any:
 
 
 def mode_gains(
-    mode: LCS, override: Sequence[np.ndarray] | None = None, default_lqr: Mapping[str, Any] | None = None
+    mode: LCS,
+    override: Sequence[np.ndarray] | None = None,
+    default_lqr: Mapping[str, Any] | None = None,
+    fallback: Sequence[np.ndarray] | None = None,
 ) -> list[np.ndarray]:
-    """Tracking gains of one mode: ``override``, else ``mode.lqr_gains``, else computed defaults.
+    """Tracking gains of one mode: ``override``, else ``mode.lqr_gains``, else the weights
+    ``default_lqr``, else ``fallback`` (the plan's fitted gains), else :data:`DEFAULT_LQR`'s.
 
     Parameters
     ----------
@@ -61,13 +73,17 @@ def mode_gains(
     override : sequence of ndarray (m, n), optional
     default_lqr : mapping, optional
         ``horizon``, ``Q_final``, ``Q``, ``R`` for :func:`finite_horizon_lqr` (scalars mean a
-        multiple of the identity); default :data:`DEFAULT_LQR`.
+        multiple of the identity); given, it is used instead of ``fallback``.
+    fallback : sequence of ndarray (m, n), optional
+        The gains a plan was made with (:attr:`TrackingGains.gains`), for a mode without its own.
 
     Returns
     -------
     list of ndarray, each shape (m, n)
     """
     gains = override if override is not None else getattr(mode, "lqr_gains", None)
+    if gains is None and default_lqr is None and fallback is not None:
+        gains = fallback
     if gains is None:
         cfg = dict(DEFAULT_LQR)
         if default_lqr is not None:
@@ -316,8 +332,10 @@ def system_gains(
     lqr_gains: GainsOverride = None,
     default_lqr: Mapping[str, Any] | None = None,
     modes: Iterable[int] | None = None,
+    fallback: Mapping[int, Sequence[np.ndarray]] | None = None,
 ) -> dict[int, list[np.ndarray]]:
-    """The tracking gains of every mode (or of ``modes``): the caller's, else the mode's, else defaults.
+    """The tracking gains of every mode (or of ``modes``): the caller's, else the mode's, else
+    ``default_lqr``'s weights, else ``fallback`` (the plan's fitted gains), else the defaults.
 
     Parameters
     ----------
@@ -328,6 +346,8 @@ def system_gains(
         Weights for modes without gains (see :data:`DEFAULT_LQR`).
     modes : iterable of int, optional
         The modes wanted (default all).
+    fallback : mapping, optional
+        Mode -> gains a plan was made with (:func:`plan_fallback`), for modes without their own.
 
     Returns
     -------
@@ -343,7 +363,8 @@ def system_gains(
         return lqr_gains[q] if q < len(lqr_gains) else None
 
     wanted = range(system.num_modes) if modes is None else sorted({int(q) for q in modes})
-    return {q: mode_gains(system.mode(q), override(q), default_lqr) for q in wanted}
+    fb = fallback or {}
+    return {q: mode_gains(system.mode(q), override(q), default_lqr, fb.get(q)) for q in wanted}
 
 
 def tracking_input(
@@ -391,3 +412,207 @@ def gain_at(gains: Sequence[np.ndarray], remaining: int) -> np.ndarray:
     ndarray, shape (m, n)
     """
     return gains[0] if remaining >= len(gains) else gains[len(gains) - remaining]
+
+
+FITTED_SCALES: tuple[float, ...] = (1.0, 10.0, 100.0)
+"""Multipliers of the fitted state weights the planner tries, in order (:func:`fitted_weights`):
+Bryson's rule reads the allowed deviation as a region's half-width, but a plan keeps only part of
+that room for the tracking error (the rest is the belief's own spread), so firmer tracking is
+tried too, and chosen only when its predicted execution is better."""
+
+
+def fitted_weights(
+    system: SwitchedSystem, regions: Sequence[Polytope], control_domain: Polytope | None
+) -> dict[str, Any] | None:
+    """Tracking weights from the problem's own scales (Bryson's rule), or None when it has none.
+
+    ``Q_ii = 1 / d_i^2`` with ``d_i`` the smallest half-width along state coordinate ``i`` of the
+    regions the formula uses (0 for a coordinate no region bounds), ``R_jj = 1 / r_j^2`` with
+    ``r_j`` the control domain's half-width along input ``j`` (where the domain is unbounded
+    along ``j``: the input that moves a bounded coordinate by its ``d_i`` in one step,
+    ``min_i d_i / |B_ij|`` over the modes); ``Q_final = Q`` and the paper's horizon 5.
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    regions : sequence of Polytope
+        The regions (each of dimension ``n``) the formula's chance constraints use.
+    control_domain : Polytope or None
+        Admissible inputs (dimension ``m``).
+
+    Returns
+    -------
+    dict or None
+        ``horizon``, ``Q_final``, ``Q`` (n, n), ``R`` (m, m) as :data:`DEFAULT_LQR`; None when no
+        region bounds any coordinate or an input has no scale (the caller keeps the paper's).
+    """
+    n, m = system.n, system.m
+    dev = np.full(n, np.inf)
+    for region in regions:
+        if region.dim != n or region.H.shape[0] == 0:
+            continue
+        low, high = region.bounding_box()
+        half = 0.5 * (high - low)
+        ok = np.isfinite(half) & (half > 0)
+        dev[ok] = np.minimum(dev[ok], half[ok])
+    bounded = np.isfinite(dev)
+    if not np.any(bounded):
+        return None
+    q = np.where(bounded, 1.0 / np.where(bounded, dev, 1.0) ** 2, 0.0)
+    half_u = np.full(m, np.inf)
+    if control_domain is not None and control_domain.H.shape[0]:
+        low, high = control_domain.bounding_box()
+        half_u = 0.5 * (high - low)
+    for j in np.flatnonzero(~(np.isfinite(half_u) & (half_u > 0))).tolist():
+        reach = [
+            float(dev[i] / abs(mode.B[i, j]))
+            for mode in system.system_modes
+            for i in np.flatnonzero(bounded).tolist()
+            if abs(mode.B[i, j]) > 0
+        ]
+        if not reach:
+            return None
+        half_u[j] = min(reach)
+    Q = np.diag(q)
+    return {"horizon": DEFAULT_LQR["horizon"], "Q_final": Q, "Q": Q.copy(), "R": np.diag(1.0 / half_u**2)}
+
+
+@dataclass(frozen=True)
+class TrackingGains:
+    """The tracking a plan was made for: every mode's gains, and the weights that made them.
+
+    Parameters
+    ----------
+    name : str
+        ``"fitted"`` (Bryson's rule, :func:`fitted_weights`), ``"fitted x10"``, ``"fitted x100"``
+        (firmer), ``"paper"`` (:data:`DEFAULT_LQR`) or ``"own"`` (every mode the plan uses has
+        its own ``lqr_gains``).
+    weights : mapping or None
+        ``horizon``, ``Q_final``, ``Q``, ``R`` of the modes without their own gains (None for
+        ``"own"``).
+    gains : mapping
+        Mode -> gains ``K_0 .. K_{h-1}`` (each (m, n)) of every mode.
+    """
+
+    name: str
+    weights: Mapping[str, Any] | None
+    gains: Mapping[int, tuple[np.ndarray, ...]]
+
+    @classmethod
+    def make(cls, system: SwitchedSystem, name: str, weights: Mapping[str, Any] | None) -> TrackingGains:
+        """The gains of every mode of ``system`` under ``weights`` (modes with their own keep them).
+
+        Parameters
+        ----------
+        system : SwitchedSystem
+        name : str
+        weights : mapping or None
+            As :data:`DEFAULT_LQR` (None: :data:`DEFAULT_LQR`).
+
+        Returns
+        -------
+        TrackingGains
+        """
+        cfg = dict(DEFAULT_LQR if weights is None else weights)
+        gains = system_gains(system, None, cfg)
+        frozen = {q: tuple(np.array(K, dtype=float) for K in Ks) for q, Ks in gains.items()}
+        for K in (K for Ks in frozen.values() for K in Ks):
+            K.flags.writeable = False
+        return cls(name, cfg, frozen)
+
+    def describe(self) -> str:
+        """One phrase naming the weights, e.g. ``fitted gains (Q = diag(400, 0), R = diag(0.25))``."""
+        if self.weights is None:
+            return f"{self.name} gains"
+        Q, R = (np.atleast_1d(np.asarray(self.weights[k], dtype=float)) for k in ("Q", "R"))
+        qd = np.diag(Q) if Q.ndim == 2 else Q
+        rd = np.diag(R) if R.ndim == 2 else R
+        fmt = ", ".join
+        return (
+            f"{self.name} gains (Q = diag({fmt(f'{v:.3g}' for v in qd)}), "
+            f"R = diag({fmt(f'{v:.3g}' for v in rd)}), horizon {int(self.weights['horizon'])})"
+        )
+
+    def default_lqr(self) -> dict[str, Any] | None:
+        """The weights as the ``default_lqr`` keyword of the executors (lists, JSON-able)."""
+        if self.weights is None:
+            return None
+        return {
+            k: (np.asarray(v, dtype=float).tolist() if not np.isscalar(v) else v)
+            for k, v in self.weights.items()
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data."""
+        return {
+            "name": self.name,
+            "weights": self.default_lqr(),
+            "gains": {str(q): [K.tolist() for K in Ks] for q, Ks in self.gains.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TrackingGains:
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : mapping
+            Output of :meth:`to_dict`.
+
+        Returns
+        -------
+        TrackingGains
+        """
+        gains = {
+            int(q): tuple(np.asarray(K, dtype=float) for K in Ks) for q, Ks in dict(data["gains"]).items()
+        }
+        return cls(str(data["name"]), data.get("weights"), gains)
+
+
+_PLANNING: ContextVar[tuple[int, TrackingGains] | None] = ContextVar("idstlpy_planning_gains", default=None)
+"""The gains a running solve plans with, keyed by its system's identity (:func:`planning_gains`)."""
+
+
+@contextmanager
+def planning_gains(system: SwitchedSystem, tracking: TrackingGains | None) -> Iterator[None]:
+    """Within the block, plans on ``system`` that carry no gains are read as tracked by ``tracking``.
+
+    A solve's many closed-loop computations (the candidates' predictions, the mode search's
+    execution room, the closed-loop repair) see the fitted gains this way without each taking
+    them as an argument; the returned plan carries them (``plan.tracking``), and the executors
+    read them there. The setting is the current thread's (a :class:`contextvars.ContextVar`).
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    tracking : TrackingGains or None
+        None leaves the defaults (:data:`DEFAULT_LQR`) in force.
+    """
+    token = _PLANNING.set(None if tracking is None else (id(system), tracking))
+    try:
+        yield
+    finally:
+        _PLANNING.reset(token)
+
+
+def plan_fallback(system: SwitchedSystem, plan: object | None) -> Mapping[int, Sequence[np.ndarray]] | None:
+    """The gains a plan was made for: its own (``plan.tracking``), else those of the solve running
+    on ``system`` (:func:`planning_gains`), else None (:data:`DEFAULT_LQR`'s).
+
+    Parameters
+    ----------
+    system : SwitchedSystem
+    plan : ProbabilisticTSTrajectory or None
+
+    Returns
+    -------
+    mapping or None
+        Mode -> gains.
+    """
+    own = getattr(plan, "tracking", None)
+    if isinstance(own, TrackingGains):
+        return own.gains
+    running = _PLANNING.get()
+    if running is not None and running[0] == id(system):
+        return running[1].gains
+    return None

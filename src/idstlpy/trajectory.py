@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
+from .tracking import TrackingGains
 
 __all__ = [
     "ProbabilisticTSTrajectory",
@@ -146,6 +147,9 @@ class ProbabilisticTSTrajectory:
             self._controls = self._controls.reshape(0, -1) if self._controls.ndim == 2 else np.zeros((0, 0))
         if not (np.all(np.isfinite(self._means)) and np.all(np.isfinite(self._covs))):
             raise InvalidArgumentError("a trajectory must have finite means and covariances")
+        self.tracking: TrackingGains | None = None
+        """The tracking the plan was made for (set by the planner on the plans it returns): the
+        executors track it with these gains for modes without their own ``lqr_gains``."""
 
     @property
     def num_of_steps(self) -> int:
@@ -252,6 +256,7 @@ class ProbabilisticTSTrajectory:
             "cov": _to_json(self._covs),
             "action": [int(a) for a in self._actions],
             "control": _to_json(self._controls),
+            **({} if self.tracking is None else {"tracking": self.tracking.to_dict()}),
         }
 
     @classmethod
@@ -286,7 +291,10 @@ class ProbabilisticTSTrajectory:
             controls = np.zeros((controls.shape[0], m))
         if means.size == 0 and isinstance(data.get("n"), int):
             means = means.reshape(0, int(data["n"]))
-        return cls(means, covs, actions, controls)
+        out = cls(means, covs, actions, controls)
+        if data.get("tracking") is not None:
+            out.tracking = TrackingGains.from_dict(data["tracking"])
+        return out
 
     def to_dataframe(self) -> Any:
         """One row per belief: ``step, mode, control_0.., mean_0.., std_0..`` (needs pandas).

@@ -70,10 +70,13 @@ def replan_seed(seed_sequence: np.random.SeedSequence, index: int) -> int:
 
 
 def _suffix(plan: ProbabilisticTSTrajectory, j: int) -> ProbabilisticTSTrajectory:
-    """Steps ``j .. N`` of a plan as a plan of its own (``simulate`` indexes gains by what remains)."""
-    return ProbabilisticTSTrajectory(
+    """Steps ``j .. N`` of a plan as a plan of its own (``simulate`` indexes gains by what remains),
+    tracked with the gains the plan was made for (``plan.tracking``, issue 34)."""
+    out = ProbabilisticTSTrajectory(
         plan.get_mean()[j:], plan.get_cov()[j:], plan.get_action()[j:], plan.get_control()[j:]
     )
+    out.tracking = plan.tracking
+    return out
 
 
 def _state_reading(
@@ -89,7 +92,7 @@ class _RiskModel:
     process noise, and the measure a risk threshold reads (``execute``'s checks, ``start_check``)."""
 
     system: Any
-    gains: list[Any]
+    gains: list[Any] | None
     control_domain: Any
     process_noise: str
     measure: str
@@ -118,7 +121,10 @@ class _RiskModel:
         system = problem.switched_system
         return cls(
             system,
-            list(system_gains(system, lqr_gains, default_lqr).values()),
+            # gains nobody chose: each plan's own (None here, read off the plan's suffix)
+            None
+            if lqr_gains is None and default_lqr is None
+            else list(system_gains(system, lqr_gains, default_lqr).values()),
             problem.control_domain if clip_controls else None,
             process_noise,
             risk_measure,

@@ -109,7 +109,7 @@ def executor_spec(
     plant: PlantStep | None = None,
 ) -> ExecutorSpec:
     """The :class:`~idstlpy.executor.ExecutorSpec` of ``execute``'s keywords (``clip_controls``:
-    the problem's control domain, or none)."""
+    the problem's control domain, or none; modes without gains tracked as ``plan`` was made for)."""
     if not isinstance(clip_controls, bool):
         raise InvalidTypeError(f"clip_controls must be a bool, got {type(clip_controls).__name__}")
     return ExecutorSpec.make(

@@ -224,7 +224,8 @@ def _spec(
     real_system: SwitchedSystem | LCS | None,
     options: Mapping[str, Any],
 ) -> ExecutorSpec:
-    """``spec`` checked against the problem, or the spec of the executor's keywords ``options``."""
+    """``spec`` checked against the problem, or the spec of the executor's keywords ``options``
+    (modes without gains tracked as ``plan`` was made for)."""
     if spec is None:
         return executor_spec(problem, real_system=real_system, **options)
     if not isinstance(spec, ExecutorSpec):

@@ -181,7 +181,7 @@ class _RiskModel:
             control_domain=spec.control_domain,
             # the executor knows only its model: its noise, unless the run has none at all
             process_noise="none" if spec.process_noise == "none" else "model",
-            lqr_gains={q: list(Ks) for q, Ks in spec.gains.items()},  # by mode, not position
+            lqr_gains={q: list(Ks) for q, Ks in spec.gains_for(plan).items()},  # by mode, not position
             initial_belief=belief,
             real_initial_cov=belief.cov,
             samples=self.samples if self.measure == "estimate" else 0,

@@ -263,8 +263,10 @@ class ValidationSpec:
         )
 
     def gains(self) -> tuple[list[np.ndarray], ...]:
-        """The tracking gains of every mode, in mode order."""
-        return tuple(list(self.executor.gains[q]) for q in range(self.executor.system.num_modes))
+        """The tracking gains of every mode, in mode order (modes nobody chose gains for: the
+        plan's own, :meth:`~idstlpy.executor.ExecutorSpec.gains_for`)."""
+        gains = self.executor.gains_for(self.plan)
+        return tuple(list(gains[q]) for q in range(self.executor.system.num_modes))
 
 
 def _check_plan(problem: object, solution: object) -> None:
@@ -279,7 +281,10 @@ def _check_plan(problem: object, solution: object) -> None:
 
 
 def _executor_spec(
-    problem: Problem, real_system: SwitchedSystem | LCS | None, opts: Mapping[str, Any], predict: bool
+    problem: Problem,
+    real_system: SwitchedSystem | LCS | None,
+    opts: Mapping[str, Any],
+    predict: bool,
 ) -> ExecutorSpec:
     """The executor of ``validate``'s keywords (``clip_controls``: the problem's domain, or none)."""
     spec = ExecutorSpec.make(

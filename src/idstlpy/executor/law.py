@@ -116,10 +116,11 @@ class StepLaw:
         spec.check_plan_modes(actions)
         means = plan.get_mean()
         real_modes = spec.real_modes
+        gains = spec.gains_for(plan)  # modes without chosen gains: the plan's own
         bound: list[Step] = []
         for k in range(N):
             q = int(actions[k])
-            mode, real, K, W = step_parts(system, real_modes, spec.gains, spec.process_noise, q, N_ref - k)
+            mode, real, K, W = step_parts(system, real_modes, gains, spec.process_noise, q, N_ref - k)
             bound.append(
                 Step(
                     q,

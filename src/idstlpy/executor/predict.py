@@ -401,7 +401,7 @@ def predict_closed_loop(
     system, formula, domain = resolve(problem_or_system, formula, opts["control_domain"])
     N, actions = plan_steps(system, plan, num_of_steps)
     keywords = {k: opts[k] for k in EXECUTOR_DEFAULTS if k != "real_system"} | {"real_system": real_system}
-    real_modes, gains, noise, domain = executor_parts(system, actions, executor, keywords, domain)
+    real_modes, gains, noise, domain = executor_parts(system, actions, executor, keywords, domain, plan)
     samples = as_int(samples, "samples", minimum=0)
     sensor_noise, sensitivity, closure = opts["sensor_noise"], opts["filter_sensitivity"], opts["closure"]
     setup = LoopSettings(

@@ -174,17 +174,18 @@ def executor_parts(
     executor: ExecutorSpec | None,
     keywords: Mapping[str, Any],
     domain: Polytope | None,
+    plan: ProbabilisticTSTrajectory | None = None,
 ) -> tuple[list[LCS], Mapping[int, Sequence[np.ndarray]], str, Polytope | None]:
     """The real modes, tracking gains, process-noise reading and control domain of the loop.
 
     From ``executor`` when given (its gains resolved once), else from the executor keywords
     (``real_system``, ``process_noise``, ``lqr_gains``, ``default_lqr``; ``domain`` already read
-    off ``control_domain``).
+    off ``control_domain``; modes without gains take those ``plan`` was made for).
     """
     if executor is None:
         process_noise = resolve_process_noise(keywords["process_noise"], keywords["real_system"])
         real_modes = real_modes_for(keywords["real_system"], system, actions)
-        gains = gains_for(system, actions, keywords["lqr_gains"], keywords["default_lqr"])
+        gains = gains_for(system, actions, keywords["lqr_gains"], keywords["default_lqr"], plan)
         return real_modes, gains, process_noise, domain
     if not isinstance(executor, ExecutorSpec):
         raise InvalidTypeError(f"executor must be an ExecutorSpec, got {type(executor).__name__}")
@@ -204,7 +205,8 @@ def executor_parts(
             "the linear closed loop; give a linear real_system)"
         )
     executor.check_plan_modes(actions)
-    return list(executor.real_modes), executor.gains, executor.process_noise, executor.control_domain
+    chosen = executor.gains if plan is None else executor.gains_for(plan)
+    return list(executor.real_modes), chosen, executor.process_noise, executor.control_domain
 
 
 EXECUTOR_DEFAULTS: dict[str, Any] = {

@@ -5,7 +5,8 @@
 ``process_noise``, ``lqr_gains``, ``default_lqr``, ``real_system``) and resolves them once:
 
 - the tracking gains of every mode (the caller's ``lqr_gains``, else the mode's
-  ``lqr_gains``, else :data:`idstlpy.tracking.DEFAULT_LQR` weights), computed at construction;
+  ``lqr_gains``, else ``default_lqr``'s weights, else the gains the plan was made for
+  (``plan.tracking``), else :data:`idstlpy.tracking.DEFAULT_LQR` weights), computed at construction;
 - the projection of an input on the control domain;
 - the plant that moves the true state: the model itself, a linear switched system (one mode for
   all, or one per planning mode) or any step function ``(state, input, mode, rng) -> next_state``
@@ -29,7 +30,8 @@ from ..closed_loop import real_modes_for
 from ..dynamical_system import LBS, LCS, SwitchedSystem, control_domain_mismatch
 from ..errors import DimensionError, InvalidArgumentError, InvalidTypeError
 from ..sets import Polytope
-from ..tracking import GainsOverride, box_bounds, control_projector, system_gains
+from ..tracking import GainsOverride, box_bounds, control_projector, plan_fallback, system_gains
+from ..trajectory import ProbabilisticTSTrajectory
 
 __all__ = [
     "PLANT_SIGNATURE",
@@ -102,6 +104,10 @@ class ExecutorSpec:
     plant_step : callable or None
         The plant as a step function ``(state, input, mode, rng) -> next_state``; None for a
         linear plant.
+    defaulted : frozenset of int
+        The modes whose gains nobody chose (no ``lqr_gains``, no gains of the mode's own, no
+        ``default_lqr``, no plan's): a plan run with this spec tracks them with the gains it
+        was made for (:meth:`gains_for`).
     """
 
     system: SwitchedSystem
@@ -112,6 +118,7 @@ class ExecutorSpec:
     plant_step: PlantStep | None
     box: tuple[np.ndarray, np.ndarray] | None = field(repr=False)
     project: Callable[[np.ndarray], np.ndarray] = field(repr=False)
+    defaulted: frozenset[int] = frozenset()
 
     @classmethod
     def make(
@@ -171,7 +178,18 @@ class ExecutorSpec:
         project = control_projector(control_domain, system.m)
         box = box_bounds(control_domain, system.m)
         real_modes = _real_modes(system, real_system, plant, process_noise)
-        frozen = _frozen_gains(system_gains(system, lqr_gains, default_lqr, modes))
+        # the modes nobody chose gains for: the paper's here, the plan's when it runs (gains_for)
+        fallback = plan_fallback(system, None)
+        frozen = _frozen_gains(system_gains(system, lqr_gains, default_lqr, modes, fallback))
+        given = _given_gains(system, lqr_gains)
+        defaulted = frozenset(
+            q
+            for q in frozen
+            if default_lqr is None
+            and q not in given
+            and getattr(system.mode(q), "lqr_gains", None) is None
+            and (fallback is None or q not in fallback)
+        )
         return cls(
             system=system,
             control_domain=control_domain,
@@ -181,6 +199,7 @@ class ExecutorSpec:
             plant_step=plant,
             box=box,
             project=project,
+            defaulted=defaulted,
         )
 
     def __getstate__(self) -> dict[str, Any]:
@@ -196,6 +215,29 @@ class ExecutorSpec:
             object.__setattr__(self, name, value)
         object.__setattr__(self, "gains", MappingProxyType(state["gains"]))
         object.__setattr__(self, "project", control_projector(state["control_domain"], state["system"].m))
+
+    def gains_for(self, plan: ProbabilisticTSTrajectory) -> Mapping[int, tuple[np.ndarray, ...]]:
+        """The gains that track ``plan``: :attr:`gains`, with the modes nobody chose gains for
+        (:attr:`defaulted`) tracked as the plan was made for (``plan.tracking``), so a spec made
+        before the plan runs the loop the planner predicted.
+
+        Parameters
+        ----------
+        plan : ProbabilisticTSTrajectory
+
+        Returns
+        -------
+        mapping int -> tuple of ndarray (m, n)
+        """
+        own = plan.tracking
+        if own is None or not self.defaulted:
+            return self.gains
+        return MappingProxyType(
+            {
+                q: (own.gains[q] if q in self.defaulted and q in own.gains else Ks)
+                for q, Ks in self.gains.items()
+            }
+        )
 
     def check_plan_modes(self, actions: np.ndarray) -> None:
         """Raise :class:`DimensionError` when a plan uses a mode the plant or the gains lack."""
@@ -277,6 +319,15 @@ def check_plant_signature(plant: Callable[..., Any]) -> None:
             f"these four positional arguments ({exc}); a plant that needs no mode or noise still "
             "takes them: def plant(x, u, q, rng): ..."
         ) from None
+
+
+def _given_gains(system: SwitchedSystem, lqr_gains: GainsOverride) -> set[int]:
+    """The modes ``lqr_gains`` gives gains for."""
+    if lqr_gains is None:
+        return set()
+    if isinstance(lqr_gains, Mapping):
+        return {int(q) for q, Ks in lqr_gains.items() if Ks is not None}
+    return {q for q, Ks in enumerate(lqr_gains) if Ks is not None and q < system.num_modes}
 
 
 def _frozen_gains(gains: Mapping[int, Sequence[np.ndarray]]) -> dict[int, tuple[np.ndarray, ...]]:

@@ -64,6 +64,7 @@ from .. import _deadline as deadline
 from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..semantics import robustness
+from ..tracking import planning_gains
 from ..trajectory import ProbabilisticTSTrajectory
 from . import eager, stopped
 from .abstraction import PruningReport
@@ -112,9 +113,12 @@ def synthesize(problem: Problem, options: SolverOptions, start: float | None = N
     SolveResult
     """
     ctx = SolveContext(problem, options, time.perf_counter() if start is None else start)
+    base = ctx.target.tracking[0] if ctx.target.tracking else None
+    # every closed-loop reading of the solve (predictions, execution room, repair) sees the
+    # fitted gains; the returned plan carries them (finish)
     # The deadline reaches the loops below the synthesis (the predicted executions) through the
     # scope; the parts that take the budget check it themselves.
-    with deadline.scope(ctx.budget.deadline):
+    with deadline.scope(ctx.budget.deadline), planning_gains(problem.switched_system, base):
         try:
             composed = _decoupled(ctx)
             if composed is not None:
@@ -229,13 +233,16 @@ def _teachers(ctx: SolveContext, proposer: Proposer, backend: Backend) -> list[T
     """The plan LP, then (where it is not exact) the belief-space sampler."""
     problem, options = ctx.problem, ctx.options
     target = options.execution_target if options.guarantee == "execution" else None
+    # Under "execution" the plan LP searches as for the default plan (with the execution room):
+    # plans tuned to the objective alone (least effort, no room) miss the target and were set
+    # aside for thousands of candidates (issue 34); optimise() then improves the plan found.
     lp = LPTeacher(
         problem,
         ctx.abstraction,
         ctx.units,
         backend,
         3,
-        options.objective,
+        None if ctx.execution else options.objective,
         ctx.weights,
         ctx.closed_loop,
         target,

@@ -21,12 +21,14 @@ import numpy as np
 
 from ..errors import IdstlpyError
 from ..executor.predict import predict_closed_loop
+from ..tracking import TrackingGains
 from ..trajectory import ProbabilisticTSTrajectory
 from .abstraction import Abstraction
 from .interfaces import Budget
 from .options import SolverOptions
 from .plan_lp import Scaling, lp_exact
 from .results import PredictedExecution, SolveStats
+from .tracking_choice import tracking_candidates
 
 if TYPE_CHECKING:
     from ..problem import Problem
@@ -42,6 +44,7 @@ __all__ = [
     "REPORT_HALF_WIDTH",
     "REPORT_MAX_SAMPLES",
     "SolveContext",
+    "plan_key",
     "TargetWatch",
     "Verified",
     "Verify",
@@ -214,6 +217,10 @@ class TargetWatch:
         self.repeats = 0
         self._predicted: tuple[ProbabilisticTSTrajectory, PredictedExecution] | None = None
         self._reported: tuple[bytes, PredictedExecution] | None = None
+        # the gain sets plans may be tracked with, the one the search plans with first
+        # (:mod:`.tracking_choice`); per plan set to another, what each set predicted
+        self.tracking = tracking_candidates(problem, options.target.tracking)
+        self.tried: dict[bytes, list[tuple[TrackingGains, PredictedExecution]]] = {}
 
     def predict(self, traj: ProbabilisticTSTrajectory) -> PredictedExecution:
         """The plan's predicted execution against the target (the last one is remembered).
@@ -264,8 +271,33 @@ class TargetWatch:
         on the quick estimate is below (the precise one is made only for plans that may be
         returned).
         """
-        quick = self.predict(traj)
+        quick = self._fit_tracking(traj, self.predict(traj))
         return self.report(traj) if self._plausible(quick) else quick
+
+    def _fit_tracking(self, traj: ProbabilisticTSTrajectory, quick: PredictedExecution) -> PredictedExecution:
+        """A plan below target under the default gains, predicted with the other gain sets
+        (:mod:`.tracking_choice`) in order: the first that meets the target, else the one that
+        comes closest (ties: the earlier), is kept on the plan (``traj.tracking``) and its
+        prediction returned. Deterministic: each prediction has the fixed seed."""
+        if self._plausible(quick) or len(self.tracking) < 2 or traj.tracking is not None:
+            return quick
+        tried = [(self.tracking[0], quick)]
+        best = tried[0]
+        for gains in self.tracking[1:]:
+            traj.tracking = gains
+            pred = self._predict(traj, PREDICT_SAMPLES)
+            if pred is None:
+                continue
+            tried.append((gains, pred))
+            if pred.shortfall < best[1].shortfall:
+                best = (gains, pred)
+            if self._plausible(pred):
+                best = (gains, pred)
+                break
+        traj.tracking = None if best[0] is self.tracking[0] else best[0]
+        self.tried[plan_key(traj)] = tried
+        self._predicted = (traj, best[1])
+        return best[1]
 
     def _plausible(self, quick: PredictedExecution) -> bool:
         """Whether the precise estimate may meet the target: the quick one meets it, or falls short
@@ -292,7 +324,7 @@ class TargetWatch:
         Deterministic: the count depends on the candidate's estimates only. The flag
         (``meets_target``) is the precise estimates'.
         """
-        key = _plan_key(traj)
+        key = plan_key(traj)
         if self._reported is not None and self._reported[0] == key:
             return self._reported[1]
         out = self._report(traj)
@@ -319,7 +351,7 @@ class TargetWatch:
     def known(self, traj: ProbabilisticTSTrajectory) -> Verified | None:
         """What was set aside for the same plan (modes and controls) before, or ``None``: its
         predicted execution is the same (the prediction's seed is fixed), so it is below target."""
-        return self.seen.get(_plan_key(traj))
+        return self.seen.get(plan_key(traj))
 
     def set_aside(self, checked: Verified, plan: Verified | None = None) -> None:
         """Keep a verified plan below target if it is the best so far; start the extra search.
@@ -330,7 +362,7 @@ class TargetWatch:
         """
         stats = self.stats
         stats.below_target += 1
-        key = _plan_key((checked if plan is None else plan).traj)
+        key = plan_key((checked if plan is None else plan).traj)
         if key in self.seen:
             self.repeats += 1
         else:
@@ -363,7 +395,7 @@ class TargetWatch:
         return None
 
 
-def _plan_key(traj: ProbabilisticTSTrajectory) -> bytes:
+def plan_key(traj: ProbabilisticTSTrajectory) -> bytes:
     """A plan's modes and controls, byte for byte (the same plan found again)."""
     actions = np.ascontiguousarray(traj.get_action(), dtype=np.int64)
     controls = np.ascontiguousarray(traj.get_control(), dtype=np.float64)

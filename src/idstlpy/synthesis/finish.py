@@ -16,7 +16,7 @@ import logging
 import os
 import sys
 import warnings
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -24,11 +24,14 @@ from ..belief import rollout
 from ..errors import ExecutionTargetWarning
 from .advice import budget_advice, floorless_modes
 from .allocation import NO_PROOF
-from .context import PREDICT_SAMPLES, SolveContext, Verified
+from .context import PREDICT_SAMPLES, SolveContext, Verified, plan_key
 from .interfaces import BudgetExceeded
 from .objectives import objective_value
 from .options import Objective
 from .results import PredictedExecution, SolveResult, Status
+
+if TYPE_CHECKING:
+    from ..trajectory import ProbabilisticTSTrajectory
 
 __all__ = ["ObjectiveClaim", "finish"]
 
@@ -95,6 +98,8 @@ def finish(
         reason += f"; this proof is not certified ({why})"
     traj = None if plan is None else plan.traj
     execution = None
+    if traj is not None and traj.tracking is None and ctx.target.tracking:
+        traj.tracking = ctx.target.tracking[0]  # the gains the search planned with
     if status == "found" and plan is not None:
         execution, cut = _report(ctx, plan)
         if below is not None and execution is not None:
@@ -107,7 +112,9 @@ def finish(
             )
         reason += cut
         if execution is not None:
-            _warn_below_target(ctx, execution)
+            gains_note = "" if execution.meets_target or traj is None else _gains_note(ctx, traj)
+            reason += f"; {gains_note}" if gains_note else ""
+            _warn_below_target(ctx, execution, gains_note)
         stats.time_total = ctx.budget.elapsed()
     logger.info("solve: %s (%s) in %.3f s", status, reason, stats.time_total)
     closest = None
@@ -214,7 +221,43 @@ def _unfound(ctx: SolveContext, status: Status, reason: str) -> tuple[Status, st
     return status, reason
 
 
-def _warn_below_target(ctx: SolveContext, execution: PredictedExecution) -> None:
+def _gains_note(ctx: SolveContext, traj: ProbabilisticTSTrajectory) -> str:
+    """For a plan below target: the tracking gains it was predicted with, what the other gain
+    sets predicted, and firmer weights to try (empty when every mode has its own gains)."""
+    used = traj.tracking
+    if used is None:
+        return ""
+    tried = ctx.target.tried.get(plan_key(traj), [])
+    others = "; ".join(
+        f"{g.name} {100 * p.belief_estimate:.1f}% / {100 * p.state_estimate:.1f}%"
+        for g, p in tried
+        if g is not used
+    )
+    note = f"tracked with {used.describe()}"
+    if others:
+        note += f" (the other gain sets predicted belief / true state: {others})"
+    if used.weights is None:
+        return note
+    Q = np.atleast_2d(np.asarray(used.weights["Q"], dtype=float))
+    firmer = [
+        p
+        for g, p in tried
+        if g.weights is not None
+        and np.trace(np.atleast_2d(np.asarray(g.weights["Q"], dtype=float))) > np.trace(Q)
+    ]
+    if firmer:  # firmer tracking was predicted and did no better: the gains are not what fails
+        return f"{note}; firmer tracking predicted no better, so the shortfall is not the tracking's alone"
+    R = np.atleast_2d(np.asarray(used.weights["R"], dtype=float))
+    q = ", ".join(f"{10.0 * v:.3g}" for v in np.diag(Q))
+    r = ", ".join(f"{v:.3g}" for v in np.diag(R))
+    return (
+        f"{note}; to try firmer tracking, set each mode's gains before solving: "
+        f"mode.compute_finite_horizon_lqr({int(used.weights['horizon'])}, Q_final=Q, Q=Q, R=R) "
+        f"with Q = diag({q}), R = diag({r})"
+    )
+
+
+def _warn_below_target(ctx: SolveContext, execution: PredictedExecution, gains_note: str = "") -> None:
     """An :class:`~idstlpy.errors.ExecutionTargetWarning` for a returned plan below target."""
     if execution.meets_target:
         return
@@ -224,7 +267,9 @@ def _warn_below_target(ctx: SolveContext, execution: PredictedExecution) -> None
             f"predicted to hold for the executed belief in "
             f"{100 * execution.belief_estimate:.1f}% and for the true state in "
             f"{100 * execution.state_estimate:.1f}% of executions "
-            f"(guarantee={ctx.options.guarantee!r}); see result.execution"
+            f"(guarantee={ctx.options.guarantee!r})"
+            + (f"; {gains_note}" if gains_note else "")
+            + "; see result.execution"
         ),
         stacklevel=_user_stacklevel(),
     )

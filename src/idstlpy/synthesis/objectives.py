@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -42,7 +42,7 @@ if TYPE_CHECKING:
     from ..formulas import STLFormula
     from ..problem import Problem
 
-__all__ = ["OBJECTIVES", "better", "objective_value", "refine"]
+__all__ = ["OBJECTIVES", "better", "objective_value", "refine", "smooth", "total_variation"]
 
 logger = logging.getLogger(__name__)
 
@@ -78,13 +78,88 @@ def objective_value(
     raise ValueError(f"unknown objective {name!r}")
 
 
-def better(name: Objective, a: float, b: float) -> bool:
+def total_variation(controls: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """``sum_k sum_j w_j |u_{k+1,j} - u_kj|``: how much a plan's input changes (what the default
+    plans' smoothing lowers).
+
+    Parameters
+    ----------
+    controls : ndarray, shape (K, m)
+        The plan's inputs.
+    weights : ndarray, shape (m,), optional
+        Per-input weights ``w`` (default ones).
+
+    Returns
+    -------
+    float
+    """
+    u = np.asarray(controls, dtype=float)
+    if u.shape[0] < 2:
+        return 0.0
+    w = _weights(u.shape[1], weights)
+    return float(np.sum(np.abs(np.diff(u, axis=0)) @ w))
+
+
+def smooth(
+    problem: Problem,
+    abstraction: Abstraction,
+    scaling: Scaling,
+    traj: ProbabilisticTSTrajectory,
+    rounds: int,
+    stats: SolveStats,
+) -> ProbabilisticTSTrajectory:
+    """A verified plan with less input change: the default plans' tie-break (issue 34).
+
+    The same trust-region SCP as :func:`refine`, minimising the inputs' total variation
+    (:func:`total_variation`, each input in the units of the control domain's half-width: a
+    volt and a newton weigh by how far their domains reach) with the plan's execution room kept
+    (:mod:`.room`): every step is kept only when the monitor accepts the re-rolled plan, the
+    total variation dropped and the room is kept; the caller re-checks the plan as any other
+    (the final check and the execution target). Feasibility is not changed: the same modes, the
+    same requirements, the room kept.
+
+    Parameters
+    ----------
+    problem : Problem
+    abstraction : Abstraction
+    scaling : Scaling
+    traj : ProbabilisticTSTrajectory
+        A plan the monitor accepts.
+    rounds : int
+        Work budget: LP rounds.
+    stats : SolveStats
+        ``lp_calls`` are recorded here.
+
+    Returns
+    -------
+    ProbabilisticTSTrajectory
+        A plan the monitor accepts, with no more input total variation than ``traj``
+        (``traj`` itself when nothing better was found).
+    """
+    if traj.num_of_steps < 2:
+        return traj
+    context = PlanLPContext.of(problem, abstraction, scaling)
+    base = room_state(context, problem.stl_formula, traj)
+    if base is None:
+        return traj
+    weights = 1.0 / np.maximum(scaling.du, 1e-300)  # per input, in its domain's units
+    value = total_variation(traj.get_control(), weights)
+    if value <= 0.0:
+        return traj
+    keep = min(1.0, max(base.room.score, 0.0))
+    steps = _RefineSteps(context, problem, "smooth", weights, keep, stats, lambda: 0.0)
+    end = repair(steps, _Refined(base, value), rounds)
+    return end.at.traj
+
+
+def better(name: Objective | Literal["smooth"], a: float, b: float) -> bool:
     """Whether value ``a`` improves on ``b`` (by more than a relative 1e-9).
 
     Parameters
     ----------
     name : str
-        The objective: ``"margin"`` is maximised, every other objective minimised.
+        The objective: ``"margin"`` is maximised, every other objective (and ``"smooth"``, the
+        total variation) minimised.
     a : float
         The candidate value.
     b : float
@@ -158,6 +233,16 @@ quarter of where the last improvement was found: what is left is small, measured
 listing in ``benchmarks/effort_listing.py``)."""
 
 
+SMOOTH_ROOM_SLACK = 0.2
+"""The fraction of its room a smoothing step may lose (the room's dependence on the plan is
+linearised in the step's LP; the smoothed plan is judged on the execution target again)."""
+
+
+SMOOTH_PATIENCE = 4
+"""Smoothing stops after this many rounds in a row without an improvement (a sixteenth of the
+first trust region: the light-dark plans' room is linearised on their state-dependent noise)."""
+
+
 @dataclass(frozen=True)
 class _Refined:
     """The refiner's state: the plan with its witness and room, and its objective's value."""
@@ -181,7 +266,7 @@ class _RefineSteps:
         self,
         context: PlanLPContext,
         problem: Problem,
-        name: Objective,
+        name: Objective | Literal["smooth"],
         weights: np.ndarray | None,
         keep: float,
         stats: SolveStats,
@@ -191,6 +276,9 @@ class _RefineSteps:
         self.objective, self.weights, self.keep = name, weights, keep
         self.w = _weights(context.system.m, weights)
         self.stats, self.elapsed = stats, elapsed
+        # how much of the room a step may lose to the linearisation: smoothing is a tie-break
+        # whose plan is judged again on the execution target, so it may lose a fifth
+        self.slack = max(1e-3, SMOOTH_ROOM_SLACK * keep) if name == "smooth" else 1e-3
 
     def done(self, state: _Refined) -> bool:
         return False
@@ -205,7 +293,7 @@ class _RefineSteps:
     def propose(self, state: _Refined, trust: float, left: float) -> np.ndarray | Stop | None:
         at, L = state.at, state.at.plan.length
         controls: np.ndarray | None = None
-        if self.objective == "effort":
+        if self.objective in ("effort", "smooth"):
             out = room_lp(
                 self.context,
                 at.plan,
@@ -215,9 +303,10 @@ class _RefineSteps:
                 effort_weights=self.w,
                 t_max=self.keep,
                 time_limit=left,
+                smooth=self.objective == "smooth",
             )
             controls = None if out is None else out[0]
-        else:
+        elif self.objective == "margin":
             region = TrustRegion(at.traj.get_mean()[:L], trust, linearise=True)
             covs = at.traj.get_cov()[:L]
             goal = LPGoal(self.objective)
@@ -226,37 +315,51 @@ class _RefineSteps:
             )
             controls = lp.controls if lp.feasible else None
         self.stats.lp_calls += 1
-        if controls is not None and self.objective == "effort":
-            if _effort(controls, self.w) >= (1.0 - CONVERGED) * state.value:
+        if controls is not None and self.objective in ("effort", "smooth"):
+            if self._value(controls) >= (1.0 - CONVERGED) * state.value:
                 return STOP  # a smaller trust region only raises the LP's optimum
         return controls
+
+    def _value(self, controls: np.ndarray) -> float:
+        """The input effort, or the total variation under ``"smooth"``."""
+        if self.objective == "smooth":
+            return total_variation(controls, self.w)
+        return _effort(controls, self.w)
+
+    def _of(self, traj: ProbabilisticTSTrajectory) -> float:
+        if self.objective == "smooth":
+            return total_variation(traj.get_control(), self.w)
+        return objective_value(self.objective, traj, self.formula, self.weights)
 
     def accept(self, state: _Refined, controls: np.ndarray, trust: float) -> _Refined | None:
         name, formula = self.objective, self.formula
         acts = state.at.traj.get_action()
         moved = rollout(self.context.system, self.init, acts[: state.at.plan.length - 1], controls)
         margin = robustness(moved, formula)
-        value = objective_value(name, moved, formula, self.weights)
+        value = self._of(moved)
         # The room may not pay for the objective: it is what the execution needs (the monitor's
         # margin beyond it is not, and keeping it too blocks most effort savings).
         if not (margin >= 0.0 and better(name, value, state.value)):
             return None
         at = room_state(self.context, formula, moved)
-        if name == "effort" and at is not None and at.room.score < self.keep - 1e-3:
+        if name in ("effort", "smooth") and at is not None and at.room.score < self.keep - self.slack:
             # The room's dependence on the plan is linearised: one restoration step from the
             # moved plan gives it back (sequential convex programming).
             self.stats.lp_calls += 1
             moved, at = self._restore(moved, at, trust)
-            value = objective_value(name, moved, formula, self.weights)
+            value = self._of(moved)
             margin = robustness(moved, formula)
         ok = margin >= 0.0 and better(name, value, state.value)
-        if not (ok and at is not None and at.room.score >= self.keep - 1e-3):
+        if not (ok and at is not None and at.room.score >= self.keep - self.slack):
             return None
         logger.debug("refine %s: %.4g -> %.4g (trust %.3g)", name, state.value, value, trust)
-        self.stats.improvements.append((float(self.elapsed()), value))
+        if name != "smooth":  # the objective's history (smoothing is no objective)
+            self.stats.improvements.append((float(self.elapsed()), value))
         return _Refined(at, value)
 
     def stuck(self, state: _Refined, failures: int) -> bool:
+        if self.objective == "smooth":  # a linearised room needs smaller steps: halve further
+            return failures >= SMOOTH_PATIENCE
         return self.objective == "effort" and failures >= PATIENCE
 
     def _restore(

@@ -20,6 +20,7 @@ from typing import Literal
 
 import numpy as np
 
+from ..belief import rollout
 from ..semantics import robustness
 from ..trajectory import ProbabilisticTSTrajectory
 from .context import SolveContext, Verified
@@ -27,7 +28,7 @@ from .eager import EagerMILP, MILPProof
 from .final_check import final_check
 from .finish import ObjectiveClaim, finish
 from .interfaces import BudgetExceeded
-from .objectives import better, objective_value, refine
+from .objectives import better, objective_value, refine, smooth, total_variation
 from .options import Objective
 from .results import SolveResult
 
@@ -60,26 +61,117 @@ def optimise(ctx: SolveContext, first: Verified, how: str, source: Source, milp:
     """
     name = ctx.options.objective
     if name is None:
-        return finish(ctx, "found", how, first)
+        return finish(ctx, "found", how, _smoothed(ctx, first))
     # The first plan's predicted execution: an optimised plan must not lose a target it meets.
     first_meets = ctx.target.judge(first.traj).meets_target
     traj, claim, improved = _improve(ctx, first.traj, name, how, source, milp)
     final = final_check(ctx, traj)
+    why = "failed the closed-loop check"
     if final is not None and ctx.execution and traj is not first.traj:
         if first_meets and not ctx.target.judge(traj).meets_target:
             final = None  # the optimised plan lost the execution target the first plan met
+            why = "missed the execution target the first plan meets"
+    unimproved = final is None or traj is first.traj
+    if unimproved and ctx.execution and source == "lp" and name in ("effort", "margin"):
+        # The problem's optimum (no execution room) lost the target: the objective improves
+        # the first plan instead with its execution room kept (issue 34: "effort" returned a
+        # plan at 31.6% / 53.5% where the default's met the target).
+        kept = _refined_with_room(ctx, first, name, first_meets)
+        if kept is not None:
+            note = f": the problem's optimum {why})" if final is None else ")"
+            traj, final = kept.traj, kept
+            claim = ObjectiveClaim(name, objective_value(name, traj, ctx.formula, ctx.weights))
+            improved = f"{how} (the first plan optimised with its execution room kept{note}"
     if final is None:
-        # The optimiser works on the MLO belief; its plan may lose the closed-loop promise the
-        # first plan had: keep that one.
-        logger.info("the optimised plan fails the closed-loop check: the first plan is kept")
+        # The optimiser works on the MLO belief; its plan may lose the closed-loop promise (or
+        # the execution target) the first plan had: keep that one.
+        logger.info("the optimised plan %s: the first plan is kept", why)
         traj, final = first.traj, final_check(ctx, first.traj)
         claim = ObjectiveClaim(name, objective_value(name, traj, ctx.formula, ctx.weights))
-        improved = how + " (the optimised plan failed the closed-loop check)"
+        improved = how + f" (the optimised plan {why}: the first plan is returned, not optimised)"
     claim = _settle(claim, milp.proven_bound)
     # The plan as optimised (not final_check's re-roll of it: the same numbers, and the object
     # whose predicted execution is remembered).
     plan = Verified(traj, robustness(traj, ctx.formula), None) if final is None else final._replace(traj=traj)
     return finish(ctx, "found", improved, plan, claim)
+
+
+def _refined_with_room(
+    ctx: SolveContext, first: Verified, name: Objective, first_meets: bool
+) -> Verified | None:
+    """``first`` optimised for ``name`` by the trust-region refiner (the execution room kept,
+    :func:`~.objectives.refine`), when that improved it, passes the final check and meets the
+    execution target whenever ``first`` does; else None."""
+    if ctx.options.termination.first_found:
+        return None
+    rounds = max(ctx.options.polish_rounds, 4) * 2
+    try:
+        traj = refine(
+            ctx.problem, ctx.abstraction, ctx.units, first.traj, name, ctx.weights, rounds, ctx.stats,
+            ctx.budget.elapsed,
+        )  # fmt: skip
+    except BudgetExceeded:
+        ctx.stats.caps_hit.append("time_limit")
+        return None
+    if traj is first.traj:
+        return None
+    final = final_check(ctx, traj)
+    if final is None or (first_meets and not ctx.target.judge(final.traj).meets_target):
+        return None
+    return final
+
+
+SMOOTH_ROUNDS = 6
+"""LP rounds of the default plan's smoothing (:func:`~.objectives.smooth`): a work budget."""
+SMOOTH_BLENDS = (1.0, 0.5, 0.25)
+"""The blends of the first plan's controls toward the smoothed ones tried, in order."""
+
+
+def _smoothed(ctx: SolveContext, first: Verified) -> Verified:
+    """The default plan with less input change, when that passes everything ``first`` passed.
+
+    Among the plans that satisfy the formula and the target the default prefers small input
+    changes (issue 34: plans zig-zagged and chattered where nothing preferred a smooth one): the
+    smoothed plan (:func:`~.objectives.smooth`: the same modes and requirements, the execution
+    room kept) replaces ``first`` only when it passes the final check and, under the execution
+    guarantee, meets the target whenever ``first`` does; otherwise ``first`` is returned
+    unchanged. Skipped under ``first_found`` (the first plan is the answer) and ``smooth=False``.
+    """
+    if ctx.options.termination.first_found or not ctx.options.smooth:
+        return first
+    before = total_variation(first.traj.get_control())
+    try:
+        traj = smooth(ctx.problem, ctx.abstraction, ctx.units, first.traj, SMOOTH_ROUNDS, ctx.stats)
+    except BudgetExceeded:
+        ctx.stats.caps_hit.append("time_limit")
+        return first
+    if traj is first.traj:
+        return first
+    # The smoothed controls may give up some of the execution room the first plan had (its
+    # dependence on the plan is linearised): the blends u0 + a (u1 - u0) are tried, smoothest
+    # first; their total variation is at most (1 - a) TV(u0) + a TV(u1) (convexity).
+    # (the smoothed plan may end earlier: at the earliest step its requirements are met)
+    u1 = traj.get_control()
+    K = u1.shape[0]
+    u0, acts = first.traj.get_control()[:K], first.traj.get_action()[:K]
+    first_meets = ctx.execution and ctx.target.judge(first.traj).meets_target
+    system, init = ctx.problem.switched_system, ctx.problem.initial_state
+    for a in SMOOTH_BLENDS:
+        blend = traj if a == 1.0 else rollout(system, init, acts, u0 + a * (u1 - u0))
+        final = final_check(ctx, blend)
+        if final is None:
+            continue
+        if first_meets and not ctx.target.judge(final.traj).meets_target:
+            continue
+        logger.info(
+            "smoothed the plan (blend %.2g): input total variation %.4g -> %.4g",
+            a,
+            before,
+            total_variation(final.traj.get_control()),
+        )
+        return final
+    logger.info("no smoothed plan kept the final check and the execution target: the first is kept")
+    return first
 
 
 def _improve(

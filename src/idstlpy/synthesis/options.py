@@ -36,6 +36,7 @@ __all__ = [
     "ITERATIONS_PER_SECOND",
     "OBJECTIVES",
     "TIME_CAP_PER_RRT_TIMEOUT",
+    "TRACKINGS",
     "EagerOptions",
     "Guarantee",
     "Objective",
@@ -45,12 +46,17 @@ __all__ = [
     "SolverOptions",
     "TargetOptions",
     "Termination",
+    "Tracking",
 ]
 
 Guarantee = Literal["execution", "mlo", "closed_loop"]
 """What a returned plan promises (see :attr:`SolverOptions.guarantee`)."""
 Objective = Literal["effort", "time", "margin"]
 """What an optimising solve optimises (see :attr:`SolverOptions.objective`)."""
+Tracking = Literal["fitted", "paper"]
+"""The tracking gains a solve plans with (see :attr:`SolverOptions.tracking`)."""
+TRACKINGS: tuple[Tracking, ...] = get_args(Tracking)
+"""The values of :attr:`SolverOptions.tracking` (the first is the default)."""
 
 GUARANTEES: tuple[Guarantee, ...] = get_args(Guarantee)
 """The values of :attr:`SolverOptions.guarantee` (the first is the default)."""
@@ -223,10 +229,13 @@ class TargetOptions:
         What the chance constraints constrain and a returned plan promises.
     execution_target : ExecutionTarget
         Least predicted success rates of the execution.
+    tracking : {"fitted", "paper"}
+        The tracking gains the plans are made for.
     """
 
     guarantee: Guarantee
     execution_target: ExecutionTarget
+    tracking: Tracking = "fitted"
 
 
 @dataclass(frozen=True)
@@ -304,6 +313,24 @@ class SolverOptions:
         default 90% belief / 95% true state. The search is held to it under
         ``guarantee="execution"``; under every guarantee a found result says whether its plan
         meets it (``SolveResult.meets_target``).
+    tracking : {"fitted", "paper"}
+        The executor's LQR tracking the plans are made for, for modes without their own
+        ``lqr_gains``. ``"fitted"`` (the default): weights from the problem's scales (Bryson's
+        rule: ``Q_ii = 1 / d_i^2`` with ``d_i`` the tightest half-width the formula's regions
+        put on state coordinate ``i``, ``R_jj = 1 / r_j^2`` with ``r_j`` the control domain's
+        half-width), and for a plan predicted below the execution target firmer weights
+        (``Q`` x10, x100) and the paper's, keeping the first that meets the target
+        (:mod:`idstlpy.synthesis.tracking_choice`). ``"paper"``: the paper's ``Q = I``,
+        ``R = 0.05 I`` (:data:`idstlpy.tracking.DEFAULT_LQR`), the behaviour before. The
+        returned plan carries its gains (``plan.tracking``, ``result.tracking``); the
+        executors use them.
+    smooth : bool
+        Without an objective, prefer small input changes among the plans that hold (the
+        default): the verified plan's input total variation is lowered with its modes, its
+        requirements and its execution room kept (:func:`idstlpy.synthesis.objectives.smooth`),
+        and the smoothed plan is returned only when it passes the final check and meets the
+        execution target whenever the first plan does. ``False``: the first verified plan as
+        it came.
     sat_backend : str
         python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
     lp_backend, milp_backend : str
@@ -345,6 +372,8 @@ class SolverOptions:
     effort_weights: tuple[float, ...] | None = None
     guarantee: Literal["execution", "mlo", "closed_loop"] = "execution"
     execution_target: ExecutionTarget = DEFAULT_EXECUTION_TARGET
+    tracking: Literal["fitted", "paper"] = "fitted"
+    smooth: bool = True
     sat_backend: str = "cadical195"
     lp_backend: str = "highs"
     milp_backend: str = "auto"
@@ -389,6 +418,10 @@ class SolverOptions:
             put(self, "effort_weights", w)
         put(self, "guarantee", _name(self.guarantee, "guarantee", GUARANTEES))
         put(self, "execution_target", as_execution_target(self.execution_target, "execution_target"))
+        if self.tracking not in TRACKINGS:
+            raise InvalidArgumentError(
+                f"tracking must be one of {', '.join(TRACKINGS)}; got {self.tracking!r}"
+            )
         put(self, "sat_backend", _name(self.sat_backend, "sat_backend", tuple(sat_backends())))
         put(self, "lp_backend", _name(self.lp_backend, "lp_backend", tuple(available_backends())))
         if self.milp_backend == "auto":
@@ -398,6 +431,9 @@ class SolverOptions:
             "milp_backend",
             _name(self.milp_backend, "milp_backend", tuple(available_backends(integer=True))),
         )
+        if not isinstance(self.smooth, bool | np.bool_):
+            raise InvalidTypeError(f"smooth must be a bool, got {type(self.smooth).__name__}")
+        put(self, "smooth", bool(self.smooth))
         if not isinstance(self.first_found, bool | np.bool_):
             raise InvalidTypeError(f"first_found must be a bool, got {type(self.first_found).__name__}")
         put(self, "first_found", bool(self.first_found))
@@ -511,7 +547,7 @@ class SolverOptions:
     @cached_property
     def target(self) -> TargetOptions:
         """The guarantee and the execution target."""
-        return TargetOptions(self.guarantee, self.execution_target)
+        return TargetOptions(self.guarantee, self.execution_target, self.tracking)
 
 
 def _expand_termination(kw: dict[str, Any]) -> dict[str, Any]:

@@ -536,6 +536,7 @@ def margin_model(
     effort: np.ndarray | None = None,
     region: TrustRegion | None = None,
     b_U: np.ndarray | None = None,
+    differences: bool = False,
 ) -> MarginModel:
     """The LP of :func:`margin_phase` (its parameters), not solved: a caller that solves it
     again with only the control rows' right-hand side changed (the room LP's input levels)
@@ -544,15 +545,18 @@ def margin_model(
     Each required face ``r`` reads ``face_H z + coef_r * t <= -face_off``, with one ``t`` for
     every face or, ``per_face``, one each. Without ``effort`` the LP maximises ``t`` (the sum of
     the ``t_r``); with per-input weights ``effort`` (shape (m,)) it minimises
-    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range. The means stay
-    in ``region``; ``b_U`` replaces the control rows' right-hand side (a back-off).
+    ``sum_k sum_j effort_j |u_kj|`` (problem units) at any ``t`` in the range, or with
+    ``differences`` the input's total variation ``sum_k sum_j effort_j |u_{k+1,j} - u_kj|``
+    (the smoothing of default plans). The means stay in ``region``; ``b_U`` replaces the control
+    rows' right-hand side (a back-off).
     """
     R = rows.face_H.shape[0]
     ncol = rows.nx + rows.nu
     K, m = rows.K, rows.m
     nE, nU = rows.A_eq.shape[0], rows.A_U.shape[0]
     nt = R if per_face else 1
-    na = K * m if effort is not None else 0
+    terms = (K - 1 if differences else K) * m
+    na = max(terms, 0) if effort is not None else 0
     extra = nt + na
     t_block = diags(coef, format="csr") if per_face else csr_matrix(coef[:, None])
     blocks: list[list[tuple[csr_matrix, int]]] = [
@@ -562,23 +566,25 @@ def margin_model(
     ]
     lo = [rows.b_eq, np.full(nU + R, -np.inf)]
     hi = [rows.b_eq, rows.b_U if b_U is None else b_U, -rows.face_off]
-    if effort is not None:
-        # a_kj >= +-u_kj (problem units): du_j u~_kj - a_kj <= 0 and -du_j u~_kj - a_kj <= 0.
-        du = np.tile(rows.scaling.du, K)
+    if na:
+        # a_kj >= +-u_kj (problem units): du_j u~_kj - a_kj <= 0 and -du_j u~_kj - a_kj <= 0;
+        # with differences, a_kj >= +-(u_{k+1,j} - u_kj) the same way.
+        du = np.tile(rows.scaling.du, K)[:na]
         idx = np.arange(na)
         shape = (na, ncol + extra)
-        pos = csr_matrix((du, (idx, rows.nx + idx)), shape=shape)
-        neg = csr_matrix((-du, (idx, rows.nx + idx)), shape=shape)
+        move = csr_matrix((du, (idx, rows.nx + idx)), shape=shape)
+        if differences:
+            move = csr_matrix((du, (idx, rows.nx + m + idx)), shape=shape) - move
         aux = csr_matrix((-np.ones(na), (idx, ncol + nt + idx)), shape=shape)
-        blocks += [[(pos + aux, 0)], [(neg + aux, 0)]]
+        blocks += [[(move + aux, 0)], [(aux - move, 0)]]
         lo.append(np.full(2 * na, -np.inf))
         hi.append(np.zeros(2 * na))
     A = _block_rows(blocks, ncol + extra)
     c = np.zeros(ncol + extra)
     if effort is None:
         c[ncol : ncol + nt] = -1.0
-    else:
-        c[ncol + nt :] = np.tile(effort, K)
+    elif na:
+        c[ncol + nt :] = np.tile(effort, K)[:na]
     lb = np.concatenate([np.full(ncol, -np.inf), np.full(nt, t_lo), np.zeros(na)])
     ub = np.concatenate([np.full(ncol, np.inf), np.full(nt, t_hi), np.full(na, np.inf)])
     if region is not None and np.isfinite(region.radius):

@@ -20,6 +20,7 @@ import numpy as np
 
 from .._version import software_info
 from ..errors import InvalidArgumentError
+from ..tracking import TrackingGains
 from ..trajectory import ProbabilisticTSTrajectory
 from .options import GUARANTEES, Guarantee, Objective
 from .predicted_execution import PredictedExecution, _finite_or_none, _pct
@@ -255,6 +256,12 @@ class SolveResult:
     def plan(self) -> ProbabilisticTSTrajectory | None:
         """The verified plan (another name for ``trajectory``; the JSON field ``plan``)."""
         return self.trajectory
+
+    @property
+    def tracking(self) -> TrackingGains | None:
+        """The tracking gains the plan was made for (``plan.tracking``: its name, weights and
+        every mode's gains; the executors use them), or None without a plan."""
+        return None if self.trajectory is None else self.trajectory.tracking
 
     @property
     def version(self) -> str | None:

@@ -151,6 +151,7 @@ def room_lp(
     polish: bool = True,
     level: InputLevel | None = None,
     rows: PlanRows | None = None,
+    smooth: bool = False,
 ) -> tuple[np.ndarray, float] | None:
     """One SCP step toward the room: controls keeping the largest common fraction of it.
 
@@ -193,6 +194,9 @@ def room_lp(
         The plan LP's rows of ``plan`` (:attr:`~.plan_solve.LPOutcome.rows`): used instead of
         building them when they are the same (not linearised, the same requirements and
         covariances as ``traj``'s).
+    smooth : bool
+        With ``effort_weights``: minimise the weighted total variation of the inputs
+        (``sum |u_{k+1} - u_k|``) instead of their effort.
 
     Returns
     -------
@@ -213,7 +217,7 @@ def room_lp(
         pass
     elif effort_weights is not None:
         effort = np.asarray(effort_weights, dtype=float)
-        second = lp.solve(kept, effort, t_keep, max(t, 0.0), time_limit)
+        second = lp.solve(kept, effort, t_keep, max(t, 0.0), time_limit, differences=smooth)
     elif lp.rows.face_H.shape[0] > 0 and t < t_max - 1e-9:  # at t_max every face has its room
         second = lp.solve(kept, None, t_keep, max(t_max, t_keep), time_limit, per_face=True)
     if second is not None:
@@ -285,14 +289,15 @@ class _RoomLP:
         t_hi: float,
         time_limit: float,
         per_face: bool = False,
+        differences: bool = False,
     ) -> tuple[np.ndarray, float] | None:
         """One LP (:func:`~.plan_solve.margin_phase`): the inputs backed off by ``level`` of
         their need, the fraction(s) of the room in ``[t_lo, t_hi]`` maximised (``effort``: the
-        weighted effort minimised instead)."""
+        weighted effort, or with ``differences`` the inputs' total variation, minimised instead)."""
         rows = self.rows
         b_U = rows.b_U - level * self.u_shift
         if effort is not None:
-            model = self._model(t_lo, t_hi, per_face, effort, b_U)
+            model = self._model(t_lo, t_hi, per_face, effort, b_U, differences)
         else:
             key = (t_lo, t_hi, per_face)
             if key in self.built:
@@ -302,7 +307,13 @@ class _RoomLP:
         return model.solve(self.context.backend, time_limit)
 
     def _model(
-        self, t_lo: float, t_hi: float, per_face: bool, effort: np.ndarray | None, b_U: np.ndarray
+        self,
+        t_lo: float,
+        t_hi: float,
+        per_face: bool,
+        effort: np.ndarray | None,
+        b_U: np.ndarray,
+        differences: bool = False,
     ) -> MarginModel:
         return margin_model(
             self.rows,
@@ -313,6 +324,7 @@ class _RoomLP:
             effort=effort,
             region=self.region,
             b_U=b_U,
+            differences=differences,
         )
 
 

@@ -255,7 +255,7 @@ def _loop(
             traj,
             N,
             list(system.system_modes),
-            gains_for(system, actions, None, None),
+            gains_for(system, actions, None, None, traj),
             "model",
             np.zeros(2 * n),
             S0,
