@@ -77,6 +77,8 @@ def test_run_job_record():
     assert "time_total" in record["timing"]["solver"] and record["timing"]["wall_time"] > 0
     # the plan is the one the Python API finds with the same seed, and reads back as a result
     problem = stl.problem_file.load_problem(LIGHT_DARK).build().problem
+    for mode in problem.switched_system.system_modes:  # the file's [execution.lqr], as the job sets
+        mode.compute_finite_horizon_lqr(5, np.eye(2), np.eye(2), 0.05 * np.eye(2))
     direct = problem.solve_result(rrt_timeout=5, time_limit=60, seed=1)
     np.testing.assert_array_equal(direct.trajectory.get_control(), np.array(plan["control"]))
     again = stl.SolveResult.from_dict(record)

@@ -17,9 +17,9 @@ from idstlpy.synthesis.tracking_choice import tracking_candidates
 from idstlpy.tracking import (
     DEFAULT_LQR,
     FITTED_SCALES,
-    TrackingGains,
     finite_horizon_lqr,
     fitted_weights,
+    make_tracking,
     planning_gains,
     system_gains,
 )
@@ -128,7 +128,7 @@ def test_modes_with_their_own_gains_keep_them():
     own = mode.compute_finite_horizon_lqr(5, np.diag([100.0, 1.0]), np.diag([100.0, 1.0]), [[0.1]])
     assert tracking_candidates(problem, "fitted") == ()
     plan = stl.rollout(problem.switched_system, problem.initial_state, [0] * 3, np.zeros((3, 1)))
-    plan.tracking = TrackingGains.make(problem.switched_system, "paper", None)
+    plan.tracking = make_tracking(problem.switched_system, "paper", None)
     # the paper's gains for a mode with its own: the mode's own are kept
     np.testing.assert_allclose(plan.tracking.gains[0][0], own[0])
 
@@ -138,7 +138,7 @@ def test_the_executors_track_with_the_plans_gains_unless_told_otherwise():
     system = problem.switched_system
     plan = stl.rollout(system, problem.initial_state, [0] * 8, np.full((8, 1), 0.5))
     weights = {"horizon": 5, "Q_final": np.diag([400.0, 0.0]), "Q": np.diag([400.0, 0.0]), "R": [[0.04]]}
-    plan.tracking = TrackingGains.make(system, "fitted", weights)
+    plan.tracking = make_tracking(system, "fitted", weights)
     x0 = np.array([0.02, -0.01])
     _, with_plan = stl.simulate(system, plan, 8, x0, None, seed=1, control_domain=problem.control_domain)
     _, explicit = stl.simulate(

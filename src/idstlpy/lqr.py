@@ -16,6 +16,8 @@ and the optimal input is ``u_k = -K_k x_k``.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -23,7 +25,7 @@ import numpy as np
 from ._checks import as_covariance, as_int, as_matrix
 from .errors import DimensionError, InvalidArgumentError
 
-__all__ = ["finite_horizon_lqr", "riccati_costs"]
+__all__ = ["TrackingGains", "finite_horizon_lqr", "riccati_costs"]
 
 
 def _validate(
@@ -114,3 +116,74 @@ def finite_horizon_lqr(A: Any, B: Any, horizon: int, Q_final: Any, Q: Any, R: An
         symmetric positive definite.
     """
     return riccati_costs(A, B, horizon, Q_final, Q, R)[0]
+
+
+@dataclass(frozen=True)
+class TrackingGains:
+    """The tracking a plan was made for: every mode's gains, and the weights that made them.
+
+    Made by :func:`idstlpy.tracking.make_tracking`; a model-layer record because a plan carries
+    it (:attr:`idstlpy.trajectory.ProbabilisticTSTrajectory.tracking`).
+
+    Parameters
+    ----------
+    name : str
+        ``"fitted"`` (Bryson's rule, :func:`idstlpy.tracking.fitted_weights`), ``"fitted x10"``,
+        ``"fitted x100"`` (firmer) or ``"paper"`` (:data:`idstlpy.tracking.DEFAULT_LQR`).
+    weights : mapping or None
+        ``horizon``, ``Q_final``, ``Q``, ``R`` of the modes without their own gains.
+    gains : mapping
+        Mode -> gains ``K_0 .. K_{h-1}`` (each (m, n)) of every mode.
+    """
+
+    name: str
+    weights: Mapping[str, Any] | None
+    gains: Mapping[int, tuple[np.ndarray, ...]]
+
+    def describe(self) -> str:
+        """One phrase naming the weights, e.g. ``fitted gains (Q = diag(400, 0), R = diag(0.25))``."""
+        if self.weights is None:
+            return f"{self.name} gains"
+        Q, R = (np.atleast_1d(np.asarray(self.weights[k], dtype=float)) for k in ("Q", "R"))
+        qd = np.diag(Q) if Q.ndim == 2 else Q
+        rd = np.diag(R) if R.ndim == 2 else R
+        fmt = ", ".join
+        return (
+            f"{self.name} gains (Q = diag({fmt(f'{v:.3g}' for v in qd)}), "
+            f"R = diag({fmt(f'{v:.3g}' for v in rd)}), horizon {int(self.weights['horizon'])})"
+        )
+
+    def default_lqr(self) -> dict[str, Any] | None:
+        """The weights as the ``default_lqr`` keyword of the executors (lists, JSON-able)."""
+        if self.weights is None:
+            return None
+        return {
+            k: (np.asarray(v, dtype=float).tolist() if not np.isscalar(v) else v)
+            for k, v in self.weights.items()
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able data."""
+        return {
+            "name": self.name,
+            "weights": self.default_lqr(),
+            "gains": {str(q): [K.tolist() for K in Ks] for q, Ks in self.gains.items()},
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TrackingGains:
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : mapping
+            Output of :meth:`to_dict`.
+
+        Returns
+        -------
+        TrackingGains
+        """
+        gains = {
+            int(q): tuple(np.asarray(K, dtype=float) for K in Ks) for q, Ks in dict(data["gains"]).items()
+        }
+        return cls(str(data["name"]), data.get("weights"), gains)

@@ -16,13 +16,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError
-from .lqr import finite_horizon_lqr, riccati_costs
+from .lqr import TrackingGains, finite_horizon_lqr, riccati_costs
 from .sets import Polytope
 
 if TYPE_CHECKING:
@@ -36,6 +35,7 @@ __all__ = [
     "FITTED_SCALES",
     "TrackingGains",
     "fitted_weights",
+    "make_tracking",
     "plan_fallback",
     "planning_gains",
     "box_bounds",
@@ -477,96 +477,27 @@ def fitted_weights(
     return {"horizon": DEFAULT_LQR["horizon"], "Q_final": Q, "Q": Q.copy(), "R": np.diag(1.0 / half_u**2)}
 
 
-@dataclass(frozen=True)
-class TrackingGains:
-    """The tracking a plan was made for: every mode's gains, and the weights that made them.
+def make_tracking(system: SwitchedSystem, name: str, weights: Mapping[str, Any] | None) -> TrackingGains:
+    """The gains of every mode of ``system`` under ``weights`` (modes with their own keep them).
 
     Parameters
     ----------
+    system : SwitchedSystem
     name : str
-        ``"fitted"`` (Bryson's rule, :func:`fitted_weights`), ``"fitted x10"``, ``"fitted x100"``
-        (firmer), ``"paper"`` (:data:`DEFAULT_LQR`) or ``"own"`` (every mode the plan uses has
-        its own ``lqr_gains``).
+        The gain set's name (:class:`~idstlpy.lqr.TrackingGains`).
     weights : mapping or None
-        ``horizon``, ``Q_final``, ``Q``, ``R`` of the modes without their own gains (None for
-        ``"own"``).
-    gains : mapping
-        Mode -> gains ``K_0 .. K_{h-1}`` (each (m, n)) of every mode.
+        As :data:`DEFAULT_LQR` (None: :data:`DEFAULT_LQR`).
+
+    Returns
+    -------
+    TrackingGains
     """
-
-    name: str
-    weights: Mapping[str, Any] | None
-    gains: Mapping[int, tuple[np.ndarray, ...]]
-
-    @classmethod
-    def make(cls, system: SwitchedSystem, name: str, weights: Mapping[str, Any] | None) -> TrackingGains:
-        """The gains of every mode of ``system`` under ``weights`` (modes with their own keep them).
-
-        Parameters
-        ----------
-        system : SwitchedSystem
-        name : str
-        weights : mapping or None
-            As :data:`DEFAULT_LQR` (None: :data:`DEFAULT_LQR`).
-
-        Returns
-        -------
-        TrackingGains
-        """
-        cfg = dict(DEFAULT_LQR if weights is None else weights)
-        gains = system_gains(system, None, cfg)
-        frozen = {q: tuple(np.array(K, dtype=float) for K in Ks) for q, Ks in gains.items()}
-        for K in (K for Ks in frozen.values() for K in Ks):
-            K.flags.writeable = False
-        return cls(name, cfg, frozen)
-
-    def describe(self) -> str:
-        """One phrase naming the weights, e.g. ``fitted gains (Q = diag(400, 0), R = diag(0.25))``."""
-        if self.weights is None:
-            return f"{self.name} gains"
-        Q, R = (np.atleast_1d(np.asarray(self.weights[k], dtype=float)) for k in ("Q", "R"))
-        qd = np.diag(Q) if Q.ndim == 2 else Q
-        rd = np.diag(R) if R.ndim == 2 else R
-        fmt = ", ".join
-        return (
-            f"{self.name} gains (Q = diag({fmt(f'{v:.3g}' for v in qd)}), "
-            f"R = diag({fmt(f'{v:.3g}' for v in rd)}), horizon {int(self.weights['horizon'])})"
-        )
-
-    def default_lqr(self) -> dict[str, Any] | None:
-        """The weights as the ``default_lqr`` keyword of the executors (lists, JSON-able)."""
-        if self.weights is None:
-            return None
-        return {
-            k: (np.asarray(v, dtype=float).tolist() if not np.isscalar(v) else v)
-            for k, v in self.weights.items()
-        }
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able data."""
-        return {
-            "name": self.name,
-            "weights": self.default_lqr(),
-            "gains": {str(q): [K.tolist() for K in Ks] for q, Ks in self.gains.items()},
-        }
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> TrackingGains:
-        """Inverse of :meth:`to_dict`.
-
-        Parameters
-        ----------
-        data : mapping
-            Output of :meth:`to_dict`.
-
-        Returns
-        -------
-        TrackingGains
-        """
-        gains = {
-            int(q): tuple(np.asarray(K, dtype=float) for K in Ks) for q, Ks in dict(data["gains"]).items()
-        }
-        return cls(str(data["name"]), data.get("weights"), gains)
+    cfg = dict(DEFAULT_LQR if weights is None else weights)
+    gains = system_gains(system, None, cfg)
+    frozen = {q: tuple(np.array(K, dtype=float) for K in Ks) for q, Ks in gains.items()}
+    for K in (K for Ks in frozen.values() for K in Ks):
+        K.flags.writeable = False
+    return TrackingGains(name, cfg, frozen)
 
 
 _PLANNING: ContextVar[tuple[int, TrackingGains] | None] = ContextVar("idstlpy_planning_gains", default=None)

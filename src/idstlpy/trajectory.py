@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from .errors import DimensionError, InvalidArgumentError, InvalidTypeError, OutOfRangeError
-from .tracking import TrackingGains
+from .lqr import TrackingGains
 
 __all__ = [
     "ProbabilisticTSTrajectory",

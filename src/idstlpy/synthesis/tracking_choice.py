@@ -21,10 +21,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..sets import Polytope
-from ..tracking import FITTED_SCALES, TrackingGains, fitted_weights
+from ..tracking import FITTED_SCALES, TrackingGains, fitted_weights, make_tracking
 
-if TYPE_CHECKING:  # problem.py imports the synthesis loop that imports this module
-    from .problem import Problem
+if TYPE_CHECKING:
+    from ..problem import Problem
 
 __all__ = ["tracking_candidates"]
 
@@ -59,7 +59,7 @@ def tracking_candidates(problem: Problem, tracking: str) -> tuple[TrackingGains,
     system = problem.switched_system
     if all(getattr(mode, "lqr_gains", None) is not None for mode in system.system_modes):
         return ()
-    paper = TrackingGains.make(system, "paper", None)
+    paper = make_tracking(system, "paper", None)
     if tracking == "paper":
         return (paper,)
     fitted = fitted_weights(system, _regions(problem), problem.control_domain)
@@ -69,5 +69,5 @@ def tracking_candidates(problem: Problem, tracking: str) -> tuple[TrackingGains,
     for scale in FITTED_SCALES:
         name = "fitted" if scale == 1.0 else f"fitted x{scale:g}"
         weights = {**fitted, "Q": scale * fitted["Q"], "Q_final": scale * fitted["Q_final"]}
-        out.append(TrackingGains.make(system, name, weights))
+        out.append(make_tracking(system, name, weights))
     return (*out, paper)
