@@ -30,7 +30,7 @@ from .finish import ObjectiveClaim, finish
 from .interfaces import BudgetExceeded
 from .objectives import better, objective_value, refine, smooth, total_variation
 from .options import Objective
-from .results import SolveResult
+from .results import PredictedExecution, SolveResult
 
 __all__ = ["OPTIMALITY_TOL", "Source", "optimise"]
 
@@ -134,7 +134,7 @@ def _smoothed(ctx: SolveContext, first: Verified) -> Verified:
     changes (issue 34: plans zig-zagged and chattered where nothing preferred a smooth one): the
     smoothed plan (:func:`~.objectives.smooth`: the same modes and requirements, the execution
     room kept) replaces ``first`` only when it passes the final check and, under the execution
-    guarantee, meets the target whenever ``first`` does; otherwise ``first`` is returned
+    guarantee, holds as well (:func:`_holds_as_well`); otherwise ``first`` is returned
     unchanged. Skipped under ``first_found`` (the first plan is the answer) and ``smooth=False``.
     """
     if ctx.options.termination.first_found or not ctx.options.smooth:
@@ -154,14 +154,14 @@ def _smoothed(ctx: SolveContext, first: Verified) -> Verified:
     u1 = traj.get_control()
     K = u1.shape[0]
     u0, acts = first.traj.get_control()[:K], first.traj.get_action()[:K]
-    first_meets = ctx.execution and ctx.target.judge(first.traj).meets_target
+    before_ex = ctx.target.judge(first.traj) if ctx.execution else None
     system, init = ctx.problem.switched_system, ctx.problem.initial_state
     for a in SMOOTH_BLENDS:
         blend = traj if a == 1.0 else rollout(system, init, acts, u0 + a * (u1 - u0))
         final = final_check(ctx, blend)
         if final is None:
             continue
-        if first_meets and not ctx.target.judge(final.traj).meets_target:
+        if before_ex is not None and not _holds_as_well(before_ex, ctx.target.judge(final.traj)):
             continue
         logger.info(
             "smoothed the plan (blend %.2g): input total variation %.4g -> %.4g",
@@ -172,6 +172,23 @@ def _smoothed(ctx: SolveContext, first: Verified) -> Verified:
         return final
     logger.info("no smoothed plan kept the final check and the execution target: the first is kept")
     return first
+
+
+SMOOTH_SUCCESS_SLACK = 0.005
+"""A smoothed plan may predict at most this much less success than the first on either reading
+(half a point: the precision of the reported estimates), and must meet the target the first meets."""
+
+
+def _holds_as_well(first: PredictedExecution, smoothed: PredictedExecution) -> bool:
+    """Whether the smoothed plan's predicted execution is as good as the first's: the target met
+    whenever the first meets it, and neither rate lower by more than :data:`SMOOTH_SUCCESS_SLACK`
+    (a tie-break must not buy smoothness with success)."""
+    if first.meets_target and not smoothed.meets_target:
+        return False
+    return (
+        smoothed.belief_estimate >= first.belief_estimate - SMOOTH_SUCCESS_SLACK
+        and smoothed.state_estimate >= first.state_estimate - SMOOTH_SUCCESS_SLACK
+    )
 
 
 def _improve(

@@ -328,8 +328,9 @@ class SolverOptions:
         Without an objective, prefer small input changes among the plans that hold (the
         default): the verified plan's input total variation is lowered with its modes, its
         requirements and its execution room kept (:func:`idstlpy.synthesis.objectives.smooth`),
-        and the smoothed plan is returned only when it passes the final check and meets the
-        execution target whenever the first plan does. ``False``: the first verified plan as
+        and the smoothed plan is returned only when it passes the final check, meets the
+        execution target whenever the first plan does and predicts no less success (within half
+        a point). ``False``: the first verified plan as
         it came.
     sat_backend : str
         python-sat solver name (``"cadical195"``, ``"minisat22"``, ``"glucose4"``, ...).
