@@ -143,16 +143,34 @@ def _update_cov(P: np.ndarray, C: np.ndarray, V: np.ndarray | None) -> tuple[np.
     return 0.5 * (new + new.T), G
 
 
-def lqr_gains(A: np.ndarray, B: np.ndarray, horizon: int = 5, r: float = 0.05) -> list[np.ndarray]:
-    """``K_0 .. K_{h-1}`` of ``sum x'x + r u'u`` over ``h`` steps with terminal weight ``I``."""
+def lqr_gains(
+    A: np.ndarray,
+    B: np.ndarray,
+    horizon: int = 5,
+    r: float = 0.05,
+    weights: dict[str, Any] | None = None,
+) -> list[np.ndarray]:
+    """``K_0 .. K_{h-1}`` of ``sum x'Qx + u'Ru`` over ``h`` steps with terminal weight ``Q_final``:
+    the paper's ``Q = Q_final = I``, ``R = r I`` unless ``weights`` (``horizon``, ``Q``, ``Q_final``,
+    ``R``: the weights a plan reports it was tracked with) are given."""
     n, m = B.shape
-    P = np.eye(n)
+    Q, Qf, R = np.eye(n), np.eye(n), r * np.eye(m)
+    if weights is not None:
+        horizon = int(weights["horizon"])
+        Q, Qf, R = (_matrix(weights[k], d) for k, d in (("Q", n), ("Q_final", n), ("R", m)))
+    P = Qf
     out: list[np.ndarray] = []
     for _ in range(horizon):
-        K = np.linalg.solve(r * np.eye(m) + B.T @ P @ B, B.T @ P @ A)
-        P = np.eye(n) + A.T @ P @ (A - B @ K)
+        K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+        P = Q + A.T @ P @ (A - B @ K)
         out.append(K)
     return out[::-1]
+
+
+def _matrix(value: Any, d: int) -> np.ndarray:
+    """A weight as given: a scalar (times I), a diagonal (d,) or a matrix (d, d)."""
+    w = np.asarray(value, dtype=float)
+    return w * np.eye(d) if w.ndim == 0 else (np.diag(w) if w.ndim == 1 else w)
 
 
 def polygon_vertices(H: np.ndarray, c: np.ndarray, tol: float = 1e-9) -> np.ndarray:
@@ -191,17 +209,18 @@ def project_on_polygon(U: np.ndarray, H: np.ndarray, c: np.ndarray, verts: np.nd
 
 
 def run_executor(
-    case: PolytopeCase, runs: int, seed: int
+    case: PolytopeCase, runs: int, seed: int, weights: dict[str, Any] | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """``runs`` executions of the case's plan: the filter means (runs, N + 1, n), the filter
     covariances (N + 1, n, n) (the noise is constant: the same for every run), the true states
-    (runs, N + 1, n), and the fraction of (run, step) inputs the projection moved."""
+    (runs, N + 1, n), and the fraction of (run, step) inputs the projection moved. ``weights``:
+    the tracking weights the plan reports (default the paper's, see :func:`lqr_gains`)."""
     rng = np.random.default_rng(seed)
     means_plan, _ = case.mlo_plan()
     n = case.mean0.shape[0]
     N = case.N
     verts = polygon_vertices(case.Hu, case.cu)
-    gains = {q: lqr_gains(mode.A, mode.B) for q, mode in enumerate(case.modes)}
+    gains = {q: lqr_gains(mode.A, mode.B, weights=weights) for q, mode in enumerate(case.modes)}
     L0 = np.linalg.cholesky(case.cov0 + 1e-15 * np.eye(n))
     X = case.mean0 + rng.standard_normal((runs, n)) @ L0.T
     M = np.tile(case.mean0, (runs, 1))
