@@ -73,6 +73,7 @@ from ..trajectory import ProbabilisticTSTrajectory
 from .background import BackgroundKind, BackgroundWorker, JobError
 from .policy import ReplanPolicy
 from .resolving import Replan, _Resolver, _RiskModel, check_problem_plan, replan_seed
+from .vouch import check_reference
 
 if TYPE_CHECKING:
     from .prediction import ClosedLoopPrediction
@@ -178,6 +179,20 @@ def decide(resolver: _Resolver, policy: ReplanPolicy, formula: STLFormula, snap:
     _Decision
     """
     k = snap.k
+    if (
+        policy.trigger == "on_risk"
+        and snap.j == snap.k
+        and policy.drift is None
+        and policy.risk_measure == "bound"
+    ):
+        # The plan followed from the start: its shared prediction conditioned on this run's
+        # belief may vouch for it without a prediction of its own (:mod:`.vouch`). A positive
+        # value means the witness held on the prefix: the formula is not broken (no progression
+        # needed to know it), and a formula already decided needs no check either way.
+        ref = check_reference(resolver.model.spec, snap.plan, formula)
+        vouched = math.nan if ref is None else ref.vouch(snap.executed, snap.belief, policy.risk_on)
+        if vouched >= policy.risk and vouched > 0.0:
+            return _Decision(k, None, None, vouched, None)
     psi = progress(formula, snap.executed)
     if psi is FALSE:  # the prefix broke the formula: no plan can repair it
         return _Decision(
