@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import idstlpy as stl
+import idstlpy.execution.batches as batches
 import idstlpy.execution.replanner as replanner
 import idstlpy.execution.resolving as resolving
 from idstlpy.progression import progress
@@ -45,9 +46,7 @@ def test_vouch_is_below_the_full_check(
         return decide(resolver, policy, formula, snap)
 
     monkeypatch.setattr(replanner, "decide", both)
-    stl.validate(
-        problem, plan, light_dark_real_system(), runs=1, seed=3, executor="serial", policy=stl.ReplanPolicy()
-    )
+    stl.execute(problem, plan, light_dark_real_system(), [0.5, 2.75], seed=3, policy=stl.ReplanPolicy())
     got = np.array(pairs)
     assert got.shape[0] == plan.num_of_steps - 1  # one check per step 1 .. N-1
     assert np.isfinite(got).all()
@@ -114,3 +113,34 @@ def test_no_vouch_for_a_re_solved_plan(listing: tuple[stl.Problem, stl.Probabili
         plan.get_mean()[:3], plan.get_cov()[:3], plan.get_action()[:2], plan.get_control()[:2]
     )
     assert 0.0 < ref.vouch(executed, belief, "both") <= 1.0
+
+
+def test_batched_policy_runs_are_the_executed_ones(
+    listing: tuple[stl.Problem, stl.ProbabilisticTSTrajectory], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    problem, plan = listing
+    real = light_dark_real_system()
+    # risk 0.987: about the vouch's value early in the plan: some runs are vouched for at every
+    # check (batched), the others not (executed one at a time)
+    policy = stl.ReplanPolicy(risk=0.987)
+    taken: list[int] = []
+    vouched_batch = batches._vouched_batch
+
+    def spy(*a):  # type: ignore[no-untyped-def]
+        got = vouched_batch(*a)
+        taken.append(len(got))
+        return got
+
+    monkeypatch.setattr(batches, "_vouched_batch", spy)
+    kw = {"runs": 6, "seed": 2, "executor": "serial", "policy": policy, "keep_trajectories": 6}
+    fast = stl.validate(problem, plan, real, **kw)
+    assert 0 < sum(taken) < 6
+    monkeypatch.setattr(batches, "_vouched_batch", lambda *a: {})
+    slow = stl.validate(problem, plan, real, **kw)
+    assert fast.replans == slow.replans
+    assert fast.belief_success_rate == slow.belief_success_rate
+    assert fast.state_success_rate == slow.state_success_rate
+    assert len(fast.executions) == len(slow.executions) == 6
+    for (bf, rf), (bs, rs) in zip(fast.executions, slow.executions, strict=True):
+        np.testing.assert_allclose(bf.get_mean(), bs.get_mean(), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(rf.get_state(), rs.get_state(), rtol=0, atol=1e-9)

@@ -144,7 +144,13 @@ def execute_runs(
         return results
     spec = payload.executor_spec(system)
     results = []
+    taken: dict[int, dict[str, Any]] = {}
+    if payload.policy is not None and payload.batched and payload.plant is None and problem is not None:
+        taken = _vouched_batch(payload, system, formula, promised, seeds, first_index, starts, spec)
     for offset, ss in enumerate(seeds):
+        if offset in taken:
+            results.append(taken[offset])
+            continue
         x0 = payload.real_initial_state if starts is None else starts[offset]
         if payload.policy is not None:
             from .replanning import execute
@@ -317,6 +323,14 @@ def execute_batch(
     law = StepLaw(payload.executor_spec(system, plan.get_action()[:N].tolist()), plan, N)
     keep = max(0, min(S, payload.keep - first_index))
     r = _roll(law, payload, seeds, starts, keep)
+    return _records(payload, formula, promised, r, keep)
+
+
+def _records(
+    payload: Payload, formula: STLFormula, promised: list[np.ndarray], r: _Rolled, keep: int
+) -> list[dict[str, Any]]:
+    """The records of a batch's rolled runs (monitored together)."""
+    plan, N, S = payload.plan, payload.num_of_steps, r.means.shape[1]
     actions = plan.get_action()[:N]
     belief = batch_monitor(formula, promised, r.means, r.covs, actions)
     state = batch_monitor(formula, promised, r.states, None, actions)
@@ -376,3 +390,48 @@ def serialise(payload: Payload, problem_factory: Callable[[], Problem] | None) -
                 f"problem_factory must be picklable (a module-level function or functools.partial): {exc}"
             ) from exc
     return None
+
+
+def _vouched_batch(
+    payload: Payload,
+    system: SwitchedSystem,
+    formula: STLFormula,
+    promised: list[np.ndarray],
+    seeds: Sequence[np.random.SeedSequence],
+    first_index: int,
+    starts: np.ndarray | None,
+    spec: ExecutorSpec,
+) -> dict[int, dict[str, Any]]:
+    """The records of the runs (by offset) whose every scheduled check the plan's shared
+    prediction vouches for (:func:`~idstlpy.execution.vouch.vouched_runs`): executed together
+    as the fixed plan, they are the runs ``execute`` makes with the policy (no check decides
+    anything; up to rounding, as the batched fixed-plan runs are ``simulate``'s). The other runs
+    are left to ``execute``. Only for a policy whose only decisions are scheduled risk checks on
+    the sound bound (no drift test, no start check)."""
+    from .vouch import check_reference, vouched_runs
+
+    policy = payload.policy
+    if (
+        policy is None
+        or policy.trigger != "on_risk"
+        or policy.drift is not None
+        or policy.start_resolves
+        or policy.risk_measure != "bound"
+        or payload.num_of_steps != payload.plan.num_of_steps
+    ):
+        return {}
+    ref = check_reference(spec, payload.plan, formula)
+    if ref is None:
+        return {}
+    plan, N, S = payload.plan, payload.num_of_steps, len(seeds)
+    law = StepLaw(payload.executor_spec(system, plan.get_action()[:N].tolist()), plan, N)
+    keep = max(0, min(S, payload.keep - first_index))
+    r = _roll(law, payload, seeds, starts, keep)
+    ok = vouched_runs(ref, policy, r.means, r.covs, plan.get_action()[:N])
+    records = _records(payload, formula, promised, r, keep)
+    taken = {}
+    for i in np.flatnonzero(ok).tolist():
+        records[i]["replans"] = 0
+        taken[i] = records[i]
+    logger.debug("validate: %d of %d runs vouched for at every check (batched)", len(taken), S)
+    return taken

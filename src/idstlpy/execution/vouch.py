@@ -57,8 +57,9 @@ from ..executor.success_bound import mode_truth, stack_faces, success_bound
 from ..formulas import FALSE, TRUE, STLAtomicProposition, STLFormula
 from ..semantics import atom_margins
 from ..trajectory import ProbabilisticTSTrajectory
+from .policy import ReplanPolicy
 
-__all__ = ["CheckReference", "check_reference"]
+__all__ = ["CheckReference", "check_reference", "vouched_runs"]
 
 logger = logging.getLogger(__name__)
 
@@ -318,3 +319,72 @@ def check_reference(
         if fp is not None:
             _remember(_BY_CONTENT, fp, ref)
     return ref
+
+
+def vouched_runs(
+    ref: CheckReference,
+    policy: ReplanPolicy,
+    means: np.ndarray,
+    covs: np.ndarray,
+    actions: np.ndarray,
+) -> np.ndarray:
+    """Which runs of a batch (executed as the fixed plan) every scheduled check vouches for.
+
+    Such a run is the run ``execute`` makes with ``policy`` (no check decides anything), so
+    ``validate`` may take it from the batched execution of the fixed plan (up to rounding).
+
+    Parameters
+    ----------
+    ref : CheckReference
+        The plan's reference (the plan executed from its step 0).
+    policy : ReplanPolicy
+        ``trigger="on_risk"``, ``risk_measure="bound"``, no ``drift``, no start check.
+    means : ndarray, shape (L, S, n)
+        The runs' belief means.
+    covs : ndarray, shape (L, n, n) or (L, S, n, n)
+        Their covariances (shared by the runs, or each run's).
+    actions : ndarray of int, shape (L - 1,)
+        The plan's modes (every run's).
+
+    Returns
+    -------
+    ndarray of bool, shape (S,)
+    """
+    L, S, n = means.shape
+    N = ref.plan.num_of_steps
+    every = policy.check_every
+    if every is None or policy.max_replans == 0 or L - 1 != N:
+        return np.ones(S, dtype=bool)  # no scheduled check at all
+    readings = _READINGS if policy.risk_on == "both" else (policy.risk_on,)
+    # the first step at which some past witness event fails, per run and reading
+    first_fail = {r: np.full(S, np.iinfo(np.int64).max) for r in readings}
+    for s in range(S):
+        run_covs = covs if covs.ndim == 3 else covs[:, s]
+        margins: dict[int, np.ndarray] = {}
+        for r in readings:
+            for i, t in ref.past[r]:
+                if i not in margins:
+                    margins[i] = atom_margins(ref.aps[i], means[:, s], run_covs, actions)
+                if not margins[i][t] >= 0.0:
+                    first_fail[r][s] = t
+                    break
+    ok = np.ones(S, dtype=bool)
+    for k in range(every, N, every):
+        eta = means[k] - ref.plan.get_mean(k)  # (S, n)
+        if ref.sensitivity:
+            dP = (covs[k] - ref.nominal_cov[k]).reshape(-1, n * n)
+            dP = np.broadcast_to(dP, (S, n * n))
+            o = np.concatenate([eta, dP], axis=1)
+        else:
+            o = eta
+        dev = o - ref.observed_mean[k]
+        value = np.ones(S)
+        for r in readings:
+            g = ref.gains[r][k]
+            if g is None:
+                return np.zeros(S, dtype=bool)
+            fail = np.sum(1.0 - prob_le(g.mu[None] + dev @ g.gain.T, g.sd[None]), axis=1)
+            value = np.minimum(value, np.maximum(0.0, 1.0 - fail))
+            value = np.where(first_fail[r] <= k, math.nan, value)
+        ok &= (value >= policy.risk) & (value > 0.0)
+    return ok
