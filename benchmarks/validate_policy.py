@@ -1,6 +1,6 @@
 """``validate`` with the default re-planning policy against a fixed plan (issue 34).
 
-Run: ``python -m benchmarks.validate_policy [--runs 20,100] [--solve-seed 0] [--seed 0]``.
+Run: ``python -m benchmarks.validate_policy [--runs 20,100] [--solve-seed 0] [--seed 0] [--risk R]``.
 
 The light-dark listing's plan (solved once with the listing's sampler parameters) validated on
 the listing's real system, true starts drawn from the prior, ``executor="serial"`` (one process:
@@ -31,12 +31,14 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--runs", default="20,100")
     parser.add_argument("--solve-seed", type=int, default=0)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--risk", type=float, default=None, help="the policy's risk (default ReplanPolicy's)")
     args = parser.parse_args(argv)
     problem = light_dark()
     plan = problem.solve(**LISTING, min_num_of_steps=3, max_num_of_steps=15, seed=args.solve_seed)
     if plan is None:
         raise SystemExit(f"the listing did not solve: {problem.last_result.reason}")
     real = light_dark_real_system()
+    policy_of = stl.ReplanPolicy() if args.risk is None else stl.ReplanPolicy(risk=args.risk)
     full = [0]
     predict = resolving._RiskModel.predict
 
@@ -46,7 +48,8 @@ def main(argv: list[str] | None = None) -> str:
 
     resolving._RiskModel.predict = counted  # type: ignore[method-assign]
     rows = [
-        f"plan: {plan.num_of_steps} steps (solve seed {args.solve_seed}); validate seed {args.seed}",
+        f"plan: {plan.num_of_steps} steps (solve seed {args.solve_seed}); validate seed {args.seed}; "
+        f"policy risk {policy_of.risk:g}, check_every {policy_of.check_every}",
         "",
         "| runs | fixed (s) | policy (s) | ratio | checks | full predictions | re-solves "
         "| belief success fixed / policy | state success fixed / policy |",
@@ -61,7 +64,7 @@ def main(argv: list[str] | None = None) -> str:
         vouch._BY_CONTENT.clear()
         t0 = time.perf_counter()
         policy = stl.validate(
-            problem, plan, real, runs=runs, seed=args.seed, executor="serial", policy=stl.ReplanPolicy()
+            problem, plan, real, runs=runs, seed=args.seed, executor="serial", policy=policy_of
         )
         t_policy = time.perf_counter() - t0
         checks = runs * (plan.num_of_steps - 1)  # check_every=1: steps 1 .. N-1 of every run
