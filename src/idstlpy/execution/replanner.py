@@ -190,7 +190,9 @@ def decide(resolver: _Resolver, policy: ReplanPolicy, formula: STLFormula, snap:
         # value means the witness held on the prefix: the formula is not broken (no progression
         # needed to know it), and a formula already decided needs no check either way.
         ref = check_reference(resolver.model.spec, snap.plan, formula)
-        vouched = math.nan if ref is None else ref.vouch(snap.executed, snap.belief, policy.risk_on)
+        vouched = (
+            math.nan if ref is None else ref.vouch(snap.executed, snap.belief, policy.risk_on, policy.risk)
+        )
         if vouched >= policy.risk and vouched > 0.0:
             return _Decision(k, None, None, vouched, None)
     psi = progress(formula, snap.executed)

@@ -19,23 +19,25 @@ of the plan satisfies the progressed formula, *in that linear-Gaussian model*: t
 ``W`` of the original formula (the one the prediction's own bound used, per reading) is checked
 on the executed belief at the steps ``<= k`` (progression decides those steps from the prefix);
 if every such event held, the formula holds whenever every later event of ``W`` holds, and one
-minus Boole's sum of their conditional failure probabilities bounds that from below. A check
-passes on it (no full prediction) only when it reaches the risk; otherwise the full prediction
-decides, as before.
+minus Hunter's tree bound on their conditional failures (each face's events chained in time;
+the conditional correlations are run-independent too) bounds that from below. A check passes on
+it (no full prediction) only when it reaches the risk; otherwise the full prediction decides,
+as before.
 
 How it relates to the full check
 --------------------------------
 With constant sensor noise and no clipping the loop is exactly linear-Gaussian and the Kalman
-belief is a sufficient statistic: the conditional above *is* the full check's model, and
-``vouch <= full bound`` (Boole's sum is at least Hunter's on the same witness; the full check
-takes the best of its witnesses). With a state-dependent sensor or a clipped input the full
-check re-linearises around the run's own predicted path, the vouch keeps the plan's
-linearisation (conditioned on the run's belief and, with ``filter_sensitivity``, its filter
-covariance's first-order deviation); the two are different approximations of the same model, and
-only a vouch at or above the risk skips the full prediction. Not vouched (the full check runs):
-a plan other than the one the run started with (an adopted re-plan solves a progressed formula),
-a control domain that is not a box (the Gaussian moments leave its projection out), a past
-witness event that failed on the executed belief, executed modes that left the plan's.
+belief is a sufficient statistic: the conditional above *is* the full check's model, and both
+are sound lower bounds of the same probability (they may differ by their witnesses: the full
+check takes the best of those it finds for the progressed formula). With a state-dependent
+sensor or a clipped input the full check re-linearises around the run's own predicted path, the
+vouch keeps the plan's linearisation (conditioned on the run's belief and, with
+``filter_sensitivity``, its filter covariance's first-order deviation); the two are different
+approximations of the same model, and only a vouch at or above the risk skips the full
+prediction. Not vouched (the full check runs): a plan other than the one the run started with
+(an adopted re-plan solves a progressed formula), a control domain that is not a box (the
+Gaussian moments leave its projection out), a past witness event that failed on the executed
+belief, executed modes that left the plan's.
 """
 
 from __future__ import annotations
@@ -53,7 +55,13 @@ import numpy as np
 from ..belief import GaussianBelief
 from ..closed_loop import ClosedLoopMoments, prob_le
 from ..executor import ExecutorSpec
-from ..executor.success_bound import mode_truth, stack_faces, success_bound
+from ..executor.success_bound import (
+    _standardised,
+    bivariate_normal_cdf,
+    mode_truth,
+    stack_faces,
+    success_bound,
+)
 from ..formulas import FALSE, TRUE, STLAtomicProposition, STLFormula
 from ..semantics import atom_margins
 from ..trajectory import ProbabilisticTSTrajectory
@@ -64,6 +72,8 @@ __all__ = ["CheckReference", "check_reference", "vouched_runs"]
 logger = logging.getLogger(__name__)
 
 _READINGS = ("belief", "state")
+_SLACK = 1e-9
+"""Subtracted from every bivariate probability (numerical safety, as the full bound's)."""
 _RCOND = 1e-10
 """Relative cut-off of the pseudo-inverse of the observed coordinates' covariance (at step 0
 ``eta`` is deterministic: its covariance is 0 and the conditional is the plain prediction)."""
@@ -74,11 +84,38 @@ class _StepGains:
     """One reading's conditional at plan step ``j``: the witness events at steps ``> j``.
 
     ``mu`` (E,) their unconditional means, ``gain`` (E, d) the map from the observed deviation
-    ``o - m_o`` to the shift of their means, ``sd`` (E,) their conditional spreads."""
+    ``o - m_o`` to the shift of their means, ``sd`` (E,) their conditional spreads; ``first``,
+    ``second`` (P,) the pairs of Hunter's tree (each face's events chained in time) and ``rho``
+    (P,) their conditional correlations (like the spreads, independent of the run)."""
 
     mu: np.ndarray
     gain: np.ndarray
     sd: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+    rho: np.ndarray
+
+    def failure(self, dev: np.ndarray, enough: float = 0.0) -> np.ndarray:
+        """Hunter's bound on the probability that some event fails, given the observed
+        deviation ``dev`` (d,) or (S, d); shape () or (S,). Where Boole's sum is already at
+        most ``enough`` it is returned instead (the pairs' bivariate probabilities cost most)."""
+        mu = self.mu + dev @ self.gain.T
+        p = 1.0 - prob_le(mu, self.sd)
+        total = np.asarray(p.sum(axis=-1), dtype=float)
+        if self.first.size:
+            need = total > enough
+            if np.any(need):
+                rows = (mu[need], p[need]) if mu.ndim == 2 else (mu, p)
+                t = _standardised(rows[0], self.sd)
+                i, j = self.first, self.second
+                both = bivariate_normal_cdf(t[..., i], t[..., j], self.rho)
+                q = rows[1]
+                both = np.maximum(0.0, np.minimum(both - _SLACK, np.minimum(q[..., i], q[..., j])))
+                if mu.ndim == 2:
+                    total[need] -= both.sum(axis=-1)
+                else:
+                    total = total - both.sum(axis=-1)
+        return np.asarray(np.clip(total, 0.0, 1.0))
 
 
 @dataclass(frozen=True)
@@ -114,7 +151,9 @@ class CheckReference:
     past: dict[str, list[tuple[int, int]]]
     aps: list[STLAtomicProposition]
 
-    def vouch(self, executed: ProbabilisticTSTrajectory, belief: GaussianBelief, on: str) -> float:
+    def vouch(
+        self, executed: ProbabilisticTSTrajectory, belief: GaussianBelief, on: str, risk: float = 1.0
+    ) -> float:
         """A lower bound on the rest of the plan's success from execution step ``k`` (module
         notes), or NaN when it cannot be given.
 
@@ -126,6 +165,9 @@ class CheckReference:
             The current belief ``X_k`` (mean (n,), covariance (n, n)).
         on : {"belief", "state", "both"}
             Whose success (the policy's ``risk_on``).
+        risk : float
+            The value that is enough: where Boole's sum already reaches it, that sum (a lower
+            bound of Hunter's) is returned instead (1: Hunter's bound always).
 
         Returns
         -------
@@ -158,8 +200,7 @@ class CheckReference:
             g = self.gains[r][k]
             if g is None:
                 return math.nan
-            fail = float(np.sum(1.0 - prob_le(g.mu + g.gain @ dev, g.sd)))
-            value = min(value, max(0.0, 1.0 - fail))
+            value = min(value, 1.0 - float(g.failure(dev, 1.0 - risk)))
         return value
 
 
@@ -171,14 +212,26 @@ def _conditional_gains(
     (L, F): their means)."""
     L = loop.mean.shape[0]
     by_step: dict[int, list[int]] = {}
-    for f, t in events:
+    for f, t in sorted(set(events), key=lambda e: (e[1], e[0])):
         by_step.setdefault(t, []).append(f)
+    cross: dict[tuple[int, int, int], float] = {}
+
+    def unconditional(f: int, t1: int, t2: int) -> float:
+        """Cov(a_t1' z_t1, a_t2' z_t2) = a_t2' F_{t2-1} ... F_t1 Cov(z_t1) a_t1 (run-independent)."""
+        key = (f, t1, t2)
+        if key not in cross:
+            vec = loop.cov[t1] @ a[t1, f]
+            for s in range(t1, t2):
+                vec = loop.F[s] @ vec
+            cross[key] = float(a[t2, f] @ vec)
+        return cross[key]
+
     out: list[_StepGains | None] = [None] * L
     for j in range(1, L - 1):
         S = loop.cov[j]
         Soo_pinv = np.linalg.pinv(S[n:, n:], rcond=_RCOND, hermitian=True)
         M = S[:, n:]  # Cov(z_t, o_j), propagated: Cov(z_{t+1}, o_j) = F_t Cov(z_t, o_j)
-        mus, gains, sds = [], [], []
+        mus, Cs, Ws, sds, faces_of, steps_of = [], [], [], [], [], []
         for t in range(j + 1, L):
             M = loop.F[t - 1] @ M
             faces = by_step.get(t)
@@ -188,15 +241,40 @@ def _conditional_gains(
             C = A @ M  # (e, d): Cov(face_t, o_j)
             W = C @ Soo_pinv
             var = np.einsum("ei,ij,ej->e", A, loop.cov[t], A)
-            cvar = np.maximum(var - np.einsum("ed,ed->e", W, C), 0.0)
+            sds.append(np.sqrt(np.maximum(var - np.einsum("ed,ed->e", W, C), 0.0)))
             mus.append(mu[t, faces])
-            gains.append(W)
-            sds.append(np.sqrt(cvar))
+            Cs.append(C)
+            Ws.append(W)
+            faces_of.extend(faces)
+            steps_of.extend([t] * len(faces))
         d = S.shape[0] - n
+        if not mus:
+            z = np.zeros(0)
+            out[j] = _StepGains(z, np.zeros((0, d)), z, z.astype(int), z.astype(int), z)
+            continue
+        sd, C_all, W_all = np.concatenate(sds), np.vstack(Cs), np.vstack(Ws)
+        faces_arr, steps_arr = np.array(faces_of), np.array(steps_of)
+        order = np.lexsort((steps_arr, faces_arr))  # each face's events in time order
+        same = faces_arr[order[:-1]] == faces_arr[order[1:]]
+        i1, i2 = order[:-1][same], order[1:][same]
+        denom = sd[i1] * sd[i2]
+        keep = denom > 0
+        i1, i2, denom = i1[keep], i2[keep], denom[keep]
+        unc = np.array(
+            [
+                unconditional(int(faces_arr[a_]), int(steps_arr[a_]), int(steps_arr[b_]))
+                for a_, b_ in zip(i1, i2, strict=True)
+            ]
+        )
+        cov = unc - np.einsum("pd,pd->p", W_all[i1], C_all[i2]) if i1.size else np.zeros(0)
+        first, second, rho = i1, i2, np.clip(cov / denom, -1.0, 1.0) if i1.size else np.zeros(0)
         out[j] = _StepGains(
-            np.concatenate(mus) if mus else np.zeros(0),
-            np.vstack(gains) if gains else np.zeros((0, d)),
-            np.concatenate(sds) if sds else np.zeros(0),
+            np.concatenate(mus),
+            W_all,
+            sd,
+            np.array(first, dtype=int),
+            np.array(second, dtype=int),
+            np.array(rho, dtype=float),
         )
     return out
 
@@ -383,8 +461,7 @@ def vouched_runs(
             g = ref.gains[r][k]
             if g is None:
                 return np.zeros(S, dtype=bool)
-            fail = np.sum(1.0 - prob_le(g.mu[None] + dev @ g.gain.T, g.sd[None]), axis=1)
-            value = np.minimum(value, np.maximum(0.0, 1.0 - fail))
+            value = np.minimum(value, 1.0 - g.failure(dev, 1.0 - policy.risk))
             value = np.where(first_fail[r] <= k, math.nan, value)
         ok &= (value >= policy.risk) & (value > 0.0)
     return ok
