@@ -45,8 +45,11 @@ class ReplanPolicy:
     every : int
         ``"every"``: re-solve every this many executed steps (>= 1).
     check_every : int or None
-        ``"on_risk"``: predict every this many executed steps (>= 1). A prediction costs about
-        five executions of the remaining plan (0.1 s for an 82-step light-dark plan). ``None``:
+        ``"on_risk"``: predict every this many executed steps (>= 1). A check first conditions
+        the plan's own prediction (made once per plan, shared by the runs) on the run's belief
+        (tens of microseconds, :mod:`idstlpy.execution.vouch`; without ``drift`` and with
+        ``risk_measure="bound"``) and predicts the remaining plan only when that falls short of
+        ``risk`` (about five executions of it: 0.1 s for an 82-step light-dark plan). ``None``:
         no scheduled check; only the drift test and the start check decide.
     drift : float in (0, 1), optional
         ``"on_risk"``: also predict at any step at which the executed belief's mean lies outside
