@@ -430,7 +430,9 @@ def fitted_weights(
     regions the formula uses (0 for a coordinate no region bounds), ``R_jj = 1 / r_j^2`` with
     ``r_j`` the control domain's half-width along input ``j`` (where the domain is unbounded
     along ``j``: the input that moves a bounded coordinate by its ``d_i`` in one step,
-    ``min_i d_i / |B_ij|`` over the modes); ``Q_final = Q`` and the paper's horizon 5.
+    ``min_i d_i / |B_ij|`` over the modes); ``Q_final = Q`` and the paper's horizon 5. All three
+    are then divided by ``max_j R_jj`` (the gains are the same; the weights stay well scaled in
+    any units).
 
     Parameters
     ----------
@@ -473,8 +475,12 @@ def fitted_weights(
         if not reach:
             return None
         half_u[j] = min(reach)
-    Q = np.diag(q)
-    return {"horizon": DEFAULT_LQR["horizon"], "Q_final": Q, "Q": Q.copy(), "R": np.diag(1.0 / half_u**2)}
+    # Bryson's weights carry the problem's units (1e-12 for inputs of 1e6); the LQR gains do not
+    # change when Q, Q_final and R are scaled together, so R's largest entry is set to 1
+    r = 1.0 / half_u**2
+    scale = 1.0 / float(np.max(r))
+    Q = np.diag(q * scale)
+    return {"horizon": DEFAULT_LQR["horizon"], "Q_final": Q, "Q": Q.copy(), "R": np.diag(r * scale)}
 
 
 def make_tracking(system: SwitchedSystem, name: str, weights: Mapping[str, Any] | None) -> TrackingGains:
