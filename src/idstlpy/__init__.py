@@ -93,7 +93,15 @@ from .sets import (
     Polytope,
 )
 from .syntax import FormulaSyntaxError, parse_formula
-from .synthesis import Problem, SolveResult, SolverOptions, SolveStats, Termination, load_result
+from .synthesis import (
+    Problem,
+    SearchProgress,
+    SolveResult,
+    SolverOptions,
+    SolveStats,
+    Termination,
+    load_result,
+)
 from .trajectory import ProbabilisticTSTrajectory, RealTrajectory
 
 _logging.getLogger(__name__).addHandler(_logging.NullHandler())
@@ -160,6 +168,7 @@ __all__ = [
     "SolveResult",
     "SolverOptions",
     "Termination",
+    "SearchProgress",
     "load_result",
     "SolveStats",
     # execution

@@ -34,6 +34,7 @@ from ..formulas import STLAtomicProposition
 from ..sets import Polytope
 from ..syntax import RESERVED_NAMES, FormulaSyntaxError, parse_formula
 from ..synthesis import Problem, SolverOptions
+from ..synthesis.options import CODE_ONLY_OPTIONS
 from . import schema as sc
 from .grammar import ExpressionError, NoiseExpression, linear_predicates, parse_tree
 from .locations import Context, FieldPath
@@ -125,7 +126,11 @@ def solver_parameters() -> dict[str, tuple[Any, str]]:
     dict
         ``name -> (default, type text)``, e.g. ``"seed" -> (None, "int | None")``.
     """
-    return {f.name: (f.default, str(f.type)) for f in dataclasses.fields(SolverOptions)}
+    return {
+        f.name: (f.default, str(f.type))
+        for f in dataclasses.fields(SolverOptions)
+        if f.name not in CODE_ONLY_OPTIONS
+    }
 
 
 def build(spec: SpecData) -> BuiltProblem:

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..execution import validation as _validation
-from ..synthesis.options import SolverOptions
+from ..synthesis.options import CODE_ONLY_OPTIONS, SolverOptions
 from .locations import Context, FieldPath, scan_lines
 
 __all__ = [
@@ -108,7 +108,9 @@ def section_keys() -> dict[str, tuple[str, ...]]:
         "[control_domain]": CONTROL_DOMAIN_KEYS,
         "[initial_belief]": INITIAL_BELIEF_KEYS,
         "[propositions.NAME]": PROPOSITION_KEYS,
-        "[solver]": tuple(f.name for f in dataclasses.fields(SolverOptions)),
+        "[solver]": tuple(
+            f.name for f in dataclasses.fields(SolverOptions) if f.name not in CODE_ONLY_OPTIONS
+        ),
         "[execution]": EXECUTION_KEYS,
         "[[execution.real_system]]": MODE_KEYS,
         "[execution.lqr]": LQR_KEYS,

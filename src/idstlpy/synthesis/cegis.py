@@ -410,11 +410,10 @@ def _stop(ctx: SolveContext) -> str | None:
     """Why the search stops before the next candidate (the termination's work, or the search
     after a plan below target), or ``None``."""
     ctx.budget.check("the proposer / teacher loop")
-    termination, stats = ctx.options.termination, ctx.stats
-    spent = termination.work_done(stats.candidates, stats.lp_calls)
+    spent = ctx.work_stop()
     if spent is not None:
         return f"{spent}; {ctx.counts()}"
-    spent = ctx.target.stop_reason(stats.candidates)
+    spent = ctx.target.stop_reason(ctx.stats.candidates)
     if spent is not None:
         return f"{spent} after a plan below target; {ctx.counts()}"
     return None

@@ -28,6 +28,7 @@ from .interfaces import Budget
 from .options import SolverOptions
 from .plan_lp import Scaling, lp_exact
 from .results import PredictedExecution, SolveStats
+from .termination import SearchProgress
 from .tracking_choice import tracking_candidates
 
 if TYPE_CHECKING:
@@ -185,6 +186,24 @@ class SolveContext:
         """The candidates so far, as a reason's tail."""
         s = self.stats
         return f"{s.candidates} candidates: {s.refuted} refuted by proofs, {s.abandoned} abandoned"
+
+    def work_stop(self) -> str | None:
+        """Why the termination ends the search here (a work budget, then a stop rule: a user
+        predicate or a cancellation, which ``caps_hit`` then names), or ``None``. Checked
+        before each candidate (and each round of the joint MILP)."""
+        termination, s = self.options.termination, self.stats
+        spent = termination.work_done(s.candidates, s.lp_calls)
+        if spent is not None or not termination.rules:
+            return spent
+        progress = SearchProgress(
+            s.candidates, s.lp_calls, s.milp_calls, s.refuted, s.abandoned, self.budget.elapsed()
+        )
+        held = termination.rule_reached(progress)
+        if held is None:
+            return None
+        if held.cap is not None and held.cap not in s.caps_hit:
+            s.caps_hit.append(held.cap)
+        return held.reason
 
 
 class TargetWatch:

@@ -219,7 +219,7 @@ class EagerMILP:
         rounds = 0
         while True:
             ctx.budget.check("the joint MILP")
-            spent = ctx.options.termination.work_done(stats.candidates, stats.lp_calls)
+            spent = ctx.work_stop()
             if spent is not None:  # the work budget counts the plans the joint MILP hands the LP
                 return EagerEnd("budget_exhausted", f"{spent}; {ctx.counts()}")
             if rounds >= JOINT_ROUNDS:

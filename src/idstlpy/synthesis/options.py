@@ -28,7 +28,7 @@ from .._checks import as_float, as_int
 from ..backends import available_backends, default_milp_backend
 from ..errors import InvalidArgumentError, InvalidTypeError, OutOfRangeError
 from ..execution_target import DEFAULT_EXECUTION_TARGET, ExecutionTarget, as_execution_target
-from .termination import Termination
+from .termination import StopRule, Termination
 
 __all__ = [
     "DEFAULT_RRT_TIMEOUT",
@@ -84,8 +84,12 @@ given, is this many times ``rrt_timeout`` (the paper's only time: 600 s for its 
 
 _MAX_SEED = 2**63 - 1
 
+CODE_ONLY_OPTIONS = frozenset({"stop_rules"})
+"""Options a problem file cannot hold (callables and thread flags: :meth:`Termination.when`,
+:meth:`Termination.cancellable`); ``[solver]`` accepts every other field."""
+
 # The flat keywords a Termination stands for (make / with_ expand `termination=` into them).
-_TERMINATION_KEYWORDS = ("time_limit", "max_candidates", "max_lp_calls", "first_found")
+_TERMINATION_KEYWORDS = ("time_limit", "max_candidates", "max_lp_calls", "first_found", "stop_rules")
 
 
 def sat_backends() -> list[str]:
@@ -344,11 +348,15 @@ class SolverOptions:
         Stop before the next candidate once this many LPs were solved (a work budget).
     first_found : bool
         Stop at the first verified plan (see :class:`Termination`).
+    stop_rules : tuple of StopRule
+        A :class:`Termination`'s predicates, cancellations and ``&`` compositions
+        (:meth:`Termination.when`, :meth:`Termination.cancellable`), checked before each
+        candidate; set through ``termination=``.
 
     Notes
     -----
-    ``time_limit``, ``max_candidates``, ``max_lp_calls`` and ``first_found`` are the keywords of
-    one :class:`Termination` (:attr:`termination`); :meth:`make` and :meth:`with_` (and so
+    ``time_limit``, ``max_candidates``, ``max_lp_calls``, ``first_found`` and ``stop_rules`` are
+    the keywords of one :class:`Termination` (:attr:`termination`); :meth:`make` and :meth:`with_` (and so
     ``problem.solve``) also take it whole, as ``termination=``. Each part of the solver reads its
     group: :attr:`sampler`, :attr:`search`, :attr:`eager`, :attr:`objectives`, :attr:`target`.
     """
@@ -380,6 +388,7 @@ class SolverOptions:
     milp_backend: str = "auto"
     max_lp_calls: int | None = None
     first_found: bool = False
+    stop_rules: tuple[StopRule, ...] = ()
 
     def __post_init__(self) -> None:
         put = object.__setattr__
@@ -438,6 +447,8 @@ class SolverOptions:
         if not isinstance(self.first_found, bool | np.bool_):
             raise InvalidTypeError(f"first_found must be a bool, got {type(self.first_found).__name__}")
         put(self, "first_found", bool(self.first_found))
+        # Validated as a Termination's rules are (one place says what a stop rule is).
+        put(self, "stop_rules", Termination(rules=self.stop_rules).rules)
 
     @classmethod
     def make(cls, **kw: Any) -> SolverOptions:
@@ -448,7 +459,7 @@ class SolverOptions:
         **kw
             Option name to value: any of the class's parameters (see :class:`SolverOptions`),
             or ``termination``: a :class:`Termination` standing for ``time_limit``,
-            ``max_candidates``, ``max_lp_calls`` and ``first_found``.
+            ``max_candidates``, ``max_lp_calls``, ``first_found`` and ``stop_rules``.
 
         Returns
         -------
@@ -510,8 +521,10 @@ class SolverOptions:
     @cached_property
     def termination(self) -> Termination:
         """When the solve stops: its clock (:attr:`total_time_cap`, always set), its work
-        budgets (``max_candidates``, ``max_lp_calls``) and ``first_found``."""
-        return Termination(self.total_time_cap, self.max_candidates, self.max_lp_calls, self.first_found)
+        budgets (``max_candidates``, ``max_lp_calls``), ``first_found`` and its ``stop_rules``."""
+        return Termination(
+            self.total_time_cap, self.max_candidates, self.max_lp_calls, self.first_found, self.stop_rules
+        )
 
     @cached_property
     def sampler(self) -> SamplerOptions:
