@@ -183,7 +183,7 @@ def test_a_composed_plan_that_fails_the_final_check_goes_to_the_joint_search(mon
         decoupled, "_hold_input", lambda mode, dom, block, mean: np.full(block.inputs.size, 5.0)
     )
     problem = _two_robots(RobotsLight(2, a=0.01, b=0.05), "one")
-    with caplog.at_level("INFO", logger="idstlpy.synthesis.cegis"):
+    with caplog.at_level("INFO", logger="idstlpy.synthesis.pipeline"):
         result = problem.solve_result(seed=3, **BUDGET)
     assert "independent blocks" not in result.reason
     assert any("composed plan failed the final check" in r.getMessage() for r in caplog.records)

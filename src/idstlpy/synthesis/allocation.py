@@ -61,7 +61,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "NO_PROOF",
-    "after_solve",
     "proportional_shares",
     "reallocate",
     "refine_allocation",
@@ -355,29 +354,3 @@ def search_allocation(
             ),
         )
     return result
-
-
-def after_solve(
-    problem: Problem,
-    options: SolverOptions,
-    start: float,
-    result: SolveResult,
-    solve: Callable[[Problem, SolverOptions, float], SolveResult],
-) -> SolveResult:
-    """What a solve with joint chance constraints does after the CEGIS loop.
-
-    A found plan gets one round of risk re-allocation (:func:`refine_allocation`); any other
-    result is tried on the necessary relaxation and other allocations (:func:`search_allocation`).
-
-    Parameters
-    ----------
-    problem, options, start, result, solve
-        As in :func:`refine_allocation`.
-
-    Returns
-    -------
-    SolveResult
-    """
-    if result.status == "found":
-        return refine_allocation(problem, options, start, result, solve)
-    return search_allocation(problem, options, start, result, solve)

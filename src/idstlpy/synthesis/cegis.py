@@ -54,29 +54,24 @@ from __future__ import annotations
 
 import functools
 import logging
-import time
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .. import _deadline as deadline
 from ..backends import Backend, get_backend
 from ..belief import rollout
 from ..semantics import robustness
-from ..tracking import planning_gains
 from ..trajectory import ProbabilisticTSTrajectory
 from . import eager, stopped
 from .abstraction import PruningReport
 from .certify import Certified, certify
 from .context import BELOW_TARGET_SEARCHED, SolveContext, Verified
-from .decoupled import solve_decoupled
 from .eager import EagerEnd, EagerMILP, EagerPlan
 from .final_check import final_check
 from .finish import finish
 from .interfaces import BudgetExceeded, Found, Proposer, ProposerDry, Refuted, Teacher, Unknown, Verdict
 from .optimise import optimise
-from .options import SolverOptions
 from .plan import DiscretePlan
 from .plan_lp import PlanLPContext
 from .proofs import uncertified_certificate
@@ -86,9 +81,9 @@ from .sampler_teacher import SamplerTeacher
 from .teacher import LPTeacher
 
 if TYPE_CHECKING:
-    from ..problem import Problem
+    pass
 
-__all__ = ["synthesize"]
+__all__ = ["search", "verify"]
 
 logger = logging.getLogger(__name__)
 
@@ -98,60 +93,9 @@ _check = final_check
 """The final check under the name tests use."""
 
 
-def synthesize(problem: Problem, options: SolverOptions, start: float | None = None) -> SolveResult:
-    """Run the CEGIS loop on ``problem`` (see the module docstring).
-
-    Parameters
-    ----------
-    problem : Problem
-    options : SolverOptions
-    start : float, optional
-        ``time.perf_counter()`` at the first line of ``solve``: the wall-clock cap counts from it.
-
-    Returns
-    -------
-    SolveResult
-    """
-    ctx = SolveContext(problem, options, time.perf_counter() if start is None else start)
-    base = ctx.target.tracking[0] if ctx.target.tracking else None
-    # every closed-loop reading of the solve (predictions, execution room, repair) sees the
-    # fitted gains; the returned plan carries them (finish)
-    # The deadline reaches the loops below the synthesis (the predicted executions) through the
-    # scope; the parts that take the budget check it themselves.
-    with deadline.scope(ctx.budget.deadline), planning_gains(problem.switched_system, base):
-        try:
-            composed = _decoupled(ctx)
-            if composed is not None:
-                return composed
-            return _loop(ctx)
-        except BudgetExceeded as exc:
-            if "time_limit" not in ctx.stats.caps_hit:
-                ctx.stats.caps_hit.append("time_limit")
-            cap = f"time limit of {options.total_time_cap:.3g} s"
-            when = f"{cap} reached during {exc.where}"
-            if exc.ahead:
-                when = f"{cap} nearly reached during {exc.where}: {exc.ahead} would not fit in the time left"
-            return finish(ctx, "budget_exhausted", f"{when}; {ctx.counts()}")
-
-
-def _decoupled(ctx: SolveContext) -> SolveResult | None:
-    """Independent blocks planned one by one (:mod:`.decoupled`); the composed plan must pass the
-    verify step (:func:`_verify`: under ``"execution"`` the target too, or it is set aside), else
-    ``None`` and the joint loop runs."""
-    if ctx.options.objective is not None or ctx.closed_loop:
-        return None
-    plan = solve_decoupled(ctx.problem, ctx.options, ctx.budget, ctx.stats, synthesize)
-    if plan is None:
-        return None
-    checked = _verify(ctx, plan.actions, plan.controls)
-    if checked is None:
-        logger.info("decoupled: the composed plan failed the final check; searching the joint problem")
-        return None
-    return finish(ctx, "found", f"{plan.how}; the monitor agrees", checked)
-
-
-def _loop(ctx: SolveContext) -> SolveResult:
-    """Set up the parts (proposer, teachers, eager MILP) and run the search."""
+def search(ctx: SolveContext) -> SolveResult:
+    """The pipeline's search stage (:mod:`.pipeline`): set up the parts (proposer, teachers,
+    eager MILP) and run the loop (:func:`_search`)."""
     backend = get_backend(ctx.options.lp_backend)
     system = ctx.problem.switched_system
     proposer: Proposer = BMCProposer(
@@ -167,7 +111,7 @@ def _loop(ctx: SolveContext) -> SolveResult:
     try:
         teachers = _teachers(ctx, proposer, backend)
         exact = any(teacher.exact(ctx.problem) for teacher in teachers)
-        verify = functools.partial(_verify, ctx)
+        check = functools.partial(verify, ctx)
         options = ctx.options
         # Several modes, the covariance fixed by the modes: the joint MILP chooses them (issue
         # 31). Not under guarantee="mlo" (the paper's loop, bit for bit) nor "closed_loop", and
@@ -182,7 +126,7 @@ def _loop(ctx: SolveContext) -> SolveResult:
         milp = EagerMILP(
             ctx,
             proposer,
-            verify,
+            check,
             enabled=exact and system.num_modes == 1,
             joint=joint,
             teacher=teachers[0] if isinstance(teachers[0], LPTeacher) else None,
@@ -306,7 +250,7 @@ def _search(
             continue
         if isinstance(verdict, Found):  # verify
             set_aside = stats.below_target
-            checked = _verify(ctx, verdict.actions, verdict.controls)
+            checked = verify(ctx, verdict.actions, verdict.controls)
             below = stats.below_target > set_aside
             if below:
                 for teacher in teachers:
@@ -366,7 +310,7 @@ def _rederive(
                 _block(ctx, proposer, proposal, verdict)
                 continue
             if isinstance(verdict, Found):
-                checked = _verify(ctx, verdict.actions, verdict.controls)
+                checked = verify(ctx, verdict.actions, verdict.controls)
                 if checked is not None:
                     logger.warning("the eager MILP said infeasible, but the lazy loop found a verified plan")
                     how = (
@@ -483,7 +427,7 @@ def _unverified(ctx: SolveContext, below: bool) -> str:
     return "the plan failed the monitor's exact re-check"
 
 
-def _verify(ctx: SolveContext, actions: np.ndarray, controls: np.ndarray) -> Verified | None:
+def verify(ctx: SolveContext, actions: np.ndarray, controls: np.ndarray) -> Verified | None:
     """The verify step: re-roll the exact belief dynamics and run the final check
     (:func:`~.final_check.final_check`); the plan and its margin if it passes.
 

@@ -116,7 +116,7 @@ class Verified(NamedTuple):
 
 
 Verify = Callable[[np.ndarray, np.ndarray], Verified | None]
-"""The loop's verify step for a plan's modes and controls (``cegis._verify``), as the parts that
+"""The loop's verify step for a plan's modes and controls (``cegis.verify``), as the parts that
 verify plans of their own (the eager MILP) are handed it."""
 
 

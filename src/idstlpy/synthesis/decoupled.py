@@ -387,7 +387,7 @@ def solve_decoupled(
     stats : SolveStats
         The solve's statistics: every block's work is added to it.
     synthesize : callable
-        ``synthesize(problem, options, start) -> SolveResult`` (:func:`.cegis.synthesize`).
+        ``synthesize(problem, options, start) -> SolveResult`` (:func:`.pipeline.core`).
 
     Returns
     -------

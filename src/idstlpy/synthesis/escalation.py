@@ -112,24 +112,27 @@ def closed_loop_fallback(
     problem: Problem,
     options: SolverOptions,
     start: float,
-    solve: Callable[[], SolveResult],
+    first: SolveResult,
+    held: list[warnings.WarningMessage],
     synthesize: Callable[[Problem, SolverOptions, float], SolveResult],
 ) -> SolveResult:
-    """Run ``solve`` and, when the default guarantee could only return a plan below target, try
-    one closed-loop solve in the time left.
+    """When the default guarantee could only return a plan below target, try one closed-loop
+    solve in the time left (the pipeline's last stage, :mod:`.pipeline`).
 
     Parameters
     ----------
     problem : Problem
     options : SolverOptions
-        The options of the solve (``guarantee="execution"`` enables the fallback, unless its
-        termination stops at the first verified plan).
+        The options of the solve (``guarantee="execution"``, not ``first_found``: the pipeline
+        runs this stage only then).
     start : float
         ``time.perf_counter()`` at the first line of ``solve``: both solves share one time cap.
-    solve : callable () -> SolveResult
-        The first solve (warnings it issues are held until the answer is known).
+    first : SolveResult
+        The answer of the stages before.
+    held : list of warnings.WarningMessage
+        The warnings those stages issued, held until the answer is known and issued again here.
     synthesize : callable (problem, options, start) -> SolveResult
-        The solver, called with ``guarantee="closed_loop"`` for the fallback.
+        The solver (:func:`.pipeline.core`), called with ``guarantee="closed_loop"``.
 
     Returns
     -------
@@ -137,11 +140,7 @@ def closed_loop_fallback(
         The closed-loop plan when it satisfies the formula under the paper's semantics and meets
         the execution target; the first result otherwise. Its statistics count both solves.
     """
-    if options.target.guarantee != "execution" or options.termination.first_found:
-        return solve()  # first_found: the first verified plan is the answer, no second search
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        first = solve()
+    caught = held
     below = first.status == "found" and first.meets_target is False
     left = options.total_time_cap - (time.perf_counter() - start)
     if not below:

@@ -70,7 +70,8 @@ def after_switching(problem: Problem, options: SolverOptions, result: SolveResul
             f"; the bound does not prove the execution target ({target.belief:g} belief, "
             f"{target.state:g} state)"
         )
-        warnings.warn(ExecutionTargetWarning(summary), stacklevel=4)
+        # (at the caller of Problem.solve: pipeline.solve and its stage add two frames)
+        warnings.warn(ExecutionTargetWarning(summary), stacklevel=6)
     if bound.note:
         summary += f"; {bound.note}"
     logger.info("%s", summary)

@@ -11,21 +11,18 @@ import time
 from typing import Any
 
 from ..errors import InvalidTypeError
-from ..markov import switching_of
 from ..problem import Problem, register_solver
-from .allocation import after_solve
-from .cegis import synthesize
-from .escalation import closed_loop_fallback
-from .markov_plan import after_switching
 from .options import SolverOptions
+from .pipeline import solve as run_pipeline
 from .results import SolveResult
 
 __all__ = ["Problem", "solve"]
 
 
 def solve(problem: Problem, options: SolverOptions | None = None, /, **overrides: Any) -> SolveResult:
-    """Solve ``problem``: the CEGIS loop, then (joint chance constraints) the risk re-allocation,
-    then (only plans below target under the default guarantee) a closed-loop solve.
+    """Solve ``problem``: the stages of :data:`.pipeline.STAGES` in order (the decoupled blocks or
+    the CEGIS loop, then (joint chance constraints) the risk re-allocation, then (only plans below
+    target under the default guarantee) a closed-loop solve).
 
     Parameters
     ----------
@@ -54,17 +51,7 @@ def solve(problem: Problem, options: SolverOptions | None = None, /, **overrides
     else:
         raise InvalidTypeError(f"options must be a SolverOptions, got {type(options).__name__}")
 
-    def first() -> SolveResult:
-        result = synthesize(problem, opts, start)
-        if getattr(problem, "_joint", False):  # joint chance constraints (allocation.py)
-            result = after_solve(problem, opts, start, result, synthesize)
-        return result
-
-    # Under the default guarantee, a closed-loop solve when only plans below target were found.
-    result = closed_loop_fallback(problem, opts, start, first, synthesize)
-    if switching_of(problem.switched_system) is not None:  # chance switching (markov_plan.py)
-        result = after_switching(problem, opts, result)
-    return result
+    return run_pipeline(problem, opts, start)
 
 
 def _registered(problem: Problem, options: object | None, /, **overrides: Any) -> SolveResult:
