@@ -132,3 +132,12 @@ def test_an_uncancelled_token_changes_nothing():
     )
     assert with_token.reason == plain.reason
     assert with_token.stats.caps_hit == plain.stats.caps_hit
+
+
+def test_a_solve_cancelled_before_it_starts_proposes_nothing_and_starts_no_other_solve():
+    stop = Termination.cancellable()
+    stop.cancel()
+    result = corridor().solve_result(seed=0, termination=stop)
+    assert result.status == "budget_exhausted" and result.reason.startswith("cancelled")
+    assert result.stats.candidates == 0
+    assert result.stats.caps_hit == [CANCELLED]

@@ -26,6 +26,7 @@ from ..errors import ExecutionTargetWarning
 from ..semantics import robustness
 from .options import SolverOptions
 from .results import SolveResult, SolveStats
+from .termination import CANCELLED
 
 if TYPE_CHECKING:
     from ..problem import Problem
@@ -143,7 +144,7 @@ def closed_loop_fallback(
     caught = held
     below = first.status == "found" and first.meets_target is False
     left = options.total_time_cap - (time.perf_counter() - start)
-    if not below:
+    if not below or CANCELLED in first.stats.caps_hit:  # a cancelled solve starts no other
         _reissue(caught, keep_target_warning=True)
         return first
     if left <= 0:

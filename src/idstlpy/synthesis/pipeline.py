@@ -17,6 +17,8 @@ stages of one, and :func:`solve` walks them top to bottom:
 5. :class:`MarkovSwitching` (:mod:`.markov_plan`, only for a system with chance switching): the
    returned plan's bound under the switching; a result.
 
+A cancelled solve (:meth:`~.termination.Termination.cancellable`) runs neither stage 3 nor 4.
+
 Stages 1 and 2 share one :class:`~.context.SolveContext` (their statistics add up), one deadline
 scope and the tracking gains the solve plans with (:func:`~idstlpy.tracking.planning_gains`):
 the time limit, hit anywhere in them, ends the solve with the reason :func:`_timed_out` writes.
@@ -45,6 +47,7 @@ from .interfaces import BudgetExceeded
 from .markov_plan import after_switching
 from .options import SolverOptions
 from .results import SolveResult
+from .termination import CANCELLED
 
 if TYPE_CHECKING:
     from ..problem import Problem
@@ -191,7 +194,7 @@ def solve(problem: Problem, options: SolverOptions, start: float) -> SolveResult
 def _first(problem: Problem, options: SolverOptions, start: float) -> SolveResult:
     """Stages 1-3: the core, then (joint chance constraints) the risk allocation."""
     result = core(problem, options, start)
-    if ALLOCATION.applies(problem):
+    if ALLOCATION.applies(problem) and CANCELLED not in result.stats.caps_hit:
         result = ALLOCATION.run(problem, options, start, result)
     return result
 
