@@ -18,6 +18,7 @@ import pytest
 
 import idstlpy as stl
 from idstlpy.execution.validation import wilson_interval
+from idstlpy.synthesis import eager
 
 
 def _drive_look() -> stl.Problem:
@@ -65,6 +66,9 @@ def solved():
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(LPTeacher, "__init__", mlo_search)
+        # the joint MILP (issue 31) now finds this plan meeting the target; the fixture is the
+        # lazy loop alone, whose plan misses it, so the fallback is what is tested
+        patch.setattr(eager, "JOINT_MODES", False)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             result = problem.solve_result(seed=0)
@@ -130,10 +134,13 @@ def test_mlo_and_closed_loop_never_fall_back():
     assert mlo.guarantee == "mlo" and "guarantee='closed_loop'" not in mlo.reason
 
 
-def test_a_plan_left_below_target_warns_once_and_says_what_was_tried():
+def test_a_plan_left_below_target_warns_once_and_says_what_was_tried(monkeypatch):
     from benchmarks.defaults_problems import drive_look_noisy
 
     problem = drive_look_noisy()
+    # the joint MILP (issue 31) meets the target here (97.7% / 99.6% predicted); without it the
+    # lazy loop's plan falls short, which is the case this test is about
+    monkeypatch.setattr(eager, "JOINT_MODES", False)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = problem.solve_result(seed=0, time_limit=30)

@@ -109,7 +109,7 @@ def search(ctx: SolveContext) -> SolveResult:
     )
     ctx.remaining = functools.partial(stopped.remaining, ctx, proposer)
     try:
-        teachers = _teachers(ctx, proposer, backend)
+        teachers, lp_teacher = _teachers(ctx, proposer, backend)
         exact = any(teacher.exact(ctx.problem) for teacher in teachers)
         check = functools.partial(verify, ctx)
         options = ctx.options
@@ -129,7 +129,7 @@ def search(ctx: SolveContext) -> SolveResult:
             check,
             enabled=exact and system.num_modes == 1,
             joint=joint,
-            teacher=teachers[0] if isinstance(teachers[0], LPTeacher) else None,
+            teacher=lp_teacher,
         )
         return _search(ctx, proposer, teachers, milp)
     finally:
@@ -173,8 +173,12 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
     return report
 
 
-def _teachers(ctx: SolveContext, proposer: Proposer, backend: Backend) -> list[Teacher]:
-    """The plan LP, then (where it is not exact) the belief-space sampler."""
+def _teachers(
+    ctx: SolveContext, proposer: Proposer, backend: Backend
+) -> tuple[list[Teacher], LPTeacher]:
+    """The plan LP, then (where it is not exact) the belief-space sampler; and the plan LP teacher
+    itself, which the eager MILP times its plans with (handed over as built, not recognised by
+    its type among the loop's teachers)."""
     problem, options = ctx.problem, ctx.options
     target = options.execution_target if options.guarantee == "execution" else None
     # Under "execution" the plan LP searches as for the default plan (with the execution room):
@@ -201,7 +205,7 @@ def _teachers(ctx: SolveContext, proposer: Proposer, backend: Backend) -> list[T
         sampler = SamplerTeacher(problem, ctx.abstraction, proposer, options, ctx.units, seeds)
         if sampler.applies(problem):
             teachers.append(sampler)
-    return teachers
+    return teachers, lp
 
 
 def _search(
