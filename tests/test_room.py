@@ -85,7 +85,6 @@ def test_small_double_integrator_plan_holds_under_execution(seed):
     problem, _ = pp.build("double_integrator", "small")
     result = problem.solve_result(**suite.SAMPLER, seed=seed, time_limit=60)
     assert result.status == "found"
-    suite._gains(problem)
     report = stl.validate(
         problem,
         result.trajectory,
