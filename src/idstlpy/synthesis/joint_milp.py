@@ -34,7 +34,6 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from itertools import chain
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -46,7 +45,7 @@ from .bmc import BMCEncoder
 from .covariances import covariance_schedule, lp_exact
 from .interfaces import Budget
 from .milp_bounds import hard_steps, invariant_box, support, support_points
-from .milp_model import RowBlocks, exclusion_cliques
+from .milp_model import RowBlocks, clause_rows
 from .plan_lp import PlanLPContext
 
 if TYPE_CHECKING:
@@ -320,7 +319,7 @@ class JointSolver:
         ns = H * self.D
         nvar = nb + nx + nu + ns
         acc = RowBlocks()
-        _clauses(enc, nvar, acc)
+        clause_rows(enc, nvar, acc)
         # dynamics: x~_{k+1} - A~ x~_k - sum_b B~_b u~^b_k = [k = 0] A~ x~_0
         A = self.modes[0].A
         At = A * dx[None, :] / dx[:, None]
@@ -721,28 +720,3 @@ def _prod(M: np.ndarray, v: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         P = M * v[None, :]
     return np.asarray(np.where(M == 0, 0.0, P).sum(axis=1))
-
-
-def _clauses(enc: BMCEncoder, nvar: int, acc: RowBlocks) -> None:
-    """The encoding's clauses (proven and learnt) and exclusion cliques, as in the eager MILP."""
-    clauses, cliques = exclusion_cliques(enc.clauses + enc.learnt, enc.p)
-    if clauses:
-        lengths = np.fromiter(map(len, clauses), dtype=np.int64, count=len(clauses))
-        lits = np.fromiter(chain.from_iterable(clauses), dtype=np.int64, count=int(lengths.sum()))
-        rows_of = np.repeat(np.arange(len(clauses)), lengths)
-        negative = lits < 0
-        acc.add(
-            coo_matrix(
-                (np.where(negative, -1.0, 1.0), (rows_of, np.abs(lits) - 1)), shape=(len(clauses), nvar)
-            ).tocsr(),
-            1.0 - np.bincount(rows_of, weights=negative, minlength=len(clauses)),
-            np.full(len(clauses), np.inf),
-        )
-    if cliques:
-        r_idx = [r for r, group in enumerate(cliques) for _ in group]
-        c_idx = [v - 1 for group in cliques for v in group]
-        acc.add(
-            coo_matrix((np.ones(len(c_idx)), (r_idx, c_idx)), shape=(len(cliques), nvar)).tocsr(),
-            np.full(len(cliques), -np.inf),
-            np.ones(len(cliques)),
-        )

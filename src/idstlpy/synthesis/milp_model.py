@@ -171,7 +171,7 @@ def build_milp(spec: MILPSpec) -> MILPModel | str:
         return "idle steps cost input and the control domain is unbounded"
     cols = Columns(enc.num_vars, H * n, H * m, nt, na)
     acc = RowBlocks()
-    _clause_rows(enc, cols, acc)
+    clause_rows(enc, cols.nvar, acc)
     _plan_rows(rows, cols, acc)
     if na:
         big_u = np.tile(np.maximum(np.abs(low_u), np.abs(high_u)), H) if idle_costs else None
@@ -221,15 +221,15 @@ def build_milp(spec: MILPSpec) -> MILPModel | str:
     return MILPModel(model, cols, face_rows, t_cap, t_sound)
 
 
-def _clause_rows(enc: BMCEncoder, cols: Columns, acc: RowBlocks) -> None:
+def clause_rows(enc: BMCEncoder, nvar: int, acc: RowBlocks) -> None:
     """The clauses, and the pruning's exclusions as clique rows.
 
     ``l_1 | ... | l_r  ->  sum(pos) - sum(neg) >= 1 - |neg|``. The pairwise exclusions of the
     pruning (two disjoint propositions never hold at one step) become one row per clique of
     mutually exclusive propositions, ``sum(p) <= 1``: the same integer points, a tighter
     relaxation, and SCIP's presolve about twice as fast (SteppingStones: 2,860 pair rows -> 702).
+    ``nvar`` is the model's column count (the joint MILP's model shares the eager MILP's letters).
     """
-    nvar = cols.nvar
     clauses, cliques = exclusion_cliques(enc.clauses + enc.learnt, enc.p)
     if clauses:
         lengths = np.fromiter(map(len, clauses), dtype=np.int64, count=len(clauses))
