@@ -173,9 +173,7 @@ def _prune(ctx: SolveContext, backend: Backend) -> PruningReport:
     return report
 
 
-def _teachers(
-    ctx: SolveContext, proposer: Proposer, backend: Backend
-) -> tuple[list[Teacher], LPTeacher]:
+def _teachers(ctx: SolveContext, proposer: Proposer, backend: Backend) -> tuple[list[Teacher], LPTeacher]:
     """The plan LP, then (where it is not exact) the belief-space sampler; and the plan LP teacher
     itself, which the eager MILP times its plans with (handed over as built, not recognised by
     its type among the loop's teachers)."""
