@@ -68,8 +68,10 @@ def test_fitted_weights_on_an_unbounded_input_use_the_input_that_moves_a_state_b
     region = Polytope.box([-0.2, -1.0], [0.2, 1.0])
     w = fitted_weights(system, [region], None)
     assert w is not None
-    # x0's room 0.2 is moved by u = 0.2 / 0.5 = 0.4 in one step (x1 is not moved by u)
-    np.testing.assert_allclose(w["R"], [[1 / 0.4**2]])
+    # x0's room 0.2 is moved by u = 0.2 / 0.5 = 0.4 in one step (x1 is not moved by u): R = 1 / 0.4^2
+    # against Q_00 = 1 / 0.2^2, the weights divided by R's largest entry (the gains' scale-free form)
+    np.testing.assert_allclose(w["R"], [[1.0]])
+    np.testing.assert_allclose(w["Q"][0, 0], (1 / 0.2**2) / (1 / 0.4**2))
 
 
 def test_fitted_weights_are_none_without_a_bounded_coordinate():
